@@ -1,1 +1,210 @@
-fn main() {}
+//! `cargo xtask …`: the psneus runner (always built optimised through the cargo alias).
+//!
+//! Commands that exist today: `cameras`, `golden`, `inspect`. Training, sampling, evaluation and
+//! benchmarks arrive with their issues.
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand};
+use datasets::golden::{self, GeometrySource, GoldenSpec, rig::Rig};
+use datasets::io::PlyData;
+use datasets::{LoadOptions, read_cameras};
+use glam::{DVec2, DVec3};
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(name = "xtask", about = "psneus: neural implicit surfaces with a probability-guided sampler")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(clap::Args)]
+struct DataArgs {
+    /// Dataset folder (IDR/NeuS/DTU, NeRF-synthetic or instant-ngp layout).
+    #[arg(long)]
+    data: PathBuf,
+    /// Integer downscale factor (area average; intrinsics follow).
+    #[arg(long, default_value_t = 1)]
+    downscale: u32,
+    /// NeRF-synthetic split.
+    #[arg(long, default_value = "train")]
+    split: String,
+}
+
+impl DataArgs {
+    fn options(&self) -> LoadOptions {
+        LoadOptions { downscale: self.downscale, split: self.split.clone(), ..LoadOptions::default() }
+    }
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print every camera as JSON (K, world_from_camera in the normalised frame, centre, size) and
+    /// write a PLY of the camera frusta and the unit sphere.
+    Cameras {
+        #[command(flatten)]
+        data: DataArgs,
+        /// Where to write the PLY.
+        #[arg(long, default_value = "cameras.ply")]
+        ply: PathBuf,
+    },
+    /// Load a dataset fully (images and masks) and report what was loaded.
+    Inspect {
+        #[command(flatten)]
+        data: DataArgs,
+    },
+    /// Render a golden scene (known geometry) in the IDR layout.
+    Golden {
+        /// Analytic shape: sphere, torus, box, composite.
+        #[arg(long, conflicts_with = "mesh", required_unless_present = "mesh")]
+        shape: Option<String>,
+        /// Mesh file (OBJ with MTL texture, glTF, GLB).
+        #[arg(long)]
+        mesh: Option<PathBuf>,
+        /// Camera rig: dtu, sphere, random.
+        #[arg(long, default_value = "dtu")]
+        rig: String,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+        /// Number of views.
+        #[arg(long, default_value_t = 49)]
+        views: usize,
+        /// Image width.
+        #[arg(long, default_value_t = 400)]
+        width: u32,
+        /// Image height.
+        #[arg(long, default_value_t = 300)]
+        height: u32,
+        /// Seed.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Black background instead of the textured backdrop.
+        #[arg(long)]
+        no_backdrop: bool,
+        /// Also write a thumbnail grid of the views to this PNG.
+        #[arg(long)]
+        thumbnail: Option<PathBuf>,
+    },
+}
+
+fn main() -> Result<()> {
+    match Cli::parse().command {
+        Command::Cameras { data, ply } => cameras(&data, &ply),
+        Command::Inspect { data } => inspect(&data),
+        Command::Golden { shape, mesh, rig, out, views, width, height, seed, no_backdrop, thumbnail } => {
+            let geometry = match (shape, mesh) {
+                (Some(s), None) => GeometrySource::Shape(s),
+                (None, Some(m)) => GeometrySource::Mesh(m),
+                _ => bail!("give exactly one of --shape and --mesh"),
+            };
+            let rig = Rig::by_name(&rig).with_context(|| format!("unknown rig {rig:?} (dtu, sphere, random)"))?;
+            if views == 0 || width == 0 || height == 0 {
+                bail!("--views, --width and --height must be positive");
+            }
+            let mut spec = GoldenSpec::new(geometry);
+            spec.rig.rig = rig;
+            spec.rig.count = views;
+            spec.rig.width = width;
+            spec.rig.height = height;
+            spec.rig.seed = seed;
+            spec.backdrop = !no_backdrop;
+            let start = std::time::Instant::now();
+            let scene = golden::generate(&spec)?;
+            golden::write_idr(&scene, &out).with_context(|| format!("writing the golden scene to {}", out.display()))?;
+            if let Some(path) = thumbnail {
+                golden::thumbnail_grid(&scene.scene, 4, 2, 200).save_png(&path)?;
+            }
+            eprintln!(
+                "{}: {} views, {} surface points, written to {} in {:.1} s",
+                scene.scene.source.description,
+                scene.scene.views.len(),
+                scene.surface_points.len(),
+                out.display(),
+                start.elapsed().as_secs_f64()
+            );
+            Ok(())
+        }
+    }
+}
+
+fn cameras(data: &DataArgs, ply_path: &PathBuf) -> Result<()> {
+    let cams = read_cameras(&data.data, &data.options())?;
+    let mut list = Vec::new();
+    let mut ply = PlyData::default();
+    for record in &cams.records {
+        let c = &record.camera;
+        let world_from_camera = c.world_from_camera();
+        let r = world_from_camera.rotation;
+        let t = world_from_camera.translation;
+        let k = c.intrinsics;
+        list.push(serde_json::json!({
+            "name": record.name,
+            "width": c.width,
+            "height": c.height,
+            "K": [[k.fx, k.skew, k.cx], [0.0, k.fy, k.cy], [0.0, 0.0, 1.0]],
+            "world_from_camera": (0..4).map(|i| if i < 3 {
+                vec![r.col(0)[i], r.col(1)[i], r.col(2)[i], t[i]]
+            } else { vec![0.0, 0.0, 0.0, 1.0] }).collect::<Vec<_>>(),
+            "center": t.to_array(),
+            "distance_from_origin": t.length(),
+            "pixel_centers": format!("{:?}", c.pixel_centers),
+        }));
+        // Frustum: centre and the four image corners at depth 0.25 (normalised units).
+        let base = ply.positions.len() as u32;
+        ply.positions.push(t.as_vec3());
+        let (w, h) = (c.width as f64, c.height as f64);
+        for corner in [DVec2::new(0.0, 0.0), DVec2::new(w, 0.0), DVec2::new(w, h), DVec2::new(0.0, h)] {
+            ply.positions.push(c.world_from_pixel_space(corner.extend(0.25)).as_vec3());
+        }
+        for k in 0..4 {
+            ply.edges.push([base, base + 1 + k]);
+            ply.edges.push([base + 1 + k, base + 1 + (k + 1) % 4]);
+        }
+    }
+    // The unit sphere (region of interest): three great circles.
+    let segments = 96;
+    for axis in 0..3 {
+        let base = ply.positions.len() as u32;
+        for s in 0..segments {
+            let a = std::f64::consts::TAU * s as f64 / segments as f64;
+            let mut p = DVec3::ZERO;
+            p[(axis + 1) % 3] = a.cos();
+            p[(axis + 2) % 3] = a.sin();
+            ply.positions.push(p.as_vec3());
+            ply.edges.push([base + s, base + (s + 1) % segments]);
+        }
+    }
+    ply.colors = vec![[255, 255, 255]; ply.positions.len()];
+    ply.write(ply_path)?;
+    let m = cams.world_from_normalized;
+    let out = serde_json::json!({
+        "source": cams.source,
+        "world_from_normalized": (0..4).map(|r| (0..4).map(|c| m.col(c)[r]).collect::<Vec<_>>()).collect::<Vec<_>>(),
+        "cameras": list,
+        "ply": ply_path,
+    });
+    println!("{}", serde_json::to_string_pretty(&out)?);
+    Ok(())
+}
+
+fn inspect(data: &DataArgs) -> Result<()> {
+    let start = std::time::Instant::now();
+    let scene = datasets::load_scene(&data.data, &data.options())?;
+    let masks = scene.views.iter().filter(|v| v.mask.is_some()).count();
+    let fg: usize = scene.views.iter().filter_map(|v| v.mask.as_ref()).map(|m| m.count()).sum();
+    let px: usize = scene.views.iter().map(|v| (v.camera.width * v.camera.height) as usize).sum();
+    let first = &scene.views[0].camera;
+    println!(
+        "{}\n{} views of {}×{}, {} with masks ({:.1}% foreground), {:.1} MB of pixels, loaded in {:.2} s",
+        scene.source.description,
+        scene.views.len(),
+        first.width,
+        first.height,
+        masks,
+        100.0 * fg as f64 / px.max(1) as f64,
+        scene.pixel_bytes() as f64 / 1e6,
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}

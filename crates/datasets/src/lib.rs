@@ -1,1 +1,34 @@
-//! x
+//! Loaders for the multi-view formats people have, into one [`Scene`], and golden scenes whose
+//! true geometry is known.
+//!
+//! # Formats
+//! - **IDR / NeuS / DTU** (`cameras_sphere.npz` or `cameras.npz`, `image/` or `images/`,
+//!   optional `mask/`): see [`idr`](crate::idr).
+//! - **NeRF-synthetic** (`transforms_{train,val,test}.json`, RGBA images: alpha becomes the mask,
+//!   colour is composited over [`LoadOptions::background`]).
+//! - **instant-ngp / Neuralangelo** (`transforms.json` with `fl_x`, `cx`, …, per-frame overrides,
+//!   `sphere_center`/`sphere_radius` or `aabb`). Lens distortion is rejected with a clear error.
+//!
+//! Every scene lives in a *normalised frame* where the region of interest is the unit sphere;
+//! [`Scene::world_from_normalized`] maps back to the input's units (DTU: millimetres).
+//!
+//! # Invariants
+//! - This crate never trains: it reads, checks and writes data.
+//! - Bad input is a [`DatasetError`] naming the file and the problem, never a panic.
+//! - Pixels are u8 RGB and masks one bit per pixel (DTU scan 24, 49 × 1600×1200: < 400 MB).
+#![deny(missing_docs)]
+
+mod error;
+pub mod golden;
+mod idr;
+pub mod io;
+pub mod images;
+mod load;
+pub mod npy;
+mod scene;
+mod transforms;
+
+pub use error::{DatasetError, Result};
+pub use images::{Mask, RgbImage};
+pub use load::{detect_format, load_scene, read_cameras};
+pub use scene::{CameraRecord, Format, LoadOptions, Scene, SceneCameras, SceneSource, View};

@@ -109,8 +109,8 @@ impl Shape {
         ) / (2.0 * h)
     }
 
-    /// Surface area of a primitive (for CSG: the sum over the parts, an upper bound).
-    fn area(&self) -> f64 {
+    /// Surface area (for CSG: the sum over the primitives, an upper bound).
+    pub fn area(&self) -> f64 {
         use std::f64::consts::PI;
         match self {
             Shape::Sphere { radius, .. } => 4.0 * PI * radius * radius,

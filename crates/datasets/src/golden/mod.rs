@@ -1,0 +1,261 @@
+//! Golden scenes: known geometry rendered from known cameras, the test harness's truth.
+//!
+//! A golden scene is an analytic SDF ([`prob_grid::Shape`]) or a triangle mesh (OBJ, glTF, GLB)
+//! seen by a camera [`rig`](rig::Rig), rendered to RGB, mask, depth and normal maps, with
+//! ground-truth surface points sampled uniformly by area. It is deterministic for a seed and
+//! needs no files ([`builtin_scene`]) or only the mesh. [`write_idr`] writes it in the IDR layout
+//! (the project writes `cameras_sphere.npz` itself), so one loader reads golden and real data.
+//!
+//! Meshes are normalised into the sphere of radius [`MESH_RADIUS`]; `world_from_normalized`
+//! (written as `scale_mat`) maps back to the mesh's own units, in which the ground-truth points
+//! and mesh are written.
+
+pub mod mesh_io;
+pub mod render;
+pub mod rig;
+
+use crate::error::{DatasetError, Result, io_err};
+use crate::io::{PlyData, write_atomic};
+use crate::npy::{npy_bytes, write_npz};
+use crate::scene::{Format, Scene, SceneSource, View};
+use glam::{DMat4, DVec3};
+use mesh_io::{TexturedMesh, load_mesh};
+use prob_grid::Shape;
+use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
+use render::{Geometry, render_view};
+use rig::{Rig, RigOptions};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// Radius of the sphere (about the origin) that meshes are scaled into.
+pub const MESH_RADIUS: f64 = 0.7;
+
+/// What to render.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub enum GeometrySource {
+    /// A named analytic shape ([`Shape::by_name`]).
+    Shape(String),
+    /// A mesh file (OBJ, glTF, GLB).
+    Mesh(PathBuf),
+}
+
+/// Everything that defines a golden scene.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GoldenSpec {
+    /// The geometry.
+    pub geometry: GeometrySource,
+    /// The cameras.
+    pub rig: RigOptions,
+    /// A textured backdrop at infinity (for unmasked training) instead of black.
+    pub backdrop: bool,
+    /// Number of ground-truth surface points (about; CSG shapes lose the hidden parts).
+    pub surface_points: usize,
+}
+
+impl GoldenSpec {
+    /// A spec with defaults: DTU rig, 49 views of 400×300, backdrop on, 100 000 surface points.
+    pub fn new(geometry: GeometrySource) -> GoldenSpec {
+        GoldenSpec {
+            geometry,
+            rig: RigOptions { rig: Rig::Dtu, count: 49, width: 400, height: 300, seed: 0 },
+            backdrop: true,
+            surface_points: 100_000,
+        }
+    }
+}
+
+/// A rendered golden scene and its truth.
+#[derive(Debug, Clone)]
+pub struct GoldenScene {
+    /// The views (normalised frame), as a loader would return them.
+    pub scene: Scene,
+    /// Per view: depth λ (normalised units), 0 for background; row-major.
+    pub depths: Vec<Vec<f32>>,
+    /// Per view: unit world normals facing the camera, zero for background; row-major.
+    pub normals: Vec<Vec<[f32; 3]>>,
+    /// Surface points uniform by area, in the normalised frame.
+    pub surface_points: Vec<DVec3>,
+    /// The mesh in the normalised frame, if the geometry is a mesh.
+    pub mesh: Option<TexturedMesh>,
+    /// The geometry that was rendered (normalised frame).
+    pub geometry: Geometry,
+    /// The spec it was made from.
+    pub spec: GoldenSpec,
+}
+
+fn sample_mesh_surface(mesh: &prob_grid::TriangleMesh, count: usize, seed: u64) -> Vec<DVec3> {
+    let mut cumulative = Vec::with_capacity(mesh.triangles.len());
+    let mut total = 0.0f64;
+    for t in 0..mesh.triangles.len() {
+        total += 0.5 * mesh.face_normal(t as u32).length() as f64;
+        cumulative.push(total);
+    }
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    (0..count)
+        .map(|_| {
+            let pick = rng.random::<f64>() * total;
+            let t = cumulative.partition_point(|c| *c < pick).min(cumulative.len() - 1);
+            let [a, b, c] = mesh.triangles[t].map(|i| mesh.positions[i as usize].as_dvec3());
+            let (u1, u2) = (rng.random::<f64>(), rng.random::<f64>());
+            let s = u1.sqrt();
+            a * (1.0 - s) + b * (s * (1.0 - u2)) + c * (s * u2)
+        })
+        .collect()
+}
+
+/// Scales a mesh into the sphere of radius [`MESH_RADIUS`]; returns it with `world_from_normalized`.
+fn normalize_mesh(mut mesh: TexturedMesh) -> (TexturedMesh, DMat4) {
+    let (lo, hi) = mesh.mesh.bounds();
+    let center = ((lo + hi) / 2.0).as_dvec3();
+    let radius = mesh.mesh.positions.iter().map(|p| (p.as_dvec3() - center).length()).fold(0.0, f64::max).max(1e-12);
+    let scale = MESH_RADIUS / radius;
+    let positions = mesh.mesh.positions.iter().map(|p| ((p.as_dvec3() - center) * scale).as_vec3()).collect();
+    mesh.mesh = prob_grid::TriangleMesh::new(positions, std::mem::take(&mut mesh.mesh.triangles));
+    let world_from_normalized = DMat4::from_translation(center) * DMat4::from_scale(DVec3::splat(1.0 / scale));
+    (mesh, world_from_normalized)
+}
+
+/// Renders a golden scene.
+pub fn generate(spec: &GoldenSpec) -> Result<GoldenScene> {
+    let (geometry, mesh, world_from_normalized, label) = match &spec.geometry {
+        GeometrySource::Shape(name) => {
+            let shape = Shape::by_name(name).ok_or_else(|| DatasetError::InvalidValue {
+                path: PathBuf::from(name),
+                entry: "shape".into(),
+                message: format!("unknown shape (known: {})", Shape::NAMES.join(", ")),
+            })?;
+            (Geometry::Analytic(shape), None, DMat4::IDENTITY, format!("analytic {name}"))
+        }
+        GeometrySource::Mesh(path) => {
+            let (mesh, world_from_normalized) = normalize_mesh(load_mesh(path)?);
+            (Geometry::from_mesh(mesh.clone()), Some(mesh), world_from_normalized, format!("mesh {}", path.display()))
+        }
+    };
+    let cameras = rig::cameras(&spec.rig);
+    let mut views = Vec::with_capacity(cameras.len());
+    let mut depths = Vec::with_capacity(cameras.len());
+    let mut normals = Vec::with_capacity(cameras.len());
+    for (i, camera) in cameras.iter().enumerate() {
+        let r = render_view(&geometry, camera, spec.backdrop);
+        views.push(View { name: format!("{i:03}"), camera: *camera, image: r.image, mask: Some(r.mask) });
+        depths.push(r.depth);
+        normals.push(r.normal);
+    }
+    let seed = spec.rig.seed ^ 0x5eed_0f_9017;
+    let surface_points = match &geometry {
+        Geometry::Analytic(shape) => shape.sample_surface(spec.surface_points as f64 / shape.area(), seed),
+        Geometry::Mesh { mesh, .. } => sample_mesh_surface(&mesh.mesh, spec.surface_points, seed),
+    };
+    let description = format!(
+        "golden scene: {label}, {:?} rig, {} views of {}×{}, seed {}, backdrop {}",
+        spec.rig.rig, spec.rig.count, spec.rig.width, spec.rig.height, spec.rig.seed, spec.backdrop
+    );
+    Ok(GoldenScene {
+        scene: Scene { views, world_from_normalized, source: SceneSource { format: Format::Generated, path: None, description } },
+        depths,
+        normals,
+        surface_points,
+        mesh,
+        geometry,
+        spec: spec.clone(),
+    })
+}
+
+/// The built-in default scene (no files): the analytic composite (a sphere with a bite, a thin
+/// ring, a box foot), DTU rig, 49 views of 200×150, textured backdrop, masks.
+pub fn builtin_scene() -> GoldenScene {
+    let mut spec = GoldenSpec::new(GeometrySource::Shape("composite".into()));
+    spec.rig.width = 200;
+    spec.rig.height = 150;
+    generate(&spec).expect("the built-in scene needs no files")
+}
+
+fn mat4_rows(m: &DMat4) -> Vec<f64> {
+    (0..4).flat_map(|r| (0..4).map(move |c| m.col(c)[r])).collect()
+}
+
+/// Writes a golden scene in the IDR layout, plus its truth:
+/// `image/NNN.png`, `mask/NNN.png`, `cameras_sphere.npz` (`world_mat_i`, `scale_mat_i`),
+/// `depth/NNN.npy` (H×W f32, normalised units, 0 = background), `normal/NNN.npy` (H×W×3 f32),
+/// `gt_points.ply` (input world units), `gt_mesh.ply` (meshes only, input world units) and
+/// `golden.json` (the spec). Every file is written atomically.
+pub fn write_idr(golden: &GoldenScene, out: &Path) -> Result<()> {
+    for sub in ["image", "mask", "depth", "normal"] {
+        std::fs::create_dir_all(out.join(sub)).map_err(io_err(out.join(sub)))?;
+    }
+    let scene = &golden.scene;
+    let scale_mat = scene.world_from_normalized;
+    let normalized_from_world = scale_mat.inverse();
+    let mut npz_entries = Vec::new();
+    for (i, view) in scene.views.iter().enumerate() {
+        let name = format!("{i:03}");
+        view.image.save_png(&out.join("image").join(format!("{name}.png")))?;
+        if let Some(mask) = &view.mask {
+            mask.save_png(&out.join("mask").join(format!("{name}.png")))?;
+        }
+        let (w, h) = (view.camera.width as usize, view.camera.height as usize);
+        write_atomic(&out.join("depth").join(format!("{name}.npy")), &npy_bytes(&[h, w], &golden.depths[i]))?;
+        let flat: Vec<f32> = golden.normals[i].iter().flatten().copied().collect();
+        write_atomic(&out.join("normal").join(format!("{name}.npy")), &npy_bytes(&[h, w, 3], &flat))?;
+        // P (normalised → pixels) = K [R|t]; world_mat = P · scale_mat⁻¹, so that
+        // world_mat · scale_mat gives P back, as NeuS computes it.
+        let p = view.camera.projection_matrix();
+        let mut p4 = DMat4::IDENTITY;
+        for (r, row) in p.iter().enumerate() {
+            for (c, v) in row.iter().enumerate() {
+                p4.col_mut(c)[r] = *v;
+            }
+        }
+        let world_mat = p4 * normalized_from_world;
+        npz_entries.push((format!("world_mat_{i}"), npy_bytes(&[4, 4], &mat4_rows(&world_mat))));
+        npz_entries.push((format!("scale_mat_{i}"), npy_bytes(&[4, 4], &mat4_rows(&scale_mat))));
+    }
+    let npz_path = out.join("cameras_sphere.npz");
+    let bytes = write_npz(std::io::Cursor::new(Vec::new()), &npz_entries)
+        .map_err(|e| DatasetError::Io { path: npz_path.clone(), source: std::io::Error::other(e) })?
+        .into_inner();
+    write_atomic(&npz_path, &bytes)?;
+
+    let to_world = |p: DVec3| scale_mat.transform_point3(p).as_vec3();
+    PlyData { positions: golden.surface_points.iter().map(|p| to_world(*p)).collect(), ..Default::default() }
+        .write(&out.join("gt_points.ply"))?;
+    if let Some(mesh) = &golden.mesh {
+        PlyData {
+            positions: mesh.mesh.positions.iter().map(|p| to_world(p.as_dvec3())).collect(),
+            faces: mesh.mesh.triangles.clone(),
+            ..Default::default()
+        }
+        .write(&out.join("gt_mesh.ply"))?;
+    }
+    let meta = serde_json::json!({
+        "spec": golden.spec,
+        "description": scene.source.description,
+        "views": scene.views.len(),
+        "surface_points": golden.surface_points.len(),
+        "depth_units": "normalised frame (apply scale_mat for world units)",
+        "points_units": "input world units (scale_mat applied)",
+        "pixel_centers": "integer (IDR/NeuS convention)",
+    });
+    write_atomic(&out.join("golden.json"), serde_json::to_string_pretty(&meta).expect("json").as_bytes())
+}
+
+/// A small thumbnail grid of a scene's first views (RGB), `columns` across, each `thumb_width` wide.
+pub fn thumbnail_grid(scene: &Scene, columns: usize, rows: usize, thumb_width: u32) -> crate::images::RgbImage {
+    let first = &scene.views[0].camera;
+    let thumb_height = (thumb_width as f64 * first.height as f64 / first.width as f64).round() as u32;
+    let mut out = crate::images::RgbImage::new(thumb_width * columns as u32, thumb_height * rows as u32);
+    let n = scene.views.len();
+    for k in 0..(columns * rows).min(n) {
+        let view = &scene.views[k * n / (columns * rows).min(n)];
+        let (ox, oy) = ((k % columns) as u32 * thumb_width, (k / columns) as u32 * thumb_height);
+        for y in 0..thumb_height {
+            for x in 0..thumb_width {
+                let sx = (x as u64 * view.image.width as u64 / thumb_width as u64) as u32;
+                let sy = (y as u64 * view.image.height as u64 / thumb_height as u64) as u32;
+                out.set_f32(ox + x, oy + y, view.image.get_f32(sx, sy));
+            }
+        }
+    }
+    out
+}
+

@@ -1,0 +1,187 @@
+//! IDR / NeuS / DTU layout: `cameras_sphere.npz` (or `cameras.npz`) with `world_mat_i` and
+//! `scale_mat_i`, numbered images in `image/` (or `images/`), optional masks in `mask/`.
+//!
+//! Convention (NeuS `dataset.py`): `P = world_mat_i · scale_mat_i` maps the normalised frame to
+//! pixels; K and `camera_from_world` come from decomposing P (see
+//! [`camera_geom::decompose_projection`]); integer pixel coordinates are pixel centres.
+//! `scale_mat_0` is `world_from_normalized`. Other keys (`camera_mat_i`, `*_inv_i`) are ignored.
+
+use crate::error::{DatasetError, Result, io_err};
+use crate::npy::{NpyArray, Npz};
+use crate::scene::{CameraRecord, Format, LoadOptions, SceneCameras, SceneSource};
+use camera_geom::{PinholeCamera, PixelCenters, decompose_projection};
+use glam::DMat4;
+use std::path::{Path, PathBuf};
+
+/// The camera file of an IDR folder, if there is one.
+pub(crate) fn camera_file(dir: &Path) -> Option<PathBuf> {
+    ["cameras_sphere.npz", "cameras.npz"].iter().map(|n| dir.join(n)).find(|p| p.is_file())
+}
+
+fn is_image(path: &Path) -> bool {
+    matches!(
+        path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref(),
+        Some("png" | "jpg" | "jpeg")
+    )
+}
+
+/// The image files of `dir` assigned to cameras 0..n: by number when every stem is a number
+/// (`000.png`), otherwise in sorted order.
+pub(crate) fn numbered_files(dir: &Path, n: usize, what: &'static str) -> Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(io_err(dir))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && is_image(p))
+        .collect();
+    files.sort();
+    let numbers: Option<Vec<usize>> =
+        files.iter().map(|p| p.file_stem().and_then(|s| s.to_str()).and_then(|s| s.parse().ok())).collect();
+    if let Some(numbers) = numbers {
+        let mut by_index = vec![None; n];
+        for (file, k) in files.iter().zip(numbers) {
+            if k < n {
+                by_index[k] = Some(file.clone());
+            }
+        }
+        if let Some(camera) = by_index.iter().position(Option::is_none) {
+            return Err(DatasetError::MissingImage { dir: dir.to_path_buf(), camera });
+        }
+        if files.len() != n {
+            return Err(DatasetError::CountMismatch { path: dir.to_path_buf(), cameras: n, found: files.len(), what });
+        }
+        Ok(by_index.into_iter().map(Option::unwrap).collect())
+    } else {
+        if files.len() != n {
+            return Err(DatasetError::CountMismatch { path: dir.to_path_buf(), cameras: n, found: files.len(), what });
+        }
+        Ok(files)
+    }
+}
+
+/// Width and height of an image file from its header.
+pub(crate) fn image_size(path: &Path) -> Result<(u32, u32)> {
+    image::image_dimensions(path).map_err(|e| match e {
+        image::ImageError::IoError(source) => DatasetError::Io { path: path.to_path_buf(), source },
+        other => DatasetError::Corrupt { path: path.to_path_buf(), kind: "image", message: other.to_string() },
+    })
+}
+
+fn matrix4(npz: &mut Npz, path: &Path, key: &str) -> Result<Option<DMat4>> {
+    let Some(NpyArray { shape, data }) = npz.get(key)? else { return Ok(None) };
+    let rows = match shape.as_slice() {
+        [4, 4] => 4,
+        [3, 4] => 3,
+        _ => {
+            return Err(DatasetError::InvalidValue {
+                path: path.to_path_buf(),
+                entry: key.into(),
+                message: format!("shape {shape:?}, expected [4, 4] or [3, 4]"),
+            });
+        }
+    };
+    if !data.iter().all(|v| v.is_finite()) {
+        return Err(DatasetError::InvalidValue { path: path.to_path_buf(), entry: key.into(), message: "non-finite value (NaN or inf)".into() });
+    }
+    let mut m = DMat4::IDENTITY;
+    for r in 0..rows {
+        for c in 0..4 {
+            m.col_mut(c)[r] = data[r * 4 + c];
+        }
+    }
+    Ok(Some(m))
+}
+
+/// Reads the cameras of an IDR folder (image headers only, no pixels).
+pub(crate) fn read_cameras(dir: &Path, options: &LoadOptions) -> Result<SceneCameras> {
+    let npz_path = camera_file(dir).ok_or_else(|| DatasetError::UnknownLayout { dir: dir.to_path_buf() })?;
+    let mut npz = Npz::open(&npz_path)?;
+    let keys = npz.keys();
+    let n = keys
+        .iter()
+        .filter(|k| k.strip_prefix("world_mat_").is_some_and(|s| s.parse::<usize>().is_ok()))
+        .count();
+    if n == 0 {
+        return Err(DatasetError::MissingKey { path: npz_path, key: "world_mat_0".into() });
+    }
+    let image_dir = ["image", "images"].iter().map(|d| dir.join(d)).find(|p| p.is_dir()).ok_or_else(|| {
+        DatasetError::MissingKey { path: dir.to_path_buf(), key: "image/ (or images/) folder".into() }
+    })?;
+    let images = numbered_files(&image_dir, n, "images")?;
+    let mask_dir = dir.join("mask");
+    let masks = if mask_dir.is_dir() { Some(numbered_files(&mask_dir, n, "masks")?) } else { None };
+
+    let mut scale_mat_0 = None;
+    let mut records = Vec::with_capacity(n);
+    let mut size0: Option<(u32, u32)> = None;
+    let mut missing_scale = false;
+    for i in 0..n {
+        let world_key = format!("world_mat_{i}");
+        let world_mat = matrix4(&mut npz, &npz_path, &world_key)?
+            .ok_or_else(|| DatasetError::MissingKey { path: npz_path.clone(), key: world_key.clone() })?;
+        let scale_mat = match matrix4(&mut npz, &npz_path, &format!("scale_mat_{i}"))? {
+            Some(m) => m,
+            None => {
+                missing_scale = true;
+                DMat4::IDENTITY
+            }
+        };
+        if i == 0 {
+            if scale_mat.determinant().abs() < 1e-300 {
+                return Err(DatasetError::InvalidValue { path: npz_path, entry: "scale_mat_0".into(), message: "singular".into() });
+            }
+            scale_mat_0 = Some(scale_mat);
+        }
+        let p4 = world_mat * scale_mat;
+        let p = [0, 1, 2].map(|r| [0, 1, 2, 3].map(|c| p4.col(c)[r]));
+        let entry = || format!("{world_key} · scale_mat_{i}");
+        let (intrinsics, camera_from_world) = decompose_projection(&p)
+            .map_err(|source| DatasetError::Camera { path: npz_path.clone(), entry: entry(), source })?;
+        let (w, h) = image_size(&images[i])?;
+        match size0 {
+            None => size0 = Some((w, h)),
+            Some(s) if s != (w, h) => {
+                return Err(DatasetError::SizeMismatch {
+                    path: images[i].clone(),
+                    found: (w, h),
+                    expected: s,
+                    why: "all images of a scene must have one size",
+                });
+            }
+            _ => {}
+        }
+        if let Some(masks) = &masks {
+            let found = image_size(&masks[i])?;
+            if found != (w, h) {
+                return Err(DatasetError::SizeMismatch { path: masks[i].clone(), found, expected: (w, h), why: "a mask must match its image" });
+            }
+        }
+        let n_down = options.downscale;
+        let camera = PinholeCamera::new(
+            intrinsics.downscaled(n_down, PixelCenters::Integer),
+            w / n_down,
+            h / n_down,
+            camera_from_world,
+            PixelCenters::Integer,
+        )
+        .map_err(|source| DatasetError::Camera { path: npz_path.clone(), entry: entry(), source })?;
+        records.push(CameraRecord {
+            name: images[i].file_stem().unwrap_or_default().to_string_lossy().into_owned(),
+            camera,
+            image_path: Some(images[i].clone()),
+            mask_path: masks.as_ref().map(|m| m[i].clone()),
+        });
+    }
+    let description = format!(
+        "IDR/NeuS layout: {} views from {}{}{}, downscale {}",
+        n,
+        npz_path.display(),
+        if masks.is_some() { " with masks" } else { " without masks" },
+        if missing_scale { " (no scale_mat: identity)" } else { "" },
+        options.downscale
+    );
+    Ok(SceneCameras {
+        records,
+        world_from_normalized: scale_mat_0.unwrap_or(DMat4::IDENTITY),
+        source: SceneSource { format: Format::Idr, path: Some(dir.to_path_buf()), description },
+    })
+}

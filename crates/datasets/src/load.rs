@@ -1,0 +1,69 @@
+//! Layout detection and loading of pixels.
+
+use crate::error::{DatasetError, Result};
+use crate::images::{Mask, load_mask, load_rgb};
+use crate::scene::{Format, LoadOptions, Scene, SceneCameras, View};
+use crate::{idr, transforms};
+use rayon::prelude::*;
+use std::path::Path;
+
+/// Which layout a folder holds, by the files in it.
+pub fn detect_format(dir: &Path) -> Result<Format> {
+    if idr::camera_file(dir).is_some() {
+        Ok(Format::Idr)
+    } else if dir.join("transforms_train.json").is_file() {
+        Ok(Format::NerfSynthetic)
+    } else if dir.join("transforms.json").is_file() {
+        Ok(Format::InstantNgp)
+    } else {
+        Err(DatasetError::UnknownLayout { dir: dir.to_path_buf() })
+    }
+}
+
+/// Reads the cameras of a dataset folder (any supported layout) without decoding pixels.
+pub fn read_cameras(dir: &Path, options: &LoadOptions) -> Result<SceneCameras> {
+    if options.downscale == 0 {
+        return Err(DatasetError::InvalidValue { path: dir.to_path_buf(), entry: "downscale".into(), message: "must be ≥ 1".into() });
+    }
+    match detect_format(dir)? {
+        Format::Idr => idr::read_cameras(dir, options),
+        Format::NerfSynthetic => {
+            let json = dir.join(format!("transforms_{}.json", options.split));
+            if !json.is_file() {
+                return Err(DatasetError::MissingKey { path: dir.to_path_buf(), key: format!("transforms_{}.json", options.split) });
+            }
+            transforms::read_cameras(&json, Format::NerfSynthetic, options)
+        }
+        Format::InstantNgp => transforms::read_cameras(&dir.join("transforms.json"), Format::InstantNgp, options),
+        Format::Generated => unreachable!("detect_format never returns Generated"),
+    }
+}
+
+/// Loads a dataset folder: cameras, images (u8, decoded in parallel) and masks (from `mask/` or
+/// from the images' alpha channel).
+pub fn load_scene(dir: &Path, options: &LoadOptions) -> Result<Scene> {
+    let cameras = read_cameras(dir, options)?;
+    let views = cameras
+        .records
+        .par_iter()
+        .map(|record| -> Result<View> {
+            let image_path = record.image_path.as_deref().expect("file datasets have image paths");
+            let decoded = load_rgb(image_path, options.downscale, options.background)?;
+            let expected = (record.camera.width, record.camera.height);
+            if (decoded.rgb.width, decoded.rgb.height) != expected {
+                return Err(DatasetError::SizeMismatch {
+                    path: image_path.to_path_buf(),
+                    found: (decoded.rgb.width, decoded.rgb.height),
+                    expected,
+                    why: "the image changed size since its header was read",
+                });
+            }
+            let mask: Option<Mask> = match &record.mask_path {
+                Some(p) => Some(load_mask(p, options.downscale)?.0),
+                None => decoded.alpha_mask,
+            };
+            Ok(View { name: record.name.clone(), camera: record.camera, image: decoded.rgb, mask })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(Scene { views, world_from_normalized: cameras.world_from_normalized, source: cameras.source })
+}

@@ -1,0 +1,199 @@
+//! `transforms*.json` layouts: NeRF-synthetic (Blender) and instant-ngp / Neuralangelo.
+//!
+//! Poses are camera-to-world in OpenGL/Blender axes (+x right, +y up, +z backwards); we flip y
+//! and z to OpenCV axes. Pixel centres are at half-integers (`cx = w/2` is the image centre).
+//! Intrinsics: `fl_x`/`fl_y` or `camera_angle_x`/`camera_angle_y` (`fx = w / (2 tan(angle/2))`),
+//! `cx`, `cy` (default: image centre), `sk_x` (skew); each may be overridden per frame
+//! (instant-ngp). Lens distortion is not modelled: non-zero coefficients are an error.
+
+use crate::error::{DatasetError, Result, io_err};
+use crate::idr::image_size;
+use crate::scene::{CameraRecord, Format, LoadOptions, SceneCameras, SceneSource};
+use camera_geom::{Intrinsics, PinholeCamera, PixelCenters, Rigid3};
+use glam::{DMat3, DMat4, DVec3};
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, Default, Clone, Deserialize)]
+struct IntrinsicFields {
+    camera_angle_x: Option<f64>,
+    camera_angle_y: Option<f64>,
+    fl_x: Option<f64>,
+    fl_y: Option<f64>,
+    cx: Option<f64>,
+    cy: Option<f64>,
+    w: Option<f64>,
+    h: Option<f64>,
+    sk_x: Option<f64>,
+    sk_y: Option<f64>,
+    k1: Option<f64>,
+    k2: Option<f64>,
+    k3: Option<f64>,
+    k4: Option<f64>,
+    p1: Option<f64>,
+    p2: Option<f64>,
+}
+
+impl IntrinsicFields {
+    /// Frame values override file values.
+    fn or(&self, base: &IntrinsicFields) -> IntrinsicFields {
+        macro_rules! pick { ($($f:ident),*) => { IntrinsicFields { $($f: self.$f.or(base.$f)),* } } }
+        pick!(camera_angle_x, camera_angle_y, fl_x, fl_y, cx, cy, w, h, sk_x, sk_y, k1, k2, k3, k4, p1, p2)
+    }
+}
+
+#[derive(Debug, Deserialize)]
+struct Frame {
+    file_path: String,
+    transform_matrix: Vec<Vec<f64>>,
+    #[serde(flatten)]
+    intrinsics: IntrinsicFields,
+}
+
+#[derive(Debug, Deserialize)]
+struct Transforms {
+    #[serde(flatten)]
+    intrinsics: IntrinsicFields,
+    sphere_center: Option<[f64; 3]>,
+    sphere_radius: Option<f64>,
+    aabb: Option<[[f64; 3]; 2]>,
+    frames: Vec<Frame>,
+}
+
+fn resolve_image(dir: &Path, file_path: &str) -> Option<PathBuf> {
+    let p = dir.join(file_path);
+    if p.extension().is_some() && p.is_file() {
+        return Some(p);
+    }
+    ["png", "jpg", "jpeg", "PNG", "JPG"].iter().map(|e| {
+        let mut s = p.clone().into_os_string();
+        s.push(".");
+        s.push(e);
+        PathBuf::from(s)
+    }).find(|p| p.is_file())
+}
+
+/// Reads the cameras of a transforms JSON (image headers only).
+pub(crate) fn read_cameras(json_path: &Path, format: Format, options: &LoadOptions) -> Result<SceneCameras> {
+    let dir = json_path.parent().unwrap_or(Path::new("."));
+    let text = std::fs::read_to_string(json_path).map_err(io_err(json_path))?;
+    let t: Transforms = serde_json::from_str(&text).map_err(|e| DatasetError::Corrupt {
+        path: json_path.to_path_buf(),
+        kind: "JSON",
+        message: e.to_string(),
+    })?;
+    let invalid = |entry: String, message: String| DatasetError::InvalidValue { path: json_path.to_path_buf(), entry, message };
+
+    let (center, radius) = match (options.bound_sphere, format) {
+        (Some(b), _) => b,
+        (None, Format::NerfSynthetic) => (DVec3::ZERO, 1.5),
+        (None, _) => match (t.sphere_center, t.sphere_radius, t.aabb) {
+            (Some(c), Some(r), _) => (DVec3::from_array(c), r),
+            (_, _, Some([lo, hi])) => {
+                let (lo, hi) = (DVec3::from_array(lo), DVec3::from_array(hi));
+                ((lo + hi) / 2.0, (hi - lo).length() / 2.0)
+            }
+            _ => {
+                return Err(DatasetError::MissingKey {
+                    path: json_path.to_path_buf(),
+                    key: "sphere_center + sphere_radius, or aabb (the region of interest; or pass a bound sphere)".into(),
+                });
+            }
+        },
+    };
+    if !(center.is_finite() && radius.is_finite() && radius > 0.0) {
+        return Err(invalid("bound sphere".into(), format!("centre {center}, radius {radius}")));
+    }
+    if t.frames.is_empty() {
+        return Err(DatasetError::MissingKey { path: json_path.to_path_buf(), key: "frames (none listed)".into() });
+    }
+
+    let mut records = Vec::with_capacity(t.frames.len());
+    for (i, frame) in t.frames.iter().enumerate() {
+        let entry = format!("frames[{i}]");
+        let f = frame.intrinsics.or(&t.intrinsics);
+        let distortion = [f.k1, f.k2, f.k3, f.k4, f.p1, f.p2];
+        if distortion.iter().any(|k| k.is_some_and(|k| k != 0.0)) {
+            return Err(DatasetError::Unsupported {
+                path: json_path.to_path_buf(),
+                message: format!("{entry}: lens distortion (k1..k4, p1, p2 non-zero); undistort the images first"),
+            });
+        }
+        if f.sk_y.is_some_and(|s| s != 0.0) {
+            return Err(DatasetError::Unsupported {
+                path: json_path.to_path_buf(),
+                message: format!("{entry}: sk_y ≠ 0 makes K not upper-triangular"),
+            });
+        }
+        let image_path = resolve_image(dir, &frame.file_path)
+            .ok_or_else(|| DatasetError::MissingImage { dir: dir.join(&frame.file_path), camera: i })?;
+        let (w_file, h_file) = image_size(&image_path)?;
+        let w = f.w.unwrap_or(w_file as f64);
+        let h = f.h.unwrap_or(h_file as f64);
+        if (w, h) != (w_file as f64, h_file as f64) {
+            return Err(DatasetError::SizeMismatch {
+                path: image_path,
+                found: (w_file, h_file),
+                expected: (w as u32, h as u32),
+                why: "the transforms file gives another w, h",
+            });
+        }
+        let fx = match (f.fl_x, f.camera_angle_x) {
+            (Some(fx), _) => fx,
+            (None, Some(a)) => 0.5 * w / (0.5 * a).tan(),
+            (None, None) => return Err(DatasetError::MissingKey { path: json_path.to_path_buf(), key: format!("{entry}: fl_x or camera_angle_x") }),
+        };
+        let fy = match (f.fl_y, f.camera_angle_y) {
+            (Some(fy), _) => fy,
+            (None, Some(a)) => 0.5 * h / (0.5 * a).tan(),
+            (None, None) => fx,
+        };
+        let intrinsics = Intrinsics { fx, fy, cx: f.cx.unwrap_or(w / 2.0), cy: f.cy.unwrap_or(h / 2.0), skew: f.sk_x.unwrap_or(0.0) };
+
+        let m = &frame.transform_matrix;
+        if !(m.len() == 3 || m.len() == 4) || m.iter().take(3).any(|r| r.len() != 4) {
+            return Err(invalid(format!("{entry}.transform_matrix"), "expected 4×4 (or 3×4)".into()));
+        }
+        if !m.iter().flatten().all(|v| v.is_finite()) {
+            return Err(invalid(format!("{entry}.transform_matrix"), "non-finite value".into()));
+        }
+        // OpenGL camera-to-world → OpenCV: flip the camera's y and z axes.
+        let world_rotation_gl = DMat3::from_cols(
+            DVec3::new(m[0][0], m[1][0], m[2][0]),
+            DVec3::new(m[0][1], m[1][1], m[2][1]),
+            DVec3::new(m[0][2], m[1][2], m[2][2]),
+        );
+        let world_rotation_cv = world_rotation_gl * DMat3::from_diagonal(DVec3::new(1.0, -1.0, -1.0));
+        let center_in_normalized = (DVec3::new(m[0][3], m[1][3], m[2][3]) - center) / radius;
+        let rotation = world_rotation_cv.transpose();
+        let camera_from_world = Rigid3 { rotation, translation: -(rotation * center_in_normalized) };
+        let n = options.downscale;
+        let camera = PinholeCamera::new(
+            intrinsics.downscaled(n, PixelCenters::HalfInteger),
+            w as u32 / n,
+            h as u32 / n,
+            camera_from_world,
+            PixelCenters::HalfInteger,
+        )
+        .map_err(|source| DatasetError::Camera { path: json_path.to_path_buf(), entry: entry.clone(), source })?;
+        records.push(CameraRecord {
+            name: image_path.file_stem().unwrap_or_default().to_string_lossy().into_owned(),
+            camera,
+            image_path: Some(image_path),
+            mask_path: None,
+        });
+    }
+    let world_from_normalized = DMat4::from_translation(center) * DMat4::from_scale(DVec3::splat(radius));
+    let description = format!(
+        "{} layout: {} views from {}, bound sphere centre {center} radius {radius}, downscale {}",
+        if format == Format::NerfSynthetic { "NeRF-synthetic" } else { "instant-ngp" },
+        records.len(),
+        json_path.display(),
+        options.downscale
+    );
+    Ok(SceneCameras {
+        records,
+        world_from_normalized,
+        source: SceneSource { format, path: Some(dir.to_path_buf()), description },
+    })
+}

@@ -79,6 +79,9 @@ enum Command {
         /// Seed.
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// The mesh file is z-up (default: y-up, the OBJ and glTF convention).
+        #[arg(long)]
+        mesh_z_up: bool,
         /// Black background instead of the textured backdrop.
         #[arg(long)]
         no_backdrop: bool,
@@ -92,7 +95,7 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Cameras { data, ply } => cameras(&data, &ply),
         Command::Inspect { data } => inspect(&data),
-        Command::Golden { shape, mesh, rig, out, views, width, height, seed, no_backdrop, thumbnail } => {
+        Command::Golden { shape, mesh, rig, out, views, width, height, seed, mesh_z_up, no_backdrop, thumbnail } => {
             let geometry = match (shape, mesh) {
                 (Some(s), None) => GeometrySource::Shape(s),
                 (None, Some(m)) => GeometrySource::Mesh(m),
@@ -109,6 +112,7 @@ fn main() -> Result<()> {
             spec.rig.height = height;
             spec.rig.seed = seed;
             spec.backdrop = !no_backdrop;
+            spec.mesh_y_up = !mesh_z_up;
             let start = std::time::Instant::now();
             let scene = golden::generate(&spec)?;
             golden::write_idr(&scene, &out).with_context(|| format!("writing the golden scene to {}", out.display()))?;

@@ -18,7 +18,7 @@ use crate::error::{DatasetError, Result, io_err};
 use crate::io::{PlyData, write_atomic};
 use crate::npy::{npy_bytes, write_npz};
 use crate::scene::{Format, Scene, SceneSource, View};
-use glam::{DMat4, DVec3};
+use glam::{DMat3, DMat4, DVec3};
 use mesh_io::{TexturedMesh, load_mesh};
 use prob_grid::Shape;
 use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
@@ -50,6 +50,10 @@ pub struct GoldenSpec {
     pub backdrop: bool,
     /// Number of ground-truth surface points (about; CSG shapes lose the hidden parts).
     pub surface_points: usize,
+    /// Whether a mesh file is y-up (OBJ and glTF convention, the default) or z-up. Golden scenes
+    /// are z-up; a y-up mesh is rotated (x, y, z) ↦ (x, −z, y) into them, and the rotation is
+    /// part of `world_from_normalized`.
+    pub mesh_y_up: bool,
 }
 
 impl GoldenSpec {
@@ -60,6 +64,7 @@ impl GoldenSpec {
             rig: RigOptions { rig: Rig::Dtu, count: 49, width: 400, height: 300, seed: 0 },
             backdrop: true,
             surface_points: 100_000,
+            mesh_y_up: true,
         }
     }
 }
@@ -103,15 +108,20 @@ fn sample_mesh_surface(mesh: &prob_grid::TriangleMesh, count: usize, seed: u64) 
         .collect()
 }
 
-/// Scales a mesh into the sphere of radius [`MESH_RADIUS`]; returns it with `world_from_normalized`.
-fn normalize_mesh(mut mesh: TexturedMesh) -> (TexturedMesh, DMat4) {
+/// Centres a mesh, scales it into the sphere of radius [`MESH_RADIUS`] and turns y-up meshes
+/// z-up; returns it with `world_from_normalized`.
+fn normalize_mesh(mut mesh: TexturedMesh, y_up: bool) -> (TexturedMesh, DMat4) {
     let (lo, hi) = mesh.mesh.bounds();
     let center = ((lo + hi) / 2.0).as_dvec3();
     let radius = mesh.mesh.positions.iter().map(|p| (p.as_dvec3() - center).length()).fold(0.0, f64::max).max(1e-12);
     let scale = MESH_RADIUS / radius;
-    let positions = mesh.mesh.positions.iter().map(|p| ((p.as_dvec3() - center) * scale).as_vec3()).collect();
+    // (x, y, z) ↦ (x, −z, y): a rotation of +90° about x taking +y to +z.
+    let z_up_from_y_up = if y_up { DMat3::from_rotation_x(std::f64::consts::FRAC_PI_2) } else { DMat3::IDENTITY };
+    let positions = mesh.mesh.positions.iter().map(|p| (z_up_from_y_up * ((p.as_dvec3() - center) * scale)).as_vec3()).collect();
     mesh.mesh = prob_grid::TriangleMesh::new(positions, std::mem::take(&mut mesh.mesh.triangles));
-    let world_from_normalized = DMat4::from_translation(center) * DMat4::from_scale(DVec3::splat(1.0 / scale));
+    let world_from_normalized = DMat4::from_translation(center)
+        * DMat4::from_scale(DVec3::splat(1.0 / scale))
+        * DMat4::from_mat3(z_up_from_y_up.transpose());
     (mesh, world_from_normalized)
 }
 
@@ -127,7 +137,7 @@ pub fn generate(spec: &GoldenSpec) -> Result<GoldenScene> {
             (Geometry::Analytic(shape), None, DMat4::IDENTITY, format!("analytic {name}"))
         }
         GeometrySource::Mesh(path) => {
-            let (mesh, world_from_normalized) = normalize_mesh(load_mesh(path)?);
+            let (mesh, world_from_normalized) = normalize_mesh(load_mesh(path)?, spec.mesh_y_up);
             (Geometry::from_mesh(mesh.clone()), Some(mesh), world_from_normalized, format!("mesh {}", path.display()))
         }
     };

@@ -55,8 +55,9 @@ enum Command {
     },
     /// Render a golden scene (known geometry) in the IDR layout.
     Golden {
-        /// Analytic shape: sphere, torus, box, composite.
-        #[arg(long, conflicts_with = "mesh", required_unless_present = "mesh")]
+        /// Analytic shape: sphere, torus, box, composite. With neither --shape nor --mesh, the
+        /// built-in default scene (composite, DTU rig, 49 views of 200×150) is rendered.
+        #[arg(long, conflicts_with = "mesh")]
         shape: Option<String>,
         /// Mesh file (OBJ with MTL texture, glTF, GLB).
         #[arg(long)]
@@ -70,12 +71,12 @@ enum Command {
         /// Number of views.
         #[arg(long, default_value_t = 49)]
         views: usize,
-        /// Image width.
-        #[arg(long, default_value_t = 400)]
-        width: u32,
-        /// Image height.
-        #[arg(long, default_value_t = 300)]
-        height: u32,
+        /// Image width (default 400; 200 for the built-in scene).
+        #[arg(long)]
+        width: Option<u32>,
+        /// Image height (default 300; 150 for the built-in scene).
+        #[arg(long)]
+        height: Option<u32>,
         /// Seed.
         #[arg(long, default_value_t = 0)]
         seed: u64,
@@ -96,16 +97,18 @@ fn main() -> Result<()> {
         Command::Cameras { data, ply } => cameras(&data, &ply),
         Command::Inspect { data } => inspect(&data),
         Command::Golden { shape, mesh, rig, out, views, width, height, seed, mesh_z_up, no_backdrop, thumbnail } => {
-            let geometry = match (shape, mesh) {
-                (Some(s), None) => GeometrySource::Shape(s),
-                (None, Some(m)) => GeometrySource::Mesh(m),
-                _ => bail!("give exactly one of --shape and --mesh"),
+            let mut spec = match (shape, mesh) {
+                (Some(s), None) => GoldenSpec::new(GeometrySource::Shape(s)),
+                (None, Some(m)) => GoldenSpec::new(GeometrySource::Mesh(m)),
+                (None, None) => GoldenSpec::builtin(),
+                _ => bail!("give at most one of --shape and --mesh"),
             };
+            let width = width.unwrap_or(spec.rig.width);
+            let height = height.unwrap_or(spec.rig.height);
             let rig = Rig::by_name(&rig).with_context(|| format!("unknown rig {rig:?} (dtu, sphere, random)"))?;
             if views == 0 || width == 0 || height == 0 {
                 bail!("--views, --width and --height must be positive");
             }
-            let mut spec = GoldenSpec::new(geometry);
             spec.rig.rig = rig;
             spec.rig.count = views;
             spec.rig.width = width;

@@ -171,13 +171,20 @@ pub fn generate(spec: &GoldenSpec) -> Result<GoldenScene> {
     })
 }
 
-/// The built-in default scene (no files): the analytic composite (a sphere with a bite, a thin
-/// ring, a box foot), DTU rig, 49 views of 200×150, textured backdrop, masks.
+impl GoldenSpec {
+    /// The built-in default scene (no files): the analytic composite (a sphere with a bite, a
+    /// thin ring, a box foot), DTU rig, 49 views of 200×150, textured backdrop, masks.
+    pub fn builtin() -> GoldenSpec {
+        let mut spec = GoldenSpec::new(GeometrySource::Shape("composite".into()));
+        spec.rig.width = 200;
+        spec.rig.height = 150;
+        spec
+    }
+}
+
+/// Renders [`GoldenSpec::builtin`].
 pub fn builtin_scene() -> GoldenScene {
-    let mut spec = GoldenSpec::new(GeometrySource::Shape("composite".into()));
-    spec.rig.width = 200;
-    spec.rig.height = 150;
-    generate(&spec).expect("the built-in scene needs no files")
+    generate(&GoldenSpec::builtin()).expect("the built-in scene needs no files")
 }
 
 fn mat4_rows(m: &DMat4) -> Vec<f64> {
@@ -269,3 +276,50 @@ pub fn thumbnail_grid(scene: &Scene, columns: usize, rows: usize, thumb_width: u
     out
 }
 
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+
+    #[test]
+    fn builtin_scene_depths_and_normals_agree_with_the_sdf() {
+        let g = builtin_scene();
+        assert_eq!(g.scene.views.len(), 49);
+        let Geometry::Analytic(shape) = &g.geometry else { panic!("the built-in scene is analytic") };
+        let mut checked = 0;
+        for (v, view) in g.scene.views.iter().enumerate().step_by(7) {
+            let cam = &view.camera;
+            let mask = view.mask.as_ref().unwrap();
+            let fg = mask.count() as f64 / (cam.width * cam.height) as f64;
+            assert!(fg > 0.1 && fg < 0.9, "view {v}: foreground {fg}");
+            for row in (0..cam.height).step_by(5) {
+                for col in (0..cam.width).step_by(5) {
+                    let i = (row * cam.width + col) as usize;
+                    let depth = g.depths[v][i] as f64;
+                    assert_eq!(mask.get(col, row), depth > 0.0);
+                    if depth > 0.0 {
+                        let p = cam.world_from_pixel_space(cam.pixel_center(col, row).extend(depth));
+                        assert!(shape.sdf(p).abs() < 1e-5, "view {v} ({col},{row}): S = {}", shape.sdf(p));
+                        let n = DVec3::from_array(g.normals[v][i].map(f64::from));
+                        assert!((n.length() - 1.0).abs() < 1e-5);
+                        checked += 1;
+                    }
+                }
+            }
+        }
+        assert!(checked > 500, "{checked}");
+    }
+
+    #[test]
+    fn golden_scenes_are_deterministic_for_a_seed() {
+        let mut spec = GoldenSpec::new(GeometrySource::Shape("torus".into()));
+        spec.rig = RigOptions { rig: Rig::Random, count: 3, width: 32, height: 24, seed: 9 };
+        spec.surface_points = 500;
+        let (a, b) = (generate(&spec).unwrap(), generate(&spec).unwrap());
+        assert_eq!(a.scene, b.scene);
+        assert_eq!(a.surface_points, b.surface_points);
+        spec.rig.seed = 10;
+        assert_ne!(generate(&spec).unwrap().scene.views[0].camera, a.scene.views[0].camera);
+    }
+}

@@ -47,15 +47,15 @@ pub enum ViewDependency {
     Off,
     /// The paper's equation as printed (no cell length, sum includes the current cell).
     PaperSum,
-    /// Naive NeuS density with exact piecewise-constant quadrature. Default.
-    #[default]
+    /// Naive NeuS density with exact piecewise-constant quadrature.
     Quadrature,
-    /// NeuS's unbiased (opaque) density: transmittance `max(0, 1 − τ)`.
+    /// NeuS's unbiased (opaque) density: transmittance `max(0, 1 − τ)`. Default.
+    #[default]
     Opaque,
 }
 
 /// Camera grid configuration. Defaults: 64 × 64 × 128, central-ray depth bounds against the unit
-/// sphere, minimum depth 1e-3, the paper's weighting, quadrature view dependency.
+/// sphere, minimum depth 1e-3, the paper's weighting, opaque view dependency.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraGridConfig {
     /// Cells along u (the paper: 64).
@@ -89,7 +89,7 @@ impl Default for CameraGridConfig {
             bound_radius: 1.0,
             min_depth: 1e-3,
             weighting: Weighting::InverseSquareDepth,
-            view_dependency: ViewDependency::Quadrature,
+            view_dependency: ViewDependency::Opaque,
         }
     }
 }

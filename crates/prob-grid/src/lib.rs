@@ -16,7 +16,7 @@
 //!   mass split (paper) or re-evaluated ([`SubcellMass`], F³ × the field queries). Projection
 //!   cost grows as F³.
 //! - **Weighting** ([`Weighting`]): η⁻² as printed (default) or mass-preserving.
-//! - **View dependency** ([`ViewDependency`]): quadrature (default), opaque, paper-literal, off.
+//! - **View dependency** ([`ViewDependency`]): opaque (default), quadrature, paper-literal, off.
 //! - **Sparse update** ([`Evaluation::Sparse`], default): octree descent with the field's
 //!   Lipschitz bound; equal to the dense reference within the mass tolerance (tests), with work
 //!   proportional to the surface for large s.
@@ -49,7 +49,7 @@ pub mod scene;
 pub use camera::{CameraGrid, CameraGridConfig, ViewDependency, Weighting, reproject};
 pub use density::{CellDensity, logistic_density};
 pub use field::{SdfField, Shape};
-pub use mesh::{MeshHit, TriangleMesh};
+pub use mesh::{MeshHit, MeshSdf, TriangleMesh};
 pub use scene::{ActiveCells, Evaluation, GridError, SceneGridConfig, SubcellMass, evaluate};
 
 use camera_geom::PinholeCamera;

@@ -167,6 +167,137 @@ impl TriangleMesh {
     }
 }
 
+impl TriangleMesh {
+    /// The closest point on the mesh to `p`: (squared distance, triangle, point). `None` for an
+    /// empty mesh.
+    pub fn closest_point(&self, p: Vec3) -> Option<(f32, u32, Vec3)> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        let mut best = (f32::INFINITY, 0u32, Vec3::ZERO);
+        let mut stack = [0u32; 64];
+        let mut top = 1;
+        while top > 0 {
+            top -= 1;
+            let node = self.nodes[stack[top] as usize];
+            if box_distance_squared(node.min, node.max, p) >= best.0 {
+                continue;
+            }
+            if node.count > 0 {
+                for &tri in &self.order[node.start as usize..(node.start + node.count) as usize] {
+                    let [a, b, c] = self.triangles[tri as usize].map(|i| self.positions[i as usize]);
+                    let q = closest_point_on_triangle(p, a, b, c);
+                    let d = (q - p).length_squared();
+                    if d < best.0 {
+                        best = (d, tri, q);
+                    }
+                }
+            } else if top + 2 <= stack.len() {
+                // Visit the nearer child first.
+                let (l, r) = (node.start, node.start + 1);
+                let dl = box_distance_squared(self.nodes[l as usize].min, self.nodes[l as usize].max, p);
+                let dr = box_distance_squared(self.nodes[r as usize].min, self.nodes[r as usize].max, p);
+                let (near, far) = if dl <= dr { (l, r) } else { (r, l) };
+                stack[top] = far;
+                stack[top + 1] = near;
+                top += 2;
+            }
+        }
+        Some(best)
+    }
+
+    /// Whether `p` is inside a closed mesh, by the parity of crossings along three fixed
+    /// irrational directions (majority vote, robust to a ray grazing an edge).
+    pub fn contains(&self, p: Vec3) -> bool {
+        const DIRECTIONS: [Vec3; 3] = [
+            Vec3::new(0.5773503, 0.5773503, 0.5773503),
+            Vec3::new(-0.4082483, 0.8164966, -0.4082483),
+            Vec3::new(0.7071068, -0.1, -0.7),
+        ];
+        let mut inside_votes = 0;
+        for d in DIRECTIONS {
+            let d = d.normalize();
+            let mut crossings = 0;
+            let mut t = 0.0f32;
+            while let Some(hit) = self.ray_hit(p, d, t, f32::INFINITY) {
+                crossings += 1;
+                t = hit.t + 1e-6 * hit.t.max(1.0);
+                if crossings > 10_000 {
+                    break;
+                }
+            }
+            inside_votes += crossings % 2;
+        }
+        inside_votes >= 2
+    }
+}
+
+/// A signed distance field from a closed (watertight) triangle mesh: the distance to the
+/// closest point, negative inside (ray-parity vote).
+#[derive(Debug, Clone)]
+pub struct MeshSdf {
+    /// The mesh.
+    pub mesh: TriangleMesh,
+}
+
+impl crate::field::SdfField for MeshSdf {
+    fn sdf_batch(&self, points: &[Vec3], out: &mut [f32]) {
+        assert_eq!(points.len(), out.len(), "sdf_batch: points and out differ in length");
+        for (p, o) in points.iter().zip(out.iter_mut()) {
+            *o = match self.mesh.closest_point(*p) {
+                Some((d2, _, _)) => {
+                    let d = d2.sqrt();
+                    if self.mesh.contains(*p) { -d } else { d }
+                }
+                None => f32::INFINITY,
+            };
+        }
+    }
+}
+
+fn box_distance_squared(min: Vec3, max: Vec3, p: Vec3) -> f32 {
+    let d = (min - p).max(p - max).max(Vec3::ZERO);
+    d.length_squared()
+}
+
+/// The closest point of triangle abc to p (Ericson, Real-Time Collision Detection, 5.1.5).
+pub fn closest_point_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Vec3 {
+    let ab = b - a;
+    let ac = c - a;
+    let ap = p - a;
+    let d1 = ab.dot(ap);
+    let d2 = ac.dot(ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = p - b;
+    let d3 = ab.dot(bp);
+    let d4 = ac.dot(bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * (d1 / (d1 - d3));
+    }
+    let cp = p - c;
+    let d5 = ab.dot(cp);
+    let d6 = ac.dot(cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    a + ab * (vb * denom) + ac * (vc * denom)
+}
+
 fn slab_hit(min: Vec3, max: Vec3, origin: Vec3, inv: Vec3, t_min: f32, t_max: f32) -> bool {
     let t0 = (min - origin) * inv;
     let t1 = (max - origin) * inv;
@@ -200,6 +331,22 @@ mod tests {
         // From inside, the exit face.
         let hit = m.ray_hit(Vec3::ZERO, Vec3::Z, 0.0, 100.0).unwrap();
         assert!((hit.t - 0.5).abs() < 1e-6);
+    }
+
+    #[test]
+    fn cube_sdf_matches_the_analytic_box() {
+        use crate::field::{SdfField, Shape};
+        let sdf = MeshSdf { mesh: cube() };
+        let b = Shape::Box { center: glam::DVec3::ZERO, half_extents: glam::DVec3::splat(0.5) };
+        let points: Vec<Vec3> = (0..500)
+            .map(|i| Vec3::new((i as f32 * 0.618).fract(), (i as f32 * 0.377).fract(), (i as f32 * 0.913).fract()) * 2.0 - 1.0)
+            .collect();
+        let mut out = vec![0.0; points.len()];
+        sdf.sdf_batch(&points, &mut out);
+        for (p, d) in points.iter().zip(&out) {
+            let expect = b.sdf(p.as_dvec3()) as f32;
+            assert!((d - expect).abs() < 1e-5, "{p}: {d} vs {expect}");
+        }
     }
 
     #[test]

@@ -11,6 +11,8 @@ use datasets::{LoadOptions, read_cameras};
 use glam::{DVec2, DVec3};
 use std::path::PathBuf;
 
+mod bench;
+
 #[derive(Parser)]
 #[command(name = "xtask", about = "psneus: neural implicit surfaces with a probability-guided sampler")]
 struct Cli {
@@ -53,6 +55,11 @@ enum Command {
         #[command(flatten)]
         data: DataArgs,
     },
+    /// Benchmarks (tables for BENCHMARKS.md; `--json`: one JSON object per figure).
+    Bench {
+        #[command(subcommand)]
+        which: BenchKind,
+    },
     /// Render a golden scene (known geometry) in the IDR layout.
     Golden {
         /// Analytic shape: sphere, torus, box, composite. With neither --shape nor --mesh, the
@@ -92,8 +99,25 @@ enum Command {
     },
 }
 
+#[derive(Subcommand)]
+enum BenchKind {
+    /// Probability update (F, s, dense vs sparse), draw throughput, accuracy vs cost.
+    Sampler {
+        /// DTU scan 24 folder (default ../shared/data/dtu_scan24; a golden DTU-like rig if absent).
+        #[arg(long)]
+        data: Option<PathBuf>,
+        /// One JSON object per figure on stdout.
+        #[arg(long)]
+        json: bool,
+        /// A smaller matrix (for a quick look).
+        #[arg(long)]
+        quick: bool,
+    },
+}
+
 fn main() -> Result<()> {
     match Cli::parse().command {
+        Command::Bench { which: BenchKind::Sampler { data, json, quick } } => bench::sampler(data.as_deref(), json, quick),
         Command::Cameras { data, ply } => cameras(&data, &ply),
         Command::Inspect { data } => inspect(&data),
         Command::Golden { shape, mesh, rig, out, views, width, height, seed, mesh_z_up, no_backdrop, thumbnail } => {

@@ -184,19 +184,26 @@ pub fn reproject(active: &ActiveCells, camera: &PinholeCamera, config: &CameraGr
     let (inv_du, inv_dv, inv_dl) = ((1.0 / du) as f32, (1.0 / dv) as f32, (1.0 / dl) as f32);
     let (fru, frv, frl) = (ru as f32, rv as f32, rl as f32);
     let inverse_square = config.weighting == Weighting::InverseSquareDepth;
+    // Sub-cell offsets in camera axes, once per camera.
+    let offsets: Vec<Vec3> = active.offsets.iter().map(|o| rotation * *o).collect();
+    let share = 1.0 / offsets.len().max(1) as f32;
     let mut outside = 0.0f64;
-    for (p, &m) in active.points.iter().zip(&active.masses) {
-        let x = rotation * *p + translation;
-        let inv_z = 1.0 / x.z;
-        let fu = ((fx * x.x + skew * x.y) * inv_z - u0) * inv_du;
-        let fv = (fy * x.y * inv_z - v0) * inv_dv;
-        let fl = (x.z - l0) * inv_dl;
-        // x.z ≤ 0 (behind the camera) gives fl < 0; NaN fails every comparison.
-        if fu >= 0.0 && fu < fru && fv >= 0.0 && fv < frv && fl >= 0.0 && fl < frl {
-            let idx = ((fu as usize) * rv + fv as usize) * rl + fl as usize;
-            grid.values[idx] += if inverse_square { m * inv_z * inv_z } else { m };
-        } else {
-            outside += m as f64;
+    for (p, &mass) in active.points.iter().zip(&active.masses) {
+        let center = rotation * *p + translation;
+        let m = mass * share;
+        for o in &offsets {
+            let x = center + *o;
+            let inv_z = 1.0 / x.z;
+            let fu = ((fx * x.x + skew * x.y) * inv_z - u0) * inv_du;
+            let fv = (fy * x.y * inv_z - v0) * inv_dv;
+            let fl = (x.z - l0) * inv_dl;
+            // x.z ≤ 0 (behind the camera) gives fl < 0; NaN fails every comparison.
+            if fu >= 0.0 && fu < fru && fv >= 0.0 && fv < frv && fl >= 0.0 && fl < frl {
+                let idx = ((fu as usize) * rv + fv as usize) * rl + fl as usize;
+                grid.values[idx] += if inverse_square { m * inv_z * inv_z } else { m };
+            } else {
+                outside += m as f64;
+            }
         }
     }
     grid.mass_outside = outside;

@@ -64,7 +64,7 @@ pub struct ProbabilityGrids {
     pub scene_mass: f64,
     /// Field queries made.
     pub field_queries: usize,
-    /// Sub-cells projected into each camera.
+    /// Sub-cells projected into each camera (cells kept × offsets).
     pub subcells: usize,
     /// Field values that were NaN (counted as no mass).
     pub nan_values: usize,
@@ -88,7 +88,7 @@ pub fn update(
         cameras: grids,
         scene_mass: active.total_mass,
         field_queries: active.field_queries,
-        subcells: active.points.len(),
+        subcells: active.points.len() * active.offsets.len(),
         nan_values: active.nan_values,
         empty_cameras,
     })

@@ -1,7 +1,7 @@
 //! `cargo xtask …`: the psneus runner (always built optimised through the cargo alias).
 //!
-//! Commands that exist today: `cameras`, `golden`, `inspect`. Training, sampling, evaluation and
-//! benchmarks arrive with their issues.
+//! Commands that exist today: `cameras`, `inspect`, `golden`, `sample`, `bench sampler`.
+//! Training and evaluation arrive with their issues.
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
@@ -12,6 +12,8 @@ use glam::{DVec2, DVec3};
 use std::path::PathBuf;
 
 mod bench;
+mod draw;
+mod sample;
 
 #[derive(Parser)]
 #[command(name = "xtask", about = "psneus: neural implicit surfaces with a probability-guided sampler")]
@@ -55,6 +57,9 @@ enum Command {
         #[command(flatten)]
         data: DataArgs,
     },
+    /// The guided sampler on a dataset with an analytic or mesh field: heat maps of the pixel
+    /// marginal with the drawn pixels, depth profiles, and a JSON summary.
+    Sample(sample::SampleArgs),
     /// Benchmarks (tables for BENCHMARKS.md; `--json`: one JSON object per figure).
     Bench {
         #[command(subcommand)]
@@ -117,6 +122,7 @@ enum BenchKind {
 
 fn main() -> Result<()> {
     match Cli::parse().command {
+        Command::Sample(args) => sample::run(&args),
         Command::Bench { which: BenchKind::Sampler { data, json, quick } } => bench::sampler(data.as_deref(), json, quick),
         Command::Cameras { data, ply } => cameras(&data, &ply),
         Command::Inspect { data } => inspect(&data),

@@ -8,10 +8,12 @@
 //! negligible ([`crate::density::negligible_distance`]). For large s the work is proportional to
 //! the surface, not the volume.
 //!
-//! **Neglected mass.** Both modes drop cells whose density is below
-//! `mass_tolerance / V` (V the volume of the scene bound), so the mass dropped is at most
-//! `mass_tolerance` in absolute terms, i.e. a relative `mass_tolerance / A` for an object of
-//! surface area A (the density integrates to 1 across a surface, so the total mass ≈ A).
+//! **Neglected mass.** The cells of least mass are dropped as long as their total stays within
+//! `mass_tolerance` (relative, default 1e-5) of the grid's mass; the logistic's long tails then
+//! cost nothing. The sparse descent skips blocks whose density is below
+//! `0.1 · mass_tolerance / V` everywhere (V the volume of the scene bound), which is within the
+//! same relative tolerance for any surface of area ≥ 0.1 (the density integrates to 1 across a
+//! surface, so the total mass ≈ the area; a sphere of radius 0.09 has area 0.1).
 
 use crate::density::{CellDensity, cell_density, negligible_distance};
 use crate::field::SdfField;
@@ -52,7 +54,7 @@ pub enum Evaluation {
 }
 
 /// The scene grid's configuration. Defaults: 128³ over [−1, 1]³, F = 2, split masses,
-/// cell-averaged density, sparse evaluation, mass tolerance 1e-6.
+/// cell-averaged density, sparse evaluation, mass tolerance 1e-5.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SceneGridConfig {
     /// Cells per axis (the paper: 128).
@@ -69,7 +71,7 @@ pub struct SceneGridConfig {
     pub cell_density: CellDensity,
     /// Dense or sparse evaluation.
     pub evaluation: Evaluation,
-    /// Absolute mass that may be neglected (see the module docs).
+    /// Fraction of the total mass that may be neglected (see the module docs).
     pub mass_tolerance: f64,
 }
 
@@ -83,7 +85,7 @@ impl Default for SceneGridConfig {
             subcell_mass: SubcellMass::Split,
             cell_density: CellDensity::CellAverage,
             evaluation: Evaluation::Sparse,
-            mass_tolerance: 1e-6,
+            mass_tolerance: 1e-5,
         }
     }
 }
@@ -105,7 +107,7 @@ impl SceneGridConfig {
         if (extent.x - extent.y).abs() > 1e-5 * extent.x || (extent.x - extent.z).abs() > 1e-5 * extent.x {
             return bad("scene bound", format!("must be a cube, got extent {extent}"));
         }
-        if !(self.mass_tolerance.is_finite() && self.mass_tolerance > 0.0) {
+        if !(self.mass_tolerance.is_finite() && self.mass_tolerance > 0.0 && self.mass_tolerance < 1.0) {
             return bad("mass tolerance", format!("{}", self.mass_tolerance));
         }
         Ok(())
@@ -166,7 +168,8 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
     }
     let r = config.resolution as u32;
     let cell = config.cell_size();
-    let threshold = config.mass_tolerance / config.volume();
+    // Densities below this are dropped before the relative pruning (see the module docs).
+    let threshold = 0.1 * config.mass_tolerance / config.volume();
     let mut queries = 0usize;
 
     // Candidate cells: all of them (dense) or the leaves of the octree descent (sparse), with
@@ -250,8 +253,9 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
                     (density > threshold).then(|| (config.cell_center(*c), (density * cell_volume) as f32))
                 })
                 .collect();
-            out.cells = kept.len();
             (out.points, out.masses) = kept.into_iter().unzip();
+            prune_lightest(&mut out.points, &mut out.masses, config.mass_tolerance);
+            out.cells = out.points.len();
             out.offsets = offsets;
         }
         SubcellMass::Reevaluate => {
@@ -277,10 +281,44 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
                     out.masses.push((density * sub_volume) as f32);
                 }
             }
+            prune_lightest(&mut out.points, &mut out.masses, config.mass_tolerance);
         }
     }
     out.total_mass = out.masses.iter().map(|m| *m as f64).sum();
     Ok(out)
+}
+
+/// Drops the lightest entries while their total stays within `tolerance` of the whole: a
+/// histogram over the masses' binary exponents picks the largest exponent below which the mass
+/// adds up to at most `tolerance · total` (whole exponent buckets only, so it errs on keeping).
+fn prune_lightest(points: &mut Vec<Vec3>, masses: &mut Vec<f32>, tolerance: f64) {
+    let total: f64 = masses.iter().map(|m| *m as f64).sum();
+    if !(total > 0.0) {
+        return;
+    }
+    let mut buckets = [0.0f64; 256];
+    for m in masses.iter() {
+        buckets[(m.to_bits() >> 23) as usize & 0xff] += *m as f64;
+    }
+    let budget = tolerance * total;
+    let (mut cut, mut dropped) = (0usize, 0.0f64);
+    while cut < 256 && dropped + buckets[cut] <= budget {
+        dropped += buckets[cut];
+        cut += 1;
+    }
+    if cut == 0 {
+        return;
+    }
+    let mut w = 0;
+    for r in 0..masses.len() {
+        if (masses[r].to_bits() >> 23) as usize & 0xff >= cut {
+            points[w] = points[r];
+            masses[w] = masses[r];
+            w += 1;
+        }
+    }
+    points.truncate(w);
+    masses.truncate(w);
 }
 
 #[cfg(test)]

@@ -51,16 +51,52 @@ impl ImageSpaceSample {
     }
 }
 
-/// Up to four weighted columns of bins and the inverse transform over their mixture.
-struct Mixture<'a> {
-    /// (inclusive prefix sums of a column, weight).
-    parts: [(&'a [f32], f64); 4],
-    count: usize,
+/// Values a prefix-sum array may hold (f32 today; the trait keeps a quantised variant cheap to
+/// try).
+trait CdfValue: Copy {
+    fn to_f64(self) -> f64;
+}
+impl CdfValue for f32 {
+    #[inline]
+    fn to_f64(self) -> f64 {
+        self as f64
+    }
 }
 
-impl Mixture<'_> {
+/// Bins per guide entry of the λ columns (two-level search: guide, then one block).
+const BLOCK: usize = 16;
+
+/// Up to four weighted columns of bins and the inverse transform over their mixture. Each column
+/// is an inclusive prefix sum; a mixture of piecewise-constant densities on the same bins is
+/// piecewise constant on those bins, with CDF `Σ_c w_c · C_c[k]`.
+struct Mixture<'a, T: CdfValue> {
+    parts: [(&'a [T], f64); 4],
+    count: usize,
+    /// Optional guide: per column, the prefix sum at the end of every block of [`BLOCK`] bins.
+    guide: Option<[&'a [T]; 4]>,
+}
+
+impl<'a, T: CdfValue> Mixture<'a, T> {
+    fn single(column: &'a [T]) -> Self {
+        Mixture { parts: [(column, 1.0), (&[], 0.0), (&[], 0.0), (&[], 0.0)], count: 1, guide: None }
+    }
+
+    #[inline]
     fn cdf(&self, k: usize) -> f64 {
-        self.parts[..self.count].iter().map(|(c, w)| w * c[k] as f64).sum()
+        let mut acc = 0.0;
+        for (c, w) in &self.parts[..self.count] {
+            acc += w * c[k].to_f64();
+        }
+        acc
+    }
+
+    #[inline]
+    fn guide_cdf(&self, guide: &[&[T]; 4], b: usize) -> f64 {
+        let mut acc = 0.0;
+        for (g, (_, w)) in guide.iter().zip(&self.parts[..self.count]) {
+            acc += w * g[b].to_f64();
+        }
+        acc
     }
 
     fn bins(&self) -> usize {
@@ -71,6 +107,20 @@ impl Mixture<'_> {
         self.cdf(self.bins() - 1)
     }
 
+    fn before(&self, k: usize) -> f64 {
+        if k == 0 { 0.0 } else { self.cdf(k - 1) }
+    }
+
+    /// The first bin in `[lo, hi)` whose inclusive CDF exceeds `target` (`hi − 1` if none).
+    fn search(&self, mut lo: usize, mut hi: usize, target: f64) -> usize {
+        hi -= 1;
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if self.cdf(mid) > target { hi = mid } else { lo = mid + 1 }
+        }
+        lo
+    }
+
     /// (bin, fraction within the bin, bin mass / total), or `None` for an all-zero mixture.
     fn sample(&self, u: f64) -> Option<(usize, f64, f64)> {
         let total = self.total();
@@ -78,20 +128,26 @@ impl Mixture<'_> {
             return None;
         }
         let target = u.clamp(0.0, 1.0) * total;
-        // The first bin whose inclusive CDF exceeds the target.
-        let (mut lo, mut hi) = (0usize, self.bins() - 1);
-        while lo < hi {
-            let mid = (lo + hi) / 2;
-            if self.cdf(mid) > target { hi = mid } else { lo = mid + 1 }
-        }
-        let before = if lo == 0 { 0.0 } else { self.cdf(lo - 1) };
-        let mass = self.cdf(lo) - before;
+        let bins = self.bins();
+        let k = match &self.guide {
+            Some(guide) => {
+                let blocks = bins.div_ceil(BLOCK);
+                let mut b = 0;
+                while b + 1 < blocks && self.guide_cdf(guide, b) <= target {
+                    b += 1;
+                }
+                self.search(b * BLOCK, ((b + 1) * BLOCK).min(bins), target)
+            }
+            None => self.search(0, bins, target),
+        };
+        let before = self.before(k);
+        let mass = self.cdf(k) - before;
         if !(mass > 0.0) {
             // u = 1 walked past the end onto trailing empty bins: step back to the last full one.
-            let last = (0..self.bins()).rev().find(|&k| self.cdf(k) - if k == 0 { 0.0 } else { self.cdf(k - 1) } > 0.0)?;
-            return Some((last, 1.0, (self.cdf(last) - if last == 0 { 0.0 } else { self.cdf(last - 1) }) / total));
+            let last = (0..bins).rev().find(|&j| self.cdf(j) - self.before(j) > 0.0)?;
+            return Some((last, 1.0, (self.cdf(last) - self.before(last)) / total));
         }
-        Some((lo, ((target - before) / mass).clamp(0.0, 1.0), mass / total))
+        Some((k, ((target - before) / mass).clamp(0.0, 1.0), mass / total))
     }
 
     /// Bin mass / total of bin k.
@@ -100,14 +156,13 @@ impl Mixture<'_> {
         if !(total > 0.0) {
             return 0.0;
         }
-        (self.cdf(k) - if k == 0 { 0.0 } else { self.cdf(k - 1) }) / total
+        (self.cdf(k) - self.before(k)) / total
     }
 
     /// The uniform number that `sample` maps to (bin k, fraction).
     fn invert(&self, k: usize, fraction: f64) -> f64 {
-        let total = self.total();
-        let before = if k == 0 { 0.0 } else { self.cdf(k - 1) };
-        (before + fraction * (self.cdf(k) - before)) / total
+        let before = self.before(k);
+        (before + fraction * (self.cdf(k) - before)) / self.total()
     }
 }
 
@@ -121,6 +176,10 @@ pub struct CameraDistribution {
     rl: usize,
     /// Per (u, v) column: inclusive prefix sums of p̃ along λ.
     lambda_cdf: Vec<f32>,
+    /// Per column: `lambda_cdf` at the end of every block of [`BLOCK`] bins. Random draws are
+    /// bound by memory latency once 49 grids outgrow the caches; the guide turns a 7-step binary
+    /// search over 8 cache lines into a scan of one line and a search inside one block.
+    lambda_guide: Vec<f32>,
     /// Per u: inclusive prefix sums along v of the column totals (f32 for the mixture code).
     v_cdf: Vec<f32>,
     /// Inclusive prefix sums along u of the u-slab totals.
@@ -155,25 +214,43 @@ impl CameraDistribution {
         if uniform_fallback {
             values.iter_mut().for_each(|v| *v = 1.0);
         }
+        let blocks = rl.div_ceil(BLOCK);
+        let mut lambda_guide = vec![0.0f32; ru * rv * blocks];
         let mut v_cdf = vec![0.0f32; ru * rv];
         let mut u_cdf = vec![0.0f32; ru];
         let mut u_acc = 0.0f64;
         for iu in 0..ru {
             let mut v_acc = 0.0f64;
             for iv in 0..rv {
-                let col = &mut values[(iu * rv + iv) * rl..(iu * rv + iv + 1) * rl];
+                let column = iu * rv + iv;
+                let q = &mut values[column * rl..(column + 1) * rl];
                 let mut acc = 0.0f64;
-                for x in col.iter_mut() {
+                for x in q.iter_mut() {
                     acc += *x as f64;
                     *x = acc as f32;
                 }
+                for b in 0..blocks {
+                    lambda_guide[column * blocks + b] = q[((b + 1) * BLOCK).min(rl) - 1];
+                }
                 v_acc += acc;
-                v_cdf[iu * rv + iv] = v_acc as f32;
+                v_cdf[column] = v_acc as f32;
             }
             u_acc += v_acc;
             u_cdf[iu] = u_acc as f32;
         }
-        CameraDistribution { camera, bounds, ru, rv, rl, lambda_cdf: values, v_cdf, u_cdf, interpolation, uniform_fallback }
+        CameraDistribution {
+            camera,
+            bounds,
+            ru,
+            rv,
+            rl,
+            lambda_cdf: values,
+            lambda_guide,
+            v_cdf,
+            u_cdf,
+            interpolation,
+            uniform_fallback,
+        }
     }
 
     /// The camera.
@@ -196,63 +273,68 @@ impl CameraDistribution {
         ((b.u[1] - b.u[0]) / self.ru as f64, (b.v[1] - b.v[0]) / self.rv as f64, (b.depth[1] - b.depth[0]) / self.rl as f64)
     }
 
-    fn lambda_column(&self, iu: usize, iv: usize) -> &[f32] {
-        let start = (iu * self.rv + iv) * self.rl;
-        &self.lambda_cdf[start..start + self.rl]
+    /// A λ column's prefix sums and its guide.
+    fn lambda_column(&self, iu: usize, iv: usize) -> (&[f32], &[f32]) {
+        let column = iu * self.rv + iv;
+        let blocks = self.rl.div_ceil(BLOCK);
+        (&self.lambda_cdf[column * self.rl..(column + 1) * self.rl], &self.lambda_guide[column * blocks..(column + 1) * blocks])
     }
 
-    fn u_mixture(&self) -> Mixture<'_> {
-        Mixture { parts: [(&self.u_cdf, 1.0), (&[], 0.0), (&[], 0.0), (&[], 0.0)], count: 1 }
+    fn u_mixture(&self) -> Mixture<'_, f32> {
+        Mixture::single(&self.u_cdf)
     }
 
-    fn v_mixture(&self, pixel_u: f64) -> Mixture<'_> {
+    fn v_mixture(&self, pixel_u: f64) -> Mixture<'_, f32> {
         let (du, _, _) = self.sizes();
         let col = |iu: usize| &self.v_cdf[iu * self.rv..(iu + 1) * self.rv];
         match self.interpolation {
-            Interpolation::Nearest => {
-                let j = cell_of(pixel_u, self.bounds.u[0], du, self.ru);
-                Mixture { parts: [(col(j), 1.0), (&[], 0.0), (&[], 0.0), (&[], 0.0)], count: 1 }
-            }
+            Interpolation::Nearest => Mixture::single(col(cell_of(pixel_u, self.bounds.u[0], du, self.ru))),
             Interpolation::Linear => {
                 let (j0, j1, t) = bracket(pixel_u, self.bounds.u[0], du, self.ru);
-                Mixture { parts: [(col(j0), 1.0 - t), (col(j1), t), (&[], 0.0), (&[], 0.0)], count: 2 }
+                Mixture { parts: [(col(j0), 1.0 - t), (col(j1), t), (&[], 0.0), (&[], 0.0)], count: 2, guide: None }
             }
         }
     }
 
-    fn lambda_mixture(&self, pixel: DVec2) -> Mixture<'_> {
+    fn lambda_mixture(&self, pixel: DVec2) -> Mixture<'_, f32> {
         let (du, dv, _) = self.sizes();
-        match self.interpolation {
+        let (columns, weights): ([(usize, usize); 4], [f64; 4]) = match self.interpolation {
             Interpolation::Nearest => {
                 let j = cell_of(pixel.x, self.bounds.u[0], du, self.ru);
                 let k = cell_of(pixel.y, self.bounds.v[0], dv, self.rv);
-                Mixture { parts: [(self.lambda_column(j, k), 1.0), (&[], 0.0), (&[], 0.0), (&[], 0.0)], count: 1 }
+                ([(j, k); 4], [1.0, 0.0, 0.0, 0.0])
             }
             Interpolation::Linear => {
                 let (j0, j1, t) = bracket(pixel.x, self.bounds.u[0], du, self.ru);
                 let (k0, k1, s) = bracket(pixel.y, self.bounds.v[0], dv, self.rv);
-                Mixture {
-                    parts: [
-                        (self.lambda_column(j0, k0), (1.0 - t) * (1.0 - s)),
-                        (self.lambda_column(j1, k0), t * (1.0 - s)),
-                        (self.lambda_column(j0, k1), (1.0 - t) * s),
-                        (self.lambda_column(j1, k1), t * s),
-                    ],
-                    count: 4,
-                }
+                ([(j0, k0), (j1, k0), (j0, k1), (j1, k1)], [(1.0 - t) * (1.0 - s), t * (1.0 - s), (1.0 - t) * s, t * s])
             }
+        };
+        let count = if self.interpolation == Interpolation::Nearest { 1 } else { 4 };
+        let mut parts: [(&[f32], f64); 4] = [(&[], 0.0); 4];
+        let mut guide: [&[f32]; 4] = [&[]; 4];
+        for c in 0..count {
+            let (cdf, g) = self.lambda_column(columns[c].0, columns[c].1);
+            parts[c] = (cdf, weights[c]);
+            guide[c] = g;
         }
+        Mixture { parts, count, guide: Some(guide) }
     }
 
     /// Draws (ũ, ṽ, λ̃) from three uniform numbers.
     pub fn sample(&self, u: [f64; 3]) -> ImageSpaceSample {
+        let (pixel, pdf_pixel) = self.sample_pixel([u[0], u[1]]);
+        let (depth, pdf_depth) = self.sample_depth(pixel, u[2]).expect("the λ-mixture at a drawn (ũ, ṽ) has mass");
+        ImageSpaceSample { pixel, depth, pdf_pixel, pdf_depth }
+    }
+
+    /// Draws (ũ, ṽ) from the pixel marginal with two uniform numbers: `(pixel, pdf per pixel²)`.
+    pub fn sample_pixel(&self, u: [f64; 2]) -> (DVec2, f64) {
         let (du, dv, _) = self.sizes();
         let (ju, fu, pu) = self.u_mixture().sample(u[0]).expect("a distribution always has mass (uniform fallback)");
         let pixel_u = self.bounds.u[0] + (ju as f64 + fu) * du;
         let (kv, fv, pv) = self.v_mixture(pixel_u).sample(u[1]).expect("the v-mixture at a drawn ũ has mass");
-        let pixel = DVec2::new(pixel_u, self.bounds.v[0] + (kv as f64 + fv) * dv);
-        let (depth, pdf_depth) = self.sample_depth(pixel, u[2]).expect("the λ-mixture at a drawn (ũ, ṽ) has mass");
-        ImageSpaceSample { pixel, depth, pdf_pixel: pu * pv / (du * dv), pdf_depth }
+        (DVec2::new(pixel_u, self.bounds.v[0] + (kv as f64 + fv) * dv), pu * pv / (du * dv))
     }
 
     /// Draws λ̃ for given pixel coordinates (uniform rays, evaluation) from one uniform number:

@@ -139,34 +139,47 @@ impl ViewSampler {
         (b[0] + u * (b[1] - b[0]), 1.0 / (b[1] - b[0]))
     }
 
-    /// Draws one ray of `camera` from four uniform numbers.
-    pub fn sample_ray(&self, camera: usize, guided: bool, u: [f64; 4]) -> RaySample {
+    /// First half of a ray: the pixel (guided: from the marginal; uniform: a uniform pixel
+    /// centre), with its pdf and the nearest pixel.
+    fn ray_pixel(&self, camera: usize, guided: bool, u: [f64; 2]) -> ((u32, u32), DVec2, f64) {
         let d = &self.cameras[camera];
         let cam = d.camera();
-        let (pixel, coords, depth, pdf_depth) = if guided {
-            let s = d.sample([u[0], u[1], u[2]]);
+        if guided {
+            let (coords, pdf) = d.sample_pixel(u);
             let o = cam.pixel_centers.offset();
-            let pixel = cam.nearest_pixel(s.pixel).unwrap_or_else(|| {
+            let pixel = cam.nearest_pixel(coords).unwrap_or_else(|| {
                 // Bounds are the image's edges, so this only guards rounding at the last pixel.
-                let c = (s.pixel.x - o).round().clamp(0.0, cam.width as f64 - 1.0) as u32;
-                let r = (s.pixel.y - o).round().clamp(0.0, cam.height as f64 - 1.0) as u32;
+                let c = (coords.x - o).round().clamp(0.0, cam.width as f64 - 1.0) as u32;
+                let r = (coords.y - o).round().clamp(0.0, cam.height as f64 - 1.0) as u32;
                 (c, r)
             });
-            (pixel, s.pixel, s.depth, s.pdf_depth)
+            (pixel, coords, pdf)
         } else {
             let col = ((u[0] * cam.width as f64) as u32).min(cam.width - 1);
             let row = ((u[1] * cam.height as f64) as u32).min(cam.height - 1);
             let coords = cam.pixel_center(col, row);
-            let (depth, pdf) = d.sample_depth(coords, u[2]).unwrap_or_else(|| Self::uniform_depth(d, u[2]));
-            ((col, row), coords, depth, pdf)
-        };
+            ((col, row), coords, d.pdf_pixel(coords))
+        }
+    }
+
+    /// Second half of a ray: λ̃ for its pixel (uniform in depth where the column is empty).
+    fn ray_depth(&self, camera: usize, coords: DVec2, u: f64) -> (f64, f64) {
+        let d = &self.cameras[camera];
+        d.sample_depth(coords, u).unwrap_or_else(|| Self::uniform_depth(d, u))
+    }
+
+    /// Draws one ray of `camera` from four uniform numbers (the fourth is unused today and
+    /// reserved, so that streams stay aligned when a choice is added).
+    pub fn sample_ray(&self, camera: usize, guided: bool, u: [f64; 4]) -> RaySample {
+        let (pixel, coords, pdf_pixel) = self.ray_pixel(camera, guided, [u[0], u[1]]);
+        let (depth, pdf_depth) = self.ray_depth(camera, coords, u[2]);
         RaySample {
             camera: camera as u32,
             pixel: [pixel.0, pixel.1],
             pixel_coords: coords,
             depth: depth as f32,
             pdf_depth: pdf_depth as f32,
-            pdf_pixel: d.pdf_pixel(coords) as f32,
+            pdf_pixel: pdf_pixel as f32,
             guided,
         }
     }

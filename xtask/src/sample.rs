@@ -1,0 +1,207 @@
+//! `cargo xtask sample`: the guided sampler on a dataset with an analytic or mesh field, as
+//! pictures (pixel-marginal heat maps with the drawn pixels, depth profiles) and a JSON summary.
+
+use crate::draw::{colormap, plot, put};
+use anyhow::{Context, Result, bail};
+use datasets::golden::mesh_io::load_mesh;
+use datasets::{LoadOptions, Scene, load_scene};
+use glam::DVec2;
+use prob_grid::{CameraGridConfig, MeshSdf, SceneGridConfig, SdfField, Shape, TriangleMesh, update};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use view_sampler::{SamplerConfig, UniformSchedule, ViewSampler};
+
+/// Options of `cargo xtask sample`.
+#[derive(clap::Args)]
+pub struct SampleArgs {
+    /// Dataset folder (any supported layout).
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Integer downscale factor.
+    #[arg(long, default_value_t = 1)]
+    pub downscale: u32,
+    /// The SDF: sphere (r = 0.5), torus, box, composite, or mesh:FILE (closed, world units).
+    #[arg(long, default_value = "sphere")]
+    pub field: String,
+    /// Logistic scale s.
+    #[arg(long, default_value_t = 200.0)]
+    pub s: f32,
+    /// Output folder for pictures and summary.json.
+    #[arg(long, default_value = "out/sample")]
+    pub out: PathBuf,
+    /// Number of guided rays to draw.
+    #[arg(long, default_value_t = 200_000)]
+    pub rays: usize,
+    /// Number of views to draw pictures for.
+    #[arg(long, default_value_t = 6)]
+    pub views: usize,
+    /// Print the summary as one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `sphere|torus|box|composite` or `mesh:FILE` (a closed mesh in the dataset's world units).
+fn make_field(spec: &str, scene: &Scene) -> Result<Box<dyn SdfField>> {
+    if let Some(path) = spec.strip_prefix("mesh:") {
+        let mesh = load_mesh(Path::new(path))?;
+        let normalized_from_world = scene.world_from_normalized.inverse();
+        let positions = mesh.mesh.positions.iter().map(|p| normalized_from_world.transform_point3(p.as_dvec3()).as_vec3()).collect();
+        return Ok(Box::new(MeshSdf { mesh: TriangleMesh::new(positions, mesh.mesh.triangles.clone()) }));
+    }
+    match Shape::by_name(spec) {
+        Some(shape) => Ok(Box::new(shape)),
+        None => bail!("unknown field {spec:?} (sphere, torus, box, composite, or mesh:FILE)"),
+    }
+}
+
+/// The depth map `depth/NAME.npy` written by golden scenes, if present and of the right size.
+fn depth_map(data: &Path, name: &str, width: u32, height: u32) -> Option<Vec<f32>> {
+    let path = data.join("depth").join(format!("{name}.npy"));
+    let bytes = std::fs::read(&path).ok()?;
+    let a = datasets::npy::parse_npy(&bytes, &path).ok()?;
+    (a.shape == [height as usize, width as usize]).then(|| a.data.iter().map(|v| *v as f32).collect())
+}
+
+/// Runs the command.
+pub fn run(args: &SampleArgs) -> Result<()> {
+    let scene = load_scene(&args.data, &LoadOptions { downscale: args.downscale, ..LoadOptions::default() })
+        .with_context(|| format!("loading {}", args.data.display()))?;
+    let field = make_field(&args.field, &scene)?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let cameras: Vec<_> = scene.views.iter().map(|v| v.camera).collect();
+
+    let camera_config = CameraGridConfig::default();
+    let t = Instant::now();
+    let grids = update(field.as_ref(), args.s, &cameras, &SceneGridConfig::default(), &camera_config)?;
+    let update_seconds = t.elapsed().as_secs_f64();
+    let empty = grids.empty_cameras.clone();
+    let t = Instant::now();
+    let sampler = ViewSampler::new(grids.cameras, SamplerConfig { schedule: UniformSchedule { fractions: vec![0.0] }, ..Default::default() });
+    let cdf_seconds = t.elapsed().as_secs_f64();
+    if !empty.is_empty() {
+        eprintln!("note: {} camera(s) see no mass and are sampled uniformly: {empty:?}", empty.len());
+    }
+    let t = Instant::now();
+    let rays = sampler.sample_batch(args.rays, 0.0, 0, 0);
+    let draw_seconds = t.elapsed().as_secs_f64();
+
+    // Statistics over every view.
+    let (mut in_mask, mut with_mask, mut depth_errors) = (0usize, 0usize, Vec::new());
+    let depths: Vec<Option<Vec<f32>>> =
+        scene.views.iter().map(|v| depth_map(&args.data, &v.name, v.camera.width, v.camera.height)).collect();
+    for r in &rays {
+        let view = &scene.views[r.camera as usize];
+        if let Some(mask) = &view.mask {
+            with_mask += 1;
+            in_mask += mask.get(r.pixel[0], r.pixel[1]) as usize;
+        }
+        if let Some(depth) = &depths[r.camera as usize] {
+            let d = depth[(r.pixel[1] * view.camera.width + r.pixel[0]) as usize];
+            if d > 0.0 {
+                let b = sampler.cameras()[r.camera as usize].bounds();
+                let cell = (b.depth[1] - b.depth[0]) / camera_config.rl as f64;
+                depth_errors.push((r.depth as f64 - d as f64).abs() / cell);
+            }
+        }
+    }
+    depth_errors.sort_by(f64::total_cmp);
+
+    // Pictures for the first views.
+    let mut written = Vec::new();
+    for (c, view) in scene.views.iter().enumerate().take(args.views) {
+        let dist = &sampler.cameras()[c];
+        let (ru, rv, _) = dist.resolution();
+        let marginal = dist.pixel_marginal();
+        let peak = marginal.iter().cloned().fold(0.0, f64::max).max(1e-300);
+        let b = *dist.bounds();
+        let mut img = view.image.clone();
+        for row in 0..img.height {
+            for col in 0..img.width {
+                let p = view.camera.pixel_center(col, row);
+                let iu = (((p.x - b.u[0]) / (b.u[1] - b.u[0]) * ru as f64) as usize).min(ru - 1);
+                let iv = (((p.y - b.v[0]) / (b.v[1] - b.v[0]) * rv as f64) as usize).min(rv - 1);
+                let t = (marginal[iv * ru + iu] / peak).sqrt() as f32;
+                let base = img.get_f32(col, row).map(|x| 0.45 * x);
+                let heat = colormap(t);
+                let a = 0.75 * t.min(1.0);
+                img.set_f32(col, row, [0, 1, 2].map(|k| base[k] * (1.0 - a) + heat[k] * a));
+            }
+        }
+        // At most 1500 drawn pixels per picture, so the heat map stays visible.
+        let dot = (img.width / 800) as i64;
+        for r in rays.iter().filter(|r| r.camera as usize == c).take(1500) {
+            for dy in -dot..=dot {
+                for dx in -dot..=dot {
+                    put(&mut img, r.pixel[0] as i64 + dx, r.pixel[1] as i64 + dy, [0.2, 1.0, 0.3]);
+                }
+            }
+        }
+        let heat_path = args.out.join(format!("heatmap_{}.png", view.name));
+        img.save_png(&heat_path)?;
+
+        // Depth profiles p̃(λ | u, v) at the three pixels of highest marginal and the image centre.
+        let mut order: Vec<usize> = (0..marginal.len()).collect();
+        order.sort_by(|a, b| marginal[*b].total_cmp(&marginal[*a]));
+        let mut pixels: Vec<DVec2> = order
+            .iter()
+            .take(3)
+            .map(|&i| DVec2::new(b.u[0] + ((i % ru) as f64 + 0.5) * (b.u[1] - b.u[0]) / ru as f64, b.v[0] + ((i / ru) as f64 + 0.5) * (b.v[1] - b.v[0]) / rv as f64))
+            .collect();
+        pixels.push(DVec2::new(view.camera.intrinsics.cx, view.camera.intrinsics.cy));
+        let colours = [[0.85, 0.2, 0.2], [0.2, 0.45, 0.85], [0.15, 0.6, 0.25], [0.5, 0.5, 0.5]];
+        let mut series = Vec::new();
+        let mut markers = Vec::new();
+        for (p, rgb) in pixels.iter().zip(colours) {
+            let points: Vec<(f64, f64)> = (0..512)
+                .map(|k| {
+                    let depth = b.depth[0] + (k as f64 + 0.5) / 512.0 * (b.depth[1] - b.depth[0]);
+                    (depth, dist.pdf_depth(*p, depth))
+                })
+                .collect();
+            series.push((rgb, points));
+            if let (Some(depth), Some((col, row))) = (&depths[c], view.camera.nearest_pixel(*p)) {
+                let d = depth[(row * view.camera.width + col) as usize];
+                if d > 0.0 {
+                    markers.push((d as f64, rgb));
+                }
+            }
+        }
+        let profile_path = args.out.join(format!("profile_{}.png", view.name));
+        plot(640, 280, &series, &markers).save_png(&profile_path)?;
+        written.push(serde_json::json!({"view": view.name, "heatmap": heat_path, "depth_profile": profile_path}));
+    }
+
+    let summary = serde_json::json!({
+        "data": args.data,
+        "field": args.field,
+        "s": args.s,
+        "cameras": cameras.len(),
+        "scene_grid": 128, "partition": 2, "camera_grid": [camera_config.ru, camera_config.rv, camera_config.rl],
+        "update_seconds": update_seconds,
+        "cdf_seconds": cdf_seconds,
+        "rays": rays.len(),
+        "draw_seconds": draw_seconds,
+        "samples_per_second": rays.len() as f64 / draw_seconds,
+        "guided_fraction_inside_mask": (with_mask > 0).then(|| in_mask as f64 / with_mask as f64),
+        "median_depth_error_cells": (!depth_errors.is_empty()).then(|| depth_errors[depth_errors.len() / 2]),
+        "rays_with_true_depth": depth_errors.len(),
+        "empty_cameras": empty,
+        "pictures": written,
+    });
+    datasets::io::write_atomic(&args.out.join("summary.json"), serde_json::to_string_pretty(&summary)?.as_bytes())?;
+    if args.json {
+        println!("{summary}");
+    } else {
+        eprintln!(
+            "{} cameras, update {:.3} s + CDFs {:.3} s, {:.1} M draws/s; guided inside mask: {}; median depth error: {} cells; pictures in {}",
+            cameras.len(),
+            update_seconds,
+            cdf_seconds,
+            rays.len() as f64 / draw_seconds / 1e6,
+            summary["guided_fraction_inside_mask"],
+            summary["median_depth_error_cells"],
+            args.out.display()
+        );
+    }
+    Ok(())
+}

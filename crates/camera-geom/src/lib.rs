@@ -320,9 +320,10 @@ impl PinholeCamera {
     /// The pixel (column, row) whose centre is nearest to continuous coordinates `pixel`,
     /// `None` outside the image.
     pub fn nearest_pixel(&self, pixel: DVec2) -> Option<(u32, u32)> {
-        let o = self.pixel_centers.offset();
-        let c = (pixel.x - o).round();
-        let r = (pixel.y - o).round();
+        // Nearest centre = floor(x − o + ½); truncation is floor for non-negative values and
+        // avoids a libm call on this hot path of the sampler.
+        let o = self.pixel_centers.offset() - 0.5;
+        let (c, r) = (pixel.x - o, pixel.y - o);
         if c >= 0.0 && r >= 0.0 && c < self.width as f64 && r < self.height as f64 {
             Some((c as u32, r as u32))
         } else {

@@ -103,8 +103,13 @@ impl<'a, T: CdfValue> Mixture<'a, T> {
         self.parts[0].0.len()
     }
 
+    /// The mixture's total: the last guide entry when there is a guide (its cache line is read
+    /// by the search anyway), else the last prefix sum.
     fn total(&self) -> f64 {
-        self.cdf(self.bins() - 1)
+        match &self.guide {
+            Some(guide) => self.guide_cdf(guide, guide[0].len() - 1),
+            None => self.cdf(self.bins() - 1),
+        }
     }
 
     fn before(&self, k: usize) -> f64 {
@@ -112,6 +117,8 @@ impl<'a, T: CdfValue> Mixture<'a, T> {
     }
 
     /// The first bin in `[lo, hi)` whose inclusive CDF exceeds `target` (`hi − 1` if none).
+    /// (A branch-free variant measured slower over 49 cameras: branches let the CPU speculate
+    /// the next loads, which matters more than mispredictions when the data is not cached.)
     fn search(&self, mut lo: usize, mut hi: usize, target: f64) -> usize {
         hi -= 1;
         while lo < hi {
@@ -182,6 +189,8 @@ pub struct CameraDistribution {
     lambda_guide: Vec<f32>,
     /// Per u: inclusive prefix sums along v of the column totals (f32 for the mixture code).
     v_cdf: Vec<f32>,
+    /// Per u: `v_cdf` at the end of every block of [`BLOCK`] rows.
+    v_guide: Vec<f32>,
     /// Inclusive prefix sums along u of the u-slab totals.
     u_cdf: Vec<f32>,
     interpolation: Interpolation,
@@ -192,7 +201,9 @@ pub struct CameraDistribution {
 /// second: (j0, j1, t).
 fn bracket(x: f64, origin: f64, size: f64, n: usize) -> (usize, usize, f64) {
     let c = (x - origin) / size - 0.5;
-    let j = c.floor();
+    // floor without a libm call (baseline x86-64 has no rounding instruction): truncation is
+    // floor for c ≥ 0, and c ≥ −0.5 inside the grid.
+    let j = if c >= 0.0 { (c as i64) as f64 } else { -1.0 };
     let t = c - j;
     let j0 = (j.max(0.0) as usize).min(n - 1);
     let j1 = ((j + 1.0).max(0.0) as usize).min(n - 1);
@@ -200,7 +211,8 @@ fn bracket(x: f64, origin: f64, size: f64, n: usize) -> (usize, usize, f64) {
 }
 
 fn cell_of(x: f64, origin: f64, size: f64, n: usize) -> usize {
-    (((x - origin) / size).floor().max(0.0) as usize).min(n - 1)
+    // `as usize` truncates (= floor for x ≥ origin) and saturates negatives and NaN to 0.
+    (((x - origin) / size) as usize).min(n - 1)
 }
 
 impl CameraDistribution {
@@ -238,6 +250,13 @@ impl CameraDistribution {
             u_acc += v_acc;
             u_cdf[iu] = u_acc as f32;
         }
+        let v_blocks = rv.div_ceil(BLOCK);
+        let mut v_guide = vec![0.0f32; ru * v_blocks];
+        for iu in 0..ru {
+            for b in 0..v_blocks {
+                v_guide[iu * v_blocks + b] = v_cdf[iu * rv + ((b + 1) * BLOCK).min(rv) - 1];
+            }
+        }
         CameraDistribution {
             camera,
             bounds,
@@ -247,6 +266,7 @@ impl CameraDistribution {
             lambda_cdf: values,
             lambda_guide,
             v_cdf,
+            v_guide,
             u_cdf,
             interpolation,
             uniform_fallback,
@@ -286,13 +306,21 @@ impl CameraDistribution {
 
     fn v_mixture(&self, pixel_u: f64) -> Mixture<'_, f32> {
         let (du, _, _) = self.sizes();
+        let blocks = self.rv.div_ceil(BLOCK);
         let col = |iu: usize| &self.v_cdf[iu * self.rv..(iu + 1) * self.rv];
-        match self.interpolation {
-            Interpolation::Nearest => Mixture::single(col(cell_of(pixel_u, self.bounds.u[0], du, self.ru))),
-            Interpolation::Linear => {
-                let (j0, j1, t) = bracket(pixel_u, self.bounds.u[0], du, self.ru);
-                Mixture { parts: [(col(j0), 1.0 - t), (col(j1), t), (&[], 0.0), (&[], 0.0)], count: 2, guide: None }
+        let guide = |iu: usize| &self.v_guide[iu * blocks..(iu + 1) * blocks];
+        let (j0, j1, t) = match self.interpolation {
+            Interpolation::Nearest => {
+                let j = cell_of(pixel_u, self.bounds.u[0], du, self.ru);
+                (j, j, 0.0)
             }
+            Interpolation::Linear => bracket(pixel_u, self.bounds.u[0], du, self.ru),
+        };
+        let count = if j0 == j1 { 1 } else { 2 };
+        Mixture {
+            parts: [(col(j0), 1.0 - t), (col(j1), t), (&[], 0.0), (&[], 0.0)],
+            count,
+            guide: Some([guide(j0), guide(j1), &[], &[]]),
         }
     }
 

@@ -139,14 +139,10 @@ pub fn run(args: &SampleArgs) -> Result<()> {
         let heat_path = args.out.join(format!("heatmap_{}.png", view.name));
         img.save_png(&heat_path)?;
 
-        // Depth profiles p̃(λ | u, v) at the three pixels of highest marginal and the image centre.
-        let mut order: Vec<usize> = (0..marginal.len()).collect();
-        order.sort_by(|a, b| marginal[*b].total_cmp(&marginal[*a]));
-        let mut pixels: Vec<DVec2> = order
-            .iter()
-            .take(3)
-            .map(|&i| DVec2::new(b.u[0] + ((i % ru) as f64 + 0.5) * (b.u[1] - b.u[0]) / ru as f64, b.v[0] + ((i / ru) as f64 + 0.5) * (b.v[1] - b.v[0]) / rv as f64))
-            .collect();
+        // Depth profiles p̃(λ | u, v) at the first three drawn rays of this view that land in the
+        // mask (any three if there is no mask), and at the principal point.
+        let in_mask = |r: &&view_sampler::RaySample| view.mask.as_ref().is_none_or(|m| m.get(r.pixel[0], r.pixel[1]));
+        let mut pixels: Vec<DVec2> = rays.iter().filter(|r| r.camera as usize == c).filter(in_mask).take(3).map(|r| r.pixel_coords).collect();
         pixels.push(DVec2::new(view.camera.intrinsics.cx, view.camera.intrinsics.cy));
         let colours = [[0.85, 0.2, 0.2], [0.2, 0.45, 0.85], [0.15, 0.6, 0.25], [0.5, 0.5, 0.5]];
         let mut series = Vec::new();

@@ -29,6 +29,7 @@
 use crate::scene::ActiveCells;
 use camera_geom::{DepthBounds, ImageSpaceBounds, PinholeCamera};
 use glam::{DVec3, Mat3, Vec3};
+use wide::f32x8;
 
 /// How a projected sub-cell's mass is weighted (NOTES §1).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -184,28 +185,55 @@ pub fn reproject(active: &ActiveCells, camera: &PinholeCamera, config: &CameraGr
     let (inv_du, inv_dv, inv_dl) = ((1.0 / du) as f32, (1.0 / dv) as f32, (1.0 / dl) as f32);
     let (fru, frv, frl) = (ru as f32, rv as f32, rl as f32);
     let inverse_square = config.weighting == Weighting::InverseSquareDepth;
-    // Sub-cell offsets in camera axes, once per camera.
+    // Sub-cell offsets in camera axes, once per camera, in lanes of 8 (F = 2 fills one exactly);
+    // padding lanes are masked out.
     let offsets: Vec<Vec3> = active.offsets.iter().map(|o| rotation * *o).collect();
     let share = 1.0 / offsets.len().max(1) as f32;
-    let mut outside = 0.0f64;
+    let lanes: Vec<(f32x8, f32x8, f32x8, f32x8)> = offsets
+        .chunks(8)
+        .map(|c| {
+            let pick = |f: fn(&Vec3) -> f32| f32x8::from(std::array::from_fn::<f32, 8, _>(|l| c.get(l).map_or(0.0, f)));
+            let valid = f32x8::from(std::array::from_fn::<f32, 8, _>(|l| if l < c.len() { 1.0 } else { 0.0 }));
+            (pick(|o| o.x), pick(|o| o.y), pick(|o| o.z), valid)
+        })
+        .collect();
+    // Lanes outside the grid scatter zero into a spare cell at index `cells`: no branches.
+    let cells = ru * rv * rl;
+    grid.values.push(0.0);
+    let sentinel = f32x8::splat(cells as f32);
+    let zero = f32x8::ZERO;
+    let (sfx, sfy, sskew) = (f32x8::splat(fx), f32x8::splat(fy), f32x8::splat(skew));
+    let (su0, sv0, sl0) = (f32x8::splat(u0), f32x8::splat(v0), f32x8::splat(l0));
+    let (sdu, sdv, sdl) = (f32x8::splat(inv_du), f32x8::splat(inv_dv), f32x8::splat(inv_dl));
+    let (sru, srv, srl) = (f32x8::splat(fru), f32x8::splat(frv), f32x8::splat(frl));
+    let (mrv, mrl) = (f32x8::splat(rv as f32), f32x8::splat(rl as f32));
+    let mut inside = 0.0f64;
     for (p, &mass) in active.points.iter().zip(&active.masses) {
         let center = rotation * *p + translation;
-        let m = mass * share;
-        for o in &offsets {
-            let x = center + *o;
-            let inv_z = 1.0 / x.z;
-            let fu = ((fx * x.x + skew * x.y) * inv_z - u0) * inv_du;
-            let fv = (fy * x.y * inv_z - v0) * inv_dv;
-            let fl = (x.z - l0) * inv_dl;
-            // x.z ≤ 0 (behind the camera) gives fl < 0; NaN fails every comparison.
-            if fu >= 0.0 && fu < fru && fv >= 0.0 && fv < frv && fl >= 0.0 && fl < frl {
-                let idx = ((fu as usize) * rv + fv as usize) * rl + fl as usize;
-                grid.values[idx] += if inverse_square { m * inv_z * inv_z } else { m };
-            } else {
-                outside += m as f64;
+        let m = f32x8::splat(mass * share);
+        let (cx, cy, cz) = (f32x8::splat(center.x), f32x8::splat(center.y), f32x8::splat(center.z));
+        for &(ox, oy, oz, valid) in &lanes {
+            let (x, y, z) = (cx + ox, cy + oy, cz + oz);
+            let inv_z = f32x8::ONE / z;
+            let fu = ((sfx * x + sskew * y) * inv_z - su0) * sdu;
+            let fv = (sfy * y * inv_z - sv0) * sdv;
+            let fl = (z - sl0) * sdl;
+            // NaN fails every comparison; z ≤ 0 (behind the camera) gives fl < 0.
+            let ok = fu.simd_ge(zero) & fu.simd_lt(sru) & fv.simd_ge(zero) & fv.simd_lt(srv) & fl.simd_ge(zero) & fl.simd_lt(srl)
+                & valid.simd_gt(zero);
+            // Indices in f32 are exact (cells < 2²⁴); truncation is floor for the lanes kept.
+            let index = ok.bitselect((fu.trunc() * mrv + fv.trunc()) * mrl + fl.trunc(), sentinel).fast_trunc_int().to_array();
+            let w = if inverse_square { m * inv_z * inv_z } else { m };
+            let weight = ok.bitselect(w, zero).to_array();
+            for l in 0..8 {
+                grid.values[index[l] as usize] += weight[l];
             }
+            inside += ok.bitselect(m, zero).reduce_add() as f64;
         }
     }
+    grid.values.truncate(cells);
+    let total: f64 = active.masses.iter().map(|m| *m as f64).sum::<f64>();
+    let outside = (total - inside).max(0.0);
     grid.mass_outside = outside;
     apply_view_dependency(&mut grid, config);
     grid

@@ -236,6 +236,11 @@ impl CameraDistribution {
             for iv in 0..rv {
                 let column = iu * rv + iv;
                 let q = &mut values[column * rl..(column + 1) * rl];
+                // Most columns see no mass: their prefix sums and guide are already zero.
+                if q.iter().all(|x| *x == 0.0) {
+                    v_cdf[column] = v_acc as f32;
+                    continue;
+                }
                 let mut acc = 0.0f64;
                 for x in q.iter_mut() {
                     acc += *x as f64;

@@ -40,6 +40,9 @@ pub fn line(img: &mut RgbImage, (x0, y0): (i64, i64), (x1, y1): (i64, i64), rgb:
     }
 }
 
+/// A plotted curve: its colour and its (x, y) points.
+pub type Series = ([f32; 3], Vec<(f64, f64)>);
+
 /// 3×5 glyphs for digits, '.', '-' (rows top to bottom, 3 bits each).
 fn glyph(c: char) -> Option<[u8; 5]> {
     Some(match c {
@@ -80,7 +83,7 @@ pub fn text(img: &mut RgbImage, x: i64, y: i64, text: &str, scale: i64, rgb: [f3
 /// A line plot: each series is (colour, points (x, y)); the x axis is cropped to where some
 /// series exceeds 0.5 % of its peak (padded), with the x range written at both ends. Vertical
 /// markers (x, colour) are drawn dashed.
-pub fn plot(width: u32, height: u32, series: &[([f32; 3], Vec<(f64, f64)>)], markers: &[(f64, [f32; 3])]) -> RgbImage {
+pub fn plot(width: u32, height: u32, series: &[Series], markers: &[(f64, [f32; 3])]) -> RgbImage {
     let mut img = RgbImage::new(width, height);
     img.data.fill(255);
     let (m, w, h) = (20i64, width as i64, height as i64);

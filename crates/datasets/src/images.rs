@@ -125,7 +125,7 @@ fn downscale_u8(src: &[u8], width: u32, height: u32, channels: usize, n: u32) ->
     }
     let (w2, h2) = (width / n, height / n);
     let mut out = vec![0u8; w2 as usize * h2 as usize * channels];
-    let norm = (n * n) as u32;
+    let norm = n * n;
     for y in 0..h2 as usize {
         for x in 0..w2 as usize {
             for c in 0..channels {

@@ -55,9 +55,8 @@ pub fn logistic_cdf_difference(s: f32, lo: f32, hi: f32) -> f64 {
     let d = if lo >= 0.0 {
         // Both above: 1 − Φ is small and precise.
         sigmoid(-s * lo) - sigmoid(-s * hi)
-    } else if hi <= 0.0 {
-        sigmoid(s * hi) - sigmoid(s * lo)
     } else {
+        // Both below (Φ small and precise), or straddling 0 (no cancellation).
         sigmoid(s * hi) - sigmoid(s * lo)
     };
     d.max(0.0)

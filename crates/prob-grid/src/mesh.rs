@@ -127,11 +127,12 @@ impl TriangleMesh {
             }
             if node.count > 0 {
                 for &tri in &self.order[node.start as usize..(node.start + node.count) as usize] {
-                    if let Some((t, b1, b2)) = self.intersect(tri, origin, direction) {
-                        if t > t_min && t < t_best {
-                            t_best = t;
-                            best = Some(MeshHit { t, triangle: tri, barycentric: [b1, b2] });
-                        }
+                    if let Some((t, b1, b2)) = self.intersect(tri, origin, direction)
+                        && t > t_min
+                        && t < t_best
+                    {
+                        t_best = t;
+                        best = Some(MeshHit { t, triangle: tri, barycentric: [b1, b2] });
                     }
                 }
             } else if top + 2 <= stack.len() {
@@ -212,7 +213,7 @@ impl TriangleMesh {
         const DIRECTIONS: [Vec3; 3] = [
             Vec3::new(0.5773503, 0.5773503, 0.5773503),
             Vec3::new(-0.4082483, 0.8164966, -0.4082483),
-            Vec3::new(0.7071068, -0.1, -0.7),
+            Vec3::new(0.6, -0.1, -0.79),
         ];
         let mut inside_votes = 0;
         for d in DIRECTIONS {

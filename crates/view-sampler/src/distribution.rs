@@ -51,17 +51,6 @@ impl ImageSpaceSample {
     }
 }
 
-/// Values a prefix-sum array may hold (f32 today; the trait keeps a quantised variant cheap to
-/// try).
-trait CdfValue: Copy {
-    fn to_f64(self) -> f64;
-}
-impl CdfValue for f32 {
-    #[inline]
-    fn to_f64(self) -> f64 {
-        self as f64
-    }
-}
 
 /// Bins per guide entry of the λ columns (two-level search: guide, then one block).
 const BLOCK: usize = 16;
@@ -69,15 +58,15 @@ const BLOCK: usize = 16;
 /// Up to four weighted columns of bins and the inverse transform over their mixture. Each column
 /// is an inclusive prefix sum; a mixture of piecewise-constant densities on the same bins is
 /// piecewise constant on those bins, with CDF `Σ_c w_c · C_c[k]`.
-struct Mixture<'a, T: CdfValue> {
-    parts: [(&'a [T], f64); 4],
+struct Mixture<'a> {
+    parts: [(&'a [f32], f64); 4],
     count: usize,
     /// Optional guide: per column, the prefix sum at the end of every block of [`BLOCK`] bins.
-    guide: Option<[&'a [T]; 4]>,
+    guide: Option<[&'a [f32]; 4]>,
 }
 
-impl<'a, T: CdfValue> Mixture<'a, T> {
-    fn single(column: &'a [T]) -> Self {
+impl<'a> Mixture<'a> {
+    fn single(column: &'a [f32]) -> Self {
         Mixture { parts: [(column, 1.0), (&[], 0.0), (&[], 0.0), (&[], 0.0)], count: 1, guide: None }
     }
 
@@ -85,16 +74,16 @@ impl<'a, T: CdfValue> Mixture<'a, T> {
     fn cdf(&self, k: usize) -> f64 {
         let mut acc = 0.0;
         for (c, w) in &self.parts[..self.count] {
-            acc += w * c[k].to_f64();
+            acc += w * c[k] as f64;
         }
         acc
     }
 
     #[inline]
-    fn guide_cdf(&self, guide: &[&[T]; 4], b: usize) -> f64 {
+    fn guide_cdf(&self, guide: &[&[f32]; 4], b: usize) -> f64 {
         let mut acc = 0.0;
         for (g, (_, w)) in guide.iter().zip(&self.parts[..self.count]) {
-            acc += w * g[b].to_f64();
+            acc += w * g[b] as f64;
         }
         acc
     }
@@ -305,11 +294,11 @@ impl CameraDistribution {
         (&self.lambda_cdf[column * self.rl..(column + 1) * self.rl], &self.lambda_guide[column * blocks..(column + 1) * blocks])
     }
 
-    fn u_mixture(&self) -> Mixture<'_, f32> {
+    fn u_mixture(&self) -> Mixture<'_> {
         Mixture::single(&self.u_cdf)
     }
 
-    fn v_mixture(&self, pixel_u: f64) -> Mixture<'_, f32> {
+    fn v_mixture(&self, pixel_u: f64) -> Mixture<'_> {
         let (du, _, _) = self.sizes();
         let blocks = self.rv.div_ceil(BLOCK);
         let col = |iu: usize| &self.v_cdf[iu * self.rv..(iu + 1) * self.rv];
@@ -329,7 +318,7 @@ impl CameraDistribution {
         }
     }
 
-    fn lambda_mixture(&self, pixel: DVec2) -> Mixture<'_, f32> {
+    fn lambda_mixture(&self, pixel: DVec2) -> Mixture<'_> {
         let (du, dv, _) = self.sizes();
         let (columns, weights): ([(usize, usize); 4], [f64; 4]) = match self.interpolation {
             Interpolation::Nearest => {

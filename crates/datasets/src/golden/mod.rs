@@ -151,7 +151,7 @@ pub fn generate(spec: &GoldenSpec) -> Result<GoldenScene> {
         depths.push(r.depth);
         normals.push(r.normal);
     }
-    let seed = spec.rig.seed ^ 0x5eed_0f_9017;
+    let seed = spec.rig.seed ^ 0x005e_ed0f_9017;
     let surface_points = match &geometry {
         Geometry::Analytic(shape) => shape.sample_surface(spec.surface_points as f64 / shape.area(), seed),
         Geometry::Mesh { mesh, .. } => sample_mesh_surface(&mesh.mesh, spec.surface_points, seed),

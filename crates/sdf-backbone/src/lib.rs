@@ -1,4 +1,27 @@
-//! psneus: SDF backbones (hash grid, MLP) with hand-written gradients and NeuS volume rendering.
+//! SDF backbones with hand-written, verified gradients (issue #4).
 //!
-//! **Status: not implemented yet** (issue #4). This crate is an empty placeholder in the
-//! workspace so that the crate layout of the design card is visible; it exports nothing.
+//! **Status: in progress.** Implemented and tested: the module interface over flat parameter
+//! slices ([`Module`]), dense layers with activations, skip connection and NeuS's geometric
+//! initialisation ([`Mlp`]), the positional encoding ([`PositionalEncoding`]), module chaining
+//! ([`Chain`]), Adam/AdamW and the warm-up + cosine schedule ([`optim`]); every module's gradient
+//! is checked against finite differences in f64. Not implemented yet: the hash-grid encoding,
+//! spherical harmonics, the colour network, NeuS volume rendering and its backward, the
+//! backbone API, checkpoints, benchmarks.
+//!
+//! # Design (tiny-cuda-nn's shape)
+//! Modules own no parameters: a model is one flat `params` slice and one `grads` slice, each
+//! module at an offset; the optimiser works on the slices; a checkpoint is one tensor each.
+//! Modules are generic over [`Real`] (f32 for training, f64 for gradient checks).
+#![deny(missing_docs)]
+
+pub mod encoding;
+pub mod mlp;
+pub mod module;
+pub mod optim;
+pub mod real;
+
+pub use encoding::PositionalEncoding;
+pub use mlp::{Mlp, MlpConfig};
+pub use module::{Activation, Chain, Module};
+pub use optim::{Adam, WarmupCosine};
+pub use real::Real;

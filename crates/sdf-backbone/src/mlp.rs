@@ -1,0 +1,241 @@
+//! Dense layers with activations, an optional skip connection, and NeuS's geometric initialisation.
+
+use crate::module::{Activation, Module};
+use crate::real::Real;
+use rand::{SeedableRng, rngs::Xoshiro256PlusPlus};
+use rand_distr::{Distribution, Normal};
+
+/// Shape of a multi-layer perceptron.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MlpConfig {
+    /// Inputs per row.
+    pub n_inputs: usize,
+    /// Width of the hidden layers.
+    pub width: usize,
+    /// Number of hidden layers (the output layer comes after them).
+    pub hidden_layers: usize,
+    /// Outputs per row.
+    pub n_outputs: usize,
+    /// If `Some(k)`, hidden layer k (0-based, ≥ 1) takes `[h, x] / √2` (NeuS's skip at layer 4).
+    pub skip: Option<usize>,
+    /// Activation of the hidden layers.
+    pub hidden_activation: Activation,
+    /// Activation of the output layer.
+    pub output_activation: Activation,
+}
+
+/// A multi-layer perceptron. Parameters per layer: weights (out × in, row-major), then biases.
+#[derive(Debug, Clone)]
+pub struct Mlp {
+    config: MlpConfig,
+    /// (n_in, n_out, parameter offset) per layer.
+    layers: Vec<(usize, usize, usize)>,
+    n_params: usize,
+}
+
+impl Mlp {
+    /// Builds the layer table.
+    pub fn new(config: MlpConfig) -> Mlp {
+        assert!(config.skip.is_none_or(|k| k >= 1 && k <= config.hidden_layers), "skip layer must be a hidden layer ≥ 1");
+        let mut layers = Vec::new();
+        let mut offset = 0;
+        let mut n_in = config.n_inputs;
+        for l in 0..=config.hidden_layers {
+            if config.skip == Some(l) {
+                n_in += config.n_inputs;
+            }
+            let n_out = if l == config.hidden_layers { config.n_outputs } else { config.width };
+            layers.push((n_in, n_out, offset));
+            offset += n_in * n_out + n_out;
+            n_in = n_out;
+        }
+        Mlp { config, layers, n_params: offset }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &MlpConfig {
+        &self.config
+    }
+
+    /// Default initialisation: weights N(0, 2/fan_in) (He), zero biases.
+    pub fn init_default(&self, params: &mut [f32], seed: u64) {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+        for &(n_in, n_out, off) in &self.layers {
+            let normal = Normal::new(0.0, (2.0 / n_in as f64).sqrt()).expect("finite std");
+            for w in &mut params[off..off + n_in * n_out] {
+                *w = normal.sample(&mut rng) as f32;
+            }
+            params[off + n_in * n_out..off + n_in * n_out + n_out].fill(0.0);
+        }
+    }
+
+    /// NeuS's geometric initialisation (Atzmon & Lipman, SAL): the first output approximates the
+    /// signed distance to a sphere of radius `radius`, `|x| − radius`. Only the first `raw`
+    /// inputs (the raw coordinates, before any encoding) get weights in the first and the skip
+    /// layer, so that the encoding's high frequencies start silent.
+    pub fn init_geometric(&self, params: &mut [f32], radius: f64, raw: usize, seed: u64) {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+        let last = self.layers.len() - 1;
+        for (l, &(n_in, n_out, off)) in self.layers.iter().enumerate() {
+            let (w, b) = params[off..off + n_in * n_out + n_out].split_at_mut(n_in * n_out);
+            if l == last {
+                let normal = Normal::new(std::f64::consts::PI.sqrt() / (n_in as f64).sqrt(), 1e-4).expect("finite");
+                for v in w.iter_mut() {
+                    *v = normal.sample(&mut rng) as f32;
+                }
+                b.fill(0.0);
+                b[0] = -radius as f32;
+            } else {
+                let normal = Normal::new(0.0, 2f64.sqrt() / (n_out as f64).sqrt()).expect("finite");
+                let skip_part = if self.config.skip == Some(l) { n_in - self.config.n_inputs } else { usize::MAX };
+                for o in 0..n_out {
+                    for i in 0..n_in {
+                        // Encoded inputs start at zero weight: in the first layer everything past
+                        // `raw`; in the skip layer the re-injected input's encoded part.
+                        let silent = (l == 0 && i >= raw) || (i >= skip_part && i - skip_part >= raw);
+                        w[o * n_in + i] = if silent { 0.0 } else { normal.sample(&mut rng) as f32 };
+                    }
+                }
+                b.fill(0.0);
+            }
+        }
+    }
+
+    /// Context values per row: each layer's input and pre-activation.
+    fn ctx_layout(&self) -> usize {
+        self.layers.iter().map(|(i, o, _)| i + o).sum()
+    }
+}
+
+impl<R: Real> Module<R> for Mlp {
+    fn n_params(&self) -> usize {
+        self.n_params
+    }
+    fn n_inputs(&self) -> usize {
+        self.config.n_inputs
+    }
+    fn n_outputs(&self) -> usize {
+        self.config.n_outputs
+    }
+    fn ctx_per_row(&self) -> usize {
+        self.ctx_layout()
+    }
+
+    fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
+        let n_x = self.config.n_inputs;
+        let per_row = self.ctx_layout();
+        let last = self.layers.len() - 1;
+        let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
+        for (row, x) in input.chunks_exact(n_x).enumerate() {
+            let c = &mut ctx[row * per_row..(row + 1) * per_row];
+            let mut at = 0;
+            let mut prev = at; // where the previous activation starts in c (unused for l = 0)
+            let mut prev_len = 0;
+            for (l, &(n_in, n_out, off)) in self.layers.iter().enumerate() {
+                // Layer input a_l.
+                let a_start = at;
+                if l == 0 {
+                    c[at..at + n_x].copy_from_slice(x);
+                } else {
+                    let act = if l - 1 == last { self.config.output_activation } else { self.config.hidden_activation };
+                    for k in 0..prev_len {
+                        c[at + k] = act.apply(c[prev + k]);
+                    }
+                    if self.config.skip == Some(l) {
+                        for k in 0..prev_len {
+                            c[at + k] *= inv_sqrt2;
+                        }
+                        for k in 0..n_x {
+                            c[at + prev_len + k] = x[k] * inv_sqrt2;
+                        }
+                    }
+                }
+                at += n_in;
+                // Pre-activation z_l = W a + b.
+                let (w, b) = params[off..off + n_in * n_out + n_out].split_at(n_in * n_out);
+                for o in 0..n_out {
+                    let row_w = &w[o * n_in..(o + 1) * n_in];
+                    let mut acc = b[o];
+                    for i in 0..n_in {
+                        acc += row_w[i] * c[a_start + i];
+                    }
+                    c[at + o] = acc;
+                }
+                prev = at;
+                prev_len = n_out;
+                at += n_out;
+            }
+            let out = &mut output[row * self.config.n_outputs..(row + 1) * self.config.n_outputs];
+            for k in 0..self.config.n_outputs {
+                out[k] = self.config.output_activation.apply(c[prev + k]);
+            }
+        }
+    }
+
+    fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], mut d_input: Option<&mut [R]>) {
+        let n_x = self.config.n_inputs;
+        let per_row = self.ctx_layout();
+        let last = self.layers.len() - 1;
+        let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
+        let max_width = self.layers.iter().map(|(i, o, _)| (*i).max(*o)).max().unwrap_or(0);
+        let mut dz = vec![R::ZERO; max_width];
+        let mut da = vec![R::ZERO; max_width];
+        // Offsets of a_l and z_l inside a row's context.
+        let mut starts = Vec::with_capacity(self.layers.len());
+        let mut at = 0;
+        for &(n_in, n_out, _) in &self.layers {
+            starts.push((at, at + n_in));
+            at += n_in + n_out;
+        }
+        for row in 0..input.len() / n_x {
+            let c = &ctx[row * per_row..(row + 1) * per_row];
+            let dy = &d_output[row * self.config.n_outputs..(row + 1) * self.config.n_outputs];
+            let (_, z_last) = starts[last];
+            for k in 0..self.config.n_outputs {
+                dz[k] = dy[k] * self.config.output_activation.derivative(c[z_last + k]);
+            }
+            let mut dx_row = vec![R::ZERO; n_x];
+            for l in (0..self.layers.len()).rev() {
+                let (n_in, n_out, off) = self.layers[l];
+                let (a_start, _) = starts[l];
+                let (dw, db) = d_params[off..off + n_in * n_out + n_out].split_at_mut(n_in * n_out);
+                let w = &params[off..off + n_in * n_out];
+                da[..n_in].fill(R::ZERO);
+                for o in 0..n_out {
+                    let g = dz[o];
+                    db[o] += g;
+                    let row_w = &w[o * n_in..(o + 1) * n_in];
+                    let row_dw = &mut dw[o * n_in..(o + 1) * n_in];
+                    for i in 0..n_in {
+                        row_dw[i] += g * c[a_start + i];
+                        da[i] += g * row_w[i];
+                    }
+                }
+                if l == 0 {
+                    for k in 0..n_x {
+                        dx_row[k] += da[k];
+                    }
+                    break;
+                }
+                // Back through the skip concatenation and the previous activation.
+                let prev_len = self.layers[l - 1].1;
+                if self.config.skip == Some(l) {
+                    for k in 0..n_x {
+                        dx_row[k] += da[prev_len + k] * inv_sqrt2;
+                    }
+                    for k in 0..prev_len {
+                        da[k] *= inv_sqrt2;
+                    }
+                }
+                let (_, z_prev) = starts[l - 1];
+                let act = if l - 1 == last { self.config.output_activation } else { self.config.hidden_activation };
+                for k in 0..prev_len {
+                    dz[k] = da[k] * act.derivative(c[z_prev + k]);
+                }
+            }
+            if let Some(d_in) = d_input.as_deref_mut() {
+                d_in[row * n_x..(row + 1) * n_x].copy_from_slice(&dx_row);
+            }
+        }
+    }
+}

@@ -1,0 +1,128 @@
+//! Differentiable modules over flat parameter slices (tiny-cuda-nn's shape).
+//!
+//! A module owns no parameters: `forward(params, input) → output` saves what its backward needs
+//! in a caller-owned context, and `backward(params, input, ctx, d_output)` *adds* into
+//! `d_params` and (optionally) writes `d_input`. Batches are row-major: `input[row · n_inputs + i]`.
+
+use crate::real::Real;
+
+/// A differentiable map from `n_inputs` to `n_outputs` values per batch row.
+pub trait Module<R: Real>: Sync {
+    /// Number of parameters.
+    fn n_params(&self) -> usize;
+    /// Inputs per row.
+    fn n_inputs(&self) -> usize;
+    /// Outputs per row.
+    fn n_outputs(&self) -> usize;
+    /// Context values saved per row by `forward` for `backward`.
+    fn ctx_per_row(&self) -> usize;
+    /// Forward pass for a batch; `ctx` has `rows · ctx_per_row()` values.
+    fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]);
+    /// Backward pass: adds ∂L/∂params into `d_params`, writes ∂L/∂input into `d_input` if given.
+    fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>);
+}
+
+/// Element-wise activations.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Activation {
+    /// y = z.
+    Identity,
+    /// y = max(z, 0).
+    Relu,
+    /// y = ln(1 + e^{βz}) / β (NeuS: β = 100); linear beyond βz > 20 to avoid overflow.
+    Softplus {
+        /// Sharpness β.
+        beta: f64,
+    },
+    /// y = 1 / (1 + e^{−z}).
+    Sigmoid,
+}
+
+impl Activation {
+    /// y(z).
+    #[inline]
+    pub fn apply<R: Real>(self, z: R) -> R {
+        match self {
+            Activation::Identity => z,
+            Activation::Relu => z.max(R::ZERO),
+            Activation::Softplus { beta } => {
+                let b = R::of(beta);
+                let bz = b * z;
+                if bz > R::of(20.0) { z } else { bz.exp().ln_1p() / b }
+            }
+            Activation::Sigmoid => sigmoid(z),
+        }
+    }
+
+    /// dy/dz at z.
+    #[inline]
+    pub fn derivative<R: Real>(self, z: R) -> R {
+        match self {
+            Activation::Identity => R::ONE,
+            Activation::Relu => {
+                if z > R::ZERO { R::ONE } else { R::ZERO }
+            }
+            Activation::Softplus { beta } => {
+                let bz = R::of(beta) * z;
+                if bz > R::of(20.0) { R::ONE } else { sigmoid(bz) }
+            }
+            Activation::Sigmoid => {
+                let s = sigmoid(z);
+                s * (R::ONE - s)
+            }
+        }
+    }
+}
+
+/// The logistic sigmoid without overflow.
+#[inline]
+pub fn sigmoid<R: Real>(z: R) -> R {
+    if z >= R::ZERO {
+        R::ONE / (R::ONE + (-z).exp())
+    } else {
+        let e = z.exp();
+        e / (R::ONE + e)
+    }
+}
+
+/// Two modules in sequence: `b(a(x))`. Parameters `[a | b]`; context `[a ctx | a output | b ctx]`.
+#[derive(Debug, Clone)]
+pub struct Chain<A, B> {
+    /// First module.
+    pub a: A,
+    /// Second module.
+    pub b: B,
+}
+
+impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
+    fn n_params(&self) -> usize {
+        self.a.n_params() + self.b.n_params()
+    }
+    fn n_inputs(&self) -> usize {
+        self.a.n_inputs()
+    }
+    fn n_outputs(&self) -> usize {
+        self.b.n_outputs()
+    }
+    fn ctx_per_row(&self) -> usize {
+        self.a.ctx_per_row() + self.a.n_outputs() + self.b.ctx_per_row()
+    }
+    fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
+        let rows = input.len() / self.a.n_inputs();
+        let (pa, pb) = params.split_at(self.a.n_params());
+        let (ca, rest) = ctx.split_at_mut(rows * self.a.ctx_per_row());
+        let (mid, cb) = rest.split_at_mut(rows * self.a.n_outputs());
+        self.a.forward(pa, input, mid, ca);
+        self.b.forward(pb, mid, output, cb);
+    }
+    fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
+        let rows = input.len() / self.a.n_inputs();
+        let (pa, pb) = params.split_at(self.a.n_params());
+        let (dpa, dpb) = d_params.split_at_mut(self.a.n_params());
+        let (ca, rest) = ctx.split_at(rows * self.a.ctx_per_row());
+        let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
+        let mut d_mid = vec![R::ZERO; mid.len()];
+        self.b.backward(pb, mid, cb, d_output, dpb, Some(&mut d_mid));
+        self.a.backward(pa, input, ca, &d_mid, dpa, d_input);
+    }
+}

@@ -1,0 +1,105 @@
+//! Adam and AdamW on flat parameter slices.
+
+/// Adam (Kingma & Ba) with optional decoupled weight decay (AdamW, Loshchilov & Hutter).
+#[derive(Debug, Clone)]
+pub struct Adam {
+    /// β₁.
+    pub beta1: f32,
+    /// β₂.
+    pub beta2: f32,
+    /// ε.
+    pub epsilon: f32,
+    /// Decoupled weight decay (0 = Adam).
+    pub weight_decay: f32,
+    /// First moments.
+    pub m: Vec<f32>,
+    /// Second moments.
+    pub v: Vec<f32>,
+    /// Steps taken.
+    pub step: u64,
+}
+
+impl Adam {
+    /// Adam for `n` parameters with β = (0.9, 0.999), ε = 1e-8 (NeuS: ε = 1e-15 for hash grids is
+    /// Instant-NGP's; set the field).
+    pub fn new(n: usize) -> Adam {
+        Adam { beta1: 0.9, beta2: 0.999, epsilon: 1e-8, weight_decay: 0.0, m: vec![0.0; n], v: vec![0.0; n], step: 0 }
+    }
+
+    /// One step with learning rate `lr` over all parameters.
+    pub fn update(&mut self, params: &mut [f32], grads: &[f32], lr: f32) {
+        assert_eq!(params.len(), self.m.len(), "Adam: parameter count changed");
+        assert_eq!(grads.len(), self.m.len(), "Adam: gradient count differs");
+        self.step += 1;
+        let t = self.step as i32;
+        let c1 = 1.0 / (1.0 - self.beta1.powi(t));
+        let c2 = 1.0 / (1.0 - self.beta2.powi(t));
+        for i in 0..params.len() {
+            let g = grads[i];
+            self.m[i] = self.beta1 * self.m[i] + (1.0 - self.beta1) * g;
+            self.v[i] = self.beta2 * self.v[i] + (1.0 - self.beta2) * g * g;
+            let update = (self.m[i] * c1) / ((self.v[i] * c2).sqrt() + self.epsilon);
+            params[i] -= lr * (update + self.weight_decay * params[i]);
+        }
+    }
+}
+
+/// Learning-rate schedule: linear warm-up, then cosine decay to `final_factor` of the base rate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WarmupCosine {
+    /// Base learning rate.
+    pub base: f32,
+    /// Warm-up steps.
+    pub warmup: u64,
+    /// Total steps.
+    pub total: u64,
+    /// Final rate as a fraction of the base (NeuS: 0.05).
+    pub final_factor: f32,
+}
+
+impl WarmupCosine {
+    /// The rate at `step`.
+    pub fn at(&self, step: u64) -> f32 {
+        if step < self.warmup {
+            return self.base * (step + 1) as f32 / self.warmup as f32;
+        }
+        let progress = ((step - self.warmup) as f32 / (self.total.saturating_sub(self.warmup)).max(1) as f32).min(1.0);
+        let cosine = 0.5 * (1.0 + (std::f32::consts::PI * progress).cos());
+        self.base * (self.final_factor + (1.0 - self.final_factor) * cosine)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn adam_minimises_a_quadratic() {
+        // f(p) = Σ (p − c)², gradient 2(p − c).
+        let c = [1.0f32, -2.0, 0.5];
+        let mut p = [0.0f32; 3];
+        let mut adam = Adam::new(3);
+        for _ in 0..2000 {
+            let g: Vec<f32> = p.iter().zip(&c).map(|(p, c)| 2.0 * (p - c)).collect();
+            adam.update(&mut p, &g, 0.01);
+        }
+        for (p, c) in p.iter().zip(&c) {
+            assert!((p - c).abs() < 1e-3, "{p} vs {c}");
+        }
+    }
+
+    #[test]
+    fn first_adam_step_has_the_learning_rate_as_size() {
+        let mut p = [0.0f32];
+        let mut adam = Adam::new(1);
+        adam.update(&mut p, &[123.0], 0.1);
+        assert!((p[0] + 0.1).abs() < 1e-6);
+    }
+
+    #[test]
+    fn warmup_then_cosine() {
+        let s = WarmupCosine { base: 1.0, warmup: 10, total: 110, final_factor: 0.05 };
+        assert!((s.at(0) - 0.1).abs() < 1e-6 && (s.at(9) - 1.0).abs() < 1e-6);
+        assert!((s.at(10) - 1.0).abs() < 1e-6 && (s.at(60) - 0.525).abs() < 1e-3 && (s.at(110) - 0.05).abs() < 1e-6);
+    }
+}

@@ -2,11 +2,13 @@
 //!
 //! **Status: in progress.** Implemented and tested: the module interface over flat parameter
 //! slices ([`Module`]), dense layers with activations, skip connection and NeuS's geometric
-//! initialisation ([`Mlp`]), the positional encoding ([`PositionalEncoding`]), module chaining
-//! ([`Chain`]), Adam/AdamW and the warm-up + cosine schedule ([`optim`]); every module's gradient
-//! is checked against finite differences in f64. Not implemented yet: the hash-grid encoding,
-//! spherical harmonics, the colour network, NeuS volume rendering and its backward, the
-//! backbone API, checkpoints, benchmarks.
+//! initialisation ([`Mlp`]), the positional encoding ([`PositionalEncoding`]), the multi-resolution
+//! hash grid with coarse-to-fine levels ([`HashGrid`]), module chaining ([`Chain`]), NeuS volume
+//! rendering of one ray and its backward ([`render_ray`], [`render_ray_backward`]), Adam/AdamW and
+//! the warm-up + cosine schedule ([`optim`]); every gradient is checked against finite
+//! differences in f64. Not implemented yet: spherical harmonics, the SDF + colour networks with
+//! normals, hierarchical sampling, the backbone API (SDF field, batch rendering, save/load),
+//! presets, benchmarks.
 //!
 //! # Design (tiny-cuda-nn's shape)
 //! Modules own no parameters: a model is one flat `params` slice and one `grads` slice, each
@@ -15,12 +17,16 @@
 #![deny(missing_docs)]
 
 pub mod encoding;
+pub mod hashgrid;
 pub mod mlp;
 pub mod module;
 pub mod optim;
 pub mod real;
+pub mod render;
 
 pub use encoding::PositionalEncoding;
+pub use hashgrid::{HashGrid, HashGridConfig};
+pub use render::{RayGradients, RayRender, render_ray, render_ray_backward};
 pub use mlp::{Mlp, MlpConfig};
 pub use module::{Activation, Chain, Module};
 pub use optim::{Adam, WarmupCosine};

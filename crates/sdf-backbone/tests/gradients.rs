@@ -140,3 +140,139 @@ fn geometric_init_approximates_a_sphere_sdf_on_average() {
         .count();
     assert_eq!(signs_right, rows);
 }
+
+#[test]
+fn hash_grid_gradients_match_finite_differences_dense_and_hashed_levels() {
+    // 4 levels from 2 to 40 with a 2¹⁰ table: the coarse levels are dense, the fine ones hashed.
+    let grid = HashGrid::new(HashGridConfig { levels: 4, features: 2, log2_table: 10, base_resolution: 2, finest_resolution: 40 });
+    assert!(grid.resolutions()[0] == 2 && grid.resolutions()[3] == 40);
+    let params = random_params(Module::<f64>::n_params(&grid), 1.0, 11);
+    let err = grad_check(&grid, &params, 6, 12);
+    assert!(err <= 1e-5, "relative error {err:e}");
+    // Through an MLP, as in Neuralangelo's SDF network.
+    let mlp = Mlp::new(MlpConfig {
+        n_inputs: 8, width: 8, hidden_layers: 2, n_outputs: 2, skip: None,
+        hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Identity,
+    });
+    let net = Chain { a: grid, b: mlp };
+    let params = random_params(Module::<f64>::n_params(&net), 0.5, 13);
+    let err = grad_check(&net, &params, 4, 14);
+    assert!(err <= 1e-5, "relative error {err:e}");
+}
+
+#[test]
+fn hash_grid_inactive_levels_output_zero_and_get_no_gradient() {
+    let mut grid = HashGrid::new(HashGridConfig { levels: 3, features: 2, log2_table: 8, base_resolution: 4, finest_resolution: 16 });
+    grid.active_levels = 1;
+    let params = random_params(Module::<f64>::n_params(&grid), 1.0, 15);
+    let x = [0.1, -0.3, 0.7];
+    let mut out = vec![0.0; 6];
+    grid.forward(&params, &x, &mut out, &mut []);
+    assert!(out[0] != 0.0 && out[2..].iter().all(|v| *v == 0.0));
+    let mut d_params = vec![0.0; params.len()];
+    grid.backward(&params, &x, &[], &[1.0; 6], &mut d_params, None);
+    assert!(d_params[256 * 2..].iter().all(|v| *v == 0.0));
+}
+
+#[test]
+fn rendering_matches_the_worked_example() {
+    // Choose S so that α = [0.4, 0.8, 0.1] exactly: with s = 1, Φ(Sᵢ₊₁) = (1 − αᵢ) Φ(Sᵢ).
+    let logit = |p: f64| (p / (1.0 - p)).ln();
+    let mut phi = vec![0.9];
+    for a in [0.4, 0.8, 0.1] {
+        phi.push(phi.last().unwrap() * (1.0 - a));
+    }
+    let sdf: Vec<f64> = phi.iter().map(|p| logit(*p)).collect();
+    let t = [1.0, 2.0, 3.0, 4.0];
+    let r = render_ray(&sdf, &t, &[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], 1.0);
+    for (w, e) in r.weights.iter().zip([0.4, 0.48, 0.012]) {
+        assert!((w - e).abs() < 1e-12, "{:?}", r.weights);
+    }
+    assert!((r.color[1] - 0.48).abs() < 1e-12 && (r.opacity - 0.892).abs() < 1e-12);
+}
+
+fn ray_loss_check(s: f64, sdf: &[f64]) -> f64 {
+    let n = sdf.len() - 1;
+    let t: Vec<f64> = (0..=n).map(|i| 1.0 + 0.1 * i as f64).collect();
+    let colors: Vec<[f64; 3]> = (0..n).map(|i| [0.1 * i as f64, 0.5, 1.0 - 0.05 * i as f64]).collect();
+    let (dc, dd, do_) = ([0.3, -0.7, 0.2], 0.4, -0.25);
+    let dw: Vec<f64> = (0..n).map(|i| 0.05 * i as f64 - 0.1).collect();
+    let loss = |sdf: &[f64], colors: &[[f64; 3]], s: f64| {
+        let r = render_ray(sdf, &t, colors, s);
+        (0..3).map(|k| dc[k] * r.color[k]).sum::<f64>() + dd * r.depth + do_ * r.opacity + r.weights.iter().zip(&dw).map(|(w, g)| w * g).sum::<f64>()
+    };
+    let fwd = render_ray(sdf, &t, &colors, s);
+    let g = render_ray_backward(sdf, &t, &colors, s, &fwd, dc, dd, do_, Some(&dw));
+    let rel = |a: f64, n: f64| (a - n).abs() / a.abs().max(n.abs()).max(1e-6);
+    let h = 1e-7;
+    let mut worst = 0.0f64;
+    for i in 0..=n {
+        let (mut p, mut m) = (sdf.to_vec(), sdf.to_vec());
+        p[i] += h;
+        m[i] -= h;
+        let numeric = (loss(&p, &colors, s) - loss(&m, &colors, s)) / (2.0 * h);
+        if rel(g.sdf[i], numeric) > 1e-5 {
+            eprintln!("sdf[{i}]: analytic {:e} numeric {numeric:e}", g.sdf[i]);
+        }
+        worst = worst.max(rel(g.sdf[i], numeric));
+    }
+    for i in 0..n {
+        for k in 0..3 {
+            let (mut p, mut m) = (colors.clone(), colors.clone());
+            p[i][k] += h;
+            m[i][k] -= h;
+            worst = worst.max(rel(g.colors[i][k], (loss(sdf, &p, s) - loss(sdf, &m, s)) / (2.0 * h)));
+        }
+    }
+    let hs = h * s.max(1.0);
+    worst.max(rel(g.s, (loss(sdf, &colors, s + hs) - loss(sdf, &colors, s - hs)) / (2.0 * hs)))
+}
+
+#[test]
+fn rendering_gradients_match_finite_differences() {
+    // A surface crossing (decreasing SDF), a crossing back out, and a grazing ray.
+    let crossing: Vec<f64> = (0..12).map(|i| 0.3 - 0.055 * i as f64).collect();
+    // (No two samples equal: α is clamped at 0 exactly where Sᵢ = Sᵢ₊₁, a kink.)
+    let through: Vec<f64> = (0..12).map(|i| ((i as f64 - 5.3) * 0.06).abs() - 0.15).collect();
+    let grazing: Vec<f64> = (0..12).map(|i| 0.02 + ((i as f64 - 6.0) * 0.03).powi(2)).collect();
+    for s in [5.0, 30.0] {
+        for sdf in [&crossing, &through, &grazing] {
+            let err = ray_loss_check(s, sdf);
+            assert!(err <= 1e-5, "s {s}: relative error {err:e}");
+        }
+    }
+}
+
+#[test]
+fn rendering_is_stable_at_the_extremes() {
+    let t: Vec<f64> = (0..9).map(|i| 1.0 + 0.1 * i as f64).collect();
+    let colors = vec![[0.5f64; 3]; 8];
+    let cases: Vec<(&str, Vec<f64>, Vec<f64>)> = vec![
+        ("crossing", (0..9).map(|i| 0.2 - 0.05 * i as f64).collect(), t.clone()),
+        ("background (misses the surface)", (0..9).map(|i| 0.5 + 0.01 * i as f64).collect(), t.clone()),
+        ("inside", (0..9).map(|i| -0.5 - 0.01 * i as f64).collect(), t.clone()),
+        ("zero-length intervals", vec![0.1; 9], vec![1.0; 9]),
+        ("far inside and outside", vec![1e9, 1e9, -1e9, -1e9, 1e9, 1e9, 1e9, -1e9, -1e9], t.clone()),
+    ];
+    for s in [1e-3, 64.0, 1e4, 1e6] {
+        for (name, sdf, t) in &cases {
+            let r = render_ray(sdf, t, &colors, s);
+            let g = render_ray_backward(sdf, t, &colors, s, &r, [1.0; 3], 1.0, 1.0, None);
+            let finite = r.weights.iter().chain(&r.alphas).chain(&g.sdf).all(|v| v.is_finite())
+                && r.color.iter().all(|v| v.is_finite()) && r.depth.is_finite() && g.s.is_finite();
+            assert!(finite, "{name}, s {s}: non-finite output");
+            assert!(r.opacity >= -1e-12 && r.opacity <= 1.0 + 1e-12, "{name}, s {s}: opacity {}", r.opacity);
+        }
+        // A head-on crossing at large s is opaque, with its depth at the zero crossing (t = 1.4,
+        // a sample: the weight splits between the two intervals around it).
+        if s >= 1e4 {
+            let r = render_ray(&cases[0].1, &t, &colors, s);
+            assert!((r.opacity - 1.0).abs() < 1e-9 && (r.depth - 1.4).abs() < 1e-9, "s {s}: {r:?}");
+        }
+    }
+    // f32 too.
+    let sdf: Vec<f32> = (0..9).map(|i| 0.2 - 0.05 * i as f32).collect();
+    let t32: Vec<f32> = t.iter().map(|v| *v as f32).collect();
+    let r = render_ray(&sdf, &t32, &vec![[0.5f32; 3]; 8], 1e6f32);
+    assert!(r.weights.iter().all(|w| w.is_finite()));
+}

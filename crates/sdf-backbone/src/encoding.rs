@@ -54,3 +54,81 @@ impl<R: Real> Module<R> for PositionalEncoding {
         }
     }
 }
+
+/// Real spherical harmonics of a unit direction up to degree 4 (16 outputs, tiny-cuda-nn's
+/// "SphericalHarmonics" with degree 4), for the colour network's view direction.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct SphericalHarmonics;
+
+/// The 16 real SH basis functions of degree < 4 at (x, y, z), and their partial derivatives.
+fn sh16<R: Real>(x: R, y: R, z: R) -> ([R; 16], [[R; 3]; 16]) {
+    let c = |v: f64| R::of(v);
+    let (xx, yy, zz) = (x * x, y * y, z * z);
+    let v = [
+        c(0.282_094_791_773_878_14),
+        c(-0.488_602_511_902_919_9) * y,
+        c(0.488_602_511_902_919_9) * z,
+        c(-0.488_602_511_902_919_9) * x,
+        c(1.092_548_430_592_079_2) * x * y,
+        c(-1.092_548_430_592_079_2) * y * z,
+        c(0.946_174_695_757_560_1) * zz - c(0.315_391_565_252_520_05),
+        c(-1.092_548_430_592_079_2) * x * z,
+        c(0.546_274_215_296_039_6) * (xx - yy),
+        c(0.590_043_589_926_643_5) * y * (c(-3.0) * xx + yy),
+        c(2.890_611_442_640_554) * x * y * z,
+        c(0.457_045_799_464_465_8) * y * (c(1.0) - c(5.0) * zz),
+        c(0.373_176_332_590_115_4) * z * (c(5.0) * zz - c(3.0)),
+        c(0.457_045_799_464_465_8) * x * (c(1.0) - c(5.0) * zz),
+        c(1.445_305_721_320_277) * z * (xx - yy),
+        c(0.590_043_589_926_643_5) * x * (-xx + c(3.0) * yy),
+    ];
+    let z0 = R::ZERO;
+    let d = [
+        [z0, z0, z0],
+        [z0, c(-0.488_602_511_902_919_9), z0],
+        [z0, z0, c(0.488_602_511_902_919_9)],
+        [c(-0.488_602_511_902_919_9), z0, z0],
+        [c(1.092_548_430_592_079_2) * y, c(1.092_548_430_592_079_2) * x, z0],
+        [z0, c(-1.092_548_430_592_079_2) * z, c(-1.092_548_430_592_079_2) * y],
+        [z0, z0, c(2.0 * 0.946_174_695_757_560_1) * z],
+        [c(-1.092_548_430_592_079_2) * z, z0, c(-1.092_548_430_592_079_2) * x],
+        [c(2.0 * 0.546_274_215_296_039_6) * x, c(-2.0 * 0.546_274_215_296_039_6) * y, z0],
+        [c(0.590_043_589_926_643_5) * c(-6.0) * x * y, c(0.590_043_589_926_643_5) * (c(-3.0) * xx + c(3.0) * yy), z0],
+        [c(2.890_611_442_640_554) * y * z, c(2.890_611_442_640_554) * x * z, c(2.890_611_442_640_554) * x * y],
+        [z0, c(0.457_045_799_464_465_8) * (c(1.0) - c(5.0) * zz), c(0.457_045_799_464_465_8) * y * c(-10.0) * z],
+        [z0, z0, c(0.373_176_332_590_115_4) * (c(15.0) * zz - c(3.0))],
+        [c(0.457_045_799_464_465_8) * (c(1.0) - c(5.0) * zz), z0, c(0.457_045_799_464_465_8) * x * c(-10.0) * z],
+        [c(1.445_305_721_320_277) * z * c(2.0) * x, c(1.445_305_721_320_277) * z * c(-2.0) * y, c(1.445_305_721_320_277) * (xx - yy)],
+        [c(0.590_043_589_926_643_5) * (c(-3.0) * xx + c(3.0) * yy), c(0.590_043_589_926_643_5) * c(6.0) * x * y, z0],
+    ];
+    (v, d)
+}
+
+impl<R: Real> Module<R> for SphericalHarmonics {
+    fn n_params(&self) -> usize {
+        0
+    }
+    fn n_inputs(&self) -> usize {
+        3
+    }
+    fn n_outputs(&self) -> usize {
+        16
+    }
+    fn ctx_per_row(&self) -> usize {
+        0
+    }
+    fn forward(&self, _: &[R], input: &[R], output: &mut [R], _: &mut [R]) {
+        for (d, y) in input.chunks_exact(3).zip(output.chunks_exact_mut(16)) {
+            y.copy_from_slice(&sh16(d[0], d[1], d[2]).0);
+        }
+    }
+    fn backward(&self, _: &[R], input: &[R], _: &[R], d_output: &[R], _: &mut [R], d_input: Option<&mut [R]>) {
+        let Some(d_input) = d_input else { return };
+        for ((d, dy), dx) in input.chunks_exact(3).zip(d_output.chunks_exact(16)).zip(d_input.chunks_exact_mut(3)) {
+            let (_, grad) = sh16(d[0], d[1], d[2]);
+            for k in 0..3 {
+                dx[k] = (0..16).fold(R::ZERO, |acc, j| acc + dy[j] * grad[j][k]);
+            }
+        }
+    }
+}

@@ -6,7 +6,7 @@
 //! hash grid with coarse-to-fine levels ([`HashGrid`]), module chaining ([`Chain`]), NeuS volume
 //! rendering of one ray and its backward ([`render_ray`], [`render_ray_backward`]), Adam/AdamW and
 //! the warm-up + cosine schedule ([`optim`]); every gradient is checked against finite
-//! differences in f64. Not implemented yet: spherical harmonics, the SDF + colour networks with
+//! differences in f64; spherical harmonics (degree 4) for view directions. Not implemented yet: the SDF + colour networks with
 //! normals, hierarchical sampling, the backbone API (SDF field, batch rendering, save/load),
 //! presets, benchmarks.
 //!
@@ -24,10 +24,10 @@ pub mod optim;
 pub mod real;
 pub mod render;
 
-pub use encoding::PositionalEncoding;
+pub use encoding::{PositionalEncoding, SphericalHarmonics};
 pub use hashgrid::{HashGrid, HashGridConfig};
 pub use render::{RayGradients, RayRender, render_ray, render_ray_backward};
 pub use mlp::{Mlp, MlpConfig};
-pub use module::{Activation, Chain, Module};
+pub use module::{Activation, Chain, Module, batch_gradients};
 pub use optim::{Adam, WarmupCosine};
 pub use real::Real;

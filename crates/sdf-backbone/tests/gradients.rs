@@ -273,6 +273,35 @@ fn rendering_is_stable_at_the_extremes() {
     // f32 too.
     let sdf: Vec<f32> = (0..9).map(|i| 0.2 - 0.05 * i as f32).collect();
     let t32: Vec<f32> = t.iter().map(|v| *v as f32).collect();
-    let r = render_ray(&sdf, &t32, &vec![[0.5f32; 3]; 8], 1e6f32);
+    let r = render_ray(&sdf, &t32, &[[0.5f32; 3]; 8], 1e6f32);
     assert!(r.weights.iter().all(|w| w.is_finite()));
+}
+
+#[test]
+fn spherical_harmonics_are_orthonormal_and_differentiable() {
+    let sh = SphericalHarmonics;
+    assert!(grad_check(&sh, &[], 5, 16) <= 1e-6);
+    // Monte-Carlo orthonormality on the sphere: ∫ Yᵢ Yⱼ dω = δᵢⱼ (4π · mean).
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(17);
+    let n = 200_000;
+    let mut gram = [[0.0f64; 16]; 16];
+    let mut y = [0.0f64; 16];
+    for _ in 0..n {
+        let z: f64 = 1.0 - 2.0 * rng.random::<f64>();
+        let phi = std::f64::consts::TAU * rng.random::<f64>();
+        let r = (1.0 - z * z).sqrt();
+        sh.forward(&[], &[r * phi.cos(), r * phi.sin(), z], &mut y, &mut []);
+        for i in 0..16 {
+            for j in 0..16 {
+                gram[i][j] += y[i] * y[j];
+            }
+        }
+    }
+    for i in 0..16 {
+        for j in 0..16 {
+            let g = gram[i][j] * 4.0 * std::f64::consts::PI / n as f64;
+            let expect = if i == j { 1.0 } else { 0.0 };
+            assert!((g - expect).abs() < 0.03, "⟨Y{i}, Y{j}⟩ = {g}");
+        }
+    }
 }

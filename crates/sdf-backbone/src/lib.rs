@@ -1,14 +1,16 @@
 //! SDF backbones with hand-written, verified gradients (issue #4).
 //!
-//! **Status: in progress.** Implemented and tested: the module interface over flat parameter
-//! slices ([`Module`]), dense layers with activations, skip connection and NeuS's geometric
-//! initialisation ([`Mlp`]), the positional encoding ([`PositionalEncoding`]), the multi-resolution
-//! hash grid with coarse-to-fine levels ([`HashGrid`]), module chaining ([`Chain`]), NeuS volume
-//! rendering of one ray and its backward ([`render_ray`], [`render_ray_backward`]), Adam/AdamW and
-//! the warm-up + cosine schedule ([`optim`]); every gradient is checked against finite
-//! differences in f64; spherical harmonics (degree 4) for view directions. Not implemented yet: the SDF + colour networks with
-//! normals, hierarchical sampling, the backbone API (SDF field, batch rendering, save/load),
-//! presets, benchmarks.
+//! **Status: in progress.** Implemented, with every gradient checked against finite differences
+//! in f64: the module interface over flat parameter slices ([`Module`], [`Chain`],
+//! [`batch_gradients`]); dense layers with activations, skip connection, NeuS's geometric
+//! initialisation and a least-squares calibration of the SDF readout ([`Mlp`]); the positional
+//! encoding, spherical harmonics of degree 4 ([`PositionalEncoding`], [`SphericalHarmonics`]); the
+//! multi-resolution hash grid with coarse-to-fine levels ([`HashGrid`]); NeuS volume rendering of
+//! one ray and its backward ([`render_ray`], [`render_ray_backward`]); Adam/AdamW and the
+//! warm-up-then-cosine schedule ([`optim`]); an SDF network ([`SdfNetwork`]) that implements
+//! `prob_grid::SdfField`. Not implemented yet: the colour network with normals (numerical
+//! gradients), hierarchical sampling and the batch renderer, the backbone API (render a batch,
+//! backward from per-ray losses, save/load), the NeuS/Neuralangelo presets, benchmarks.
 //!
 //! # Design (tiny-cuda-nn's shape)
 //! Modules own no parameters: a model is one flat `params` slice and one `grads` slice, each
@@ -20,6 +22,7 @@ pub mod encoding;
 pub mod hashgrid;
 pub mod mlp;
 pub mod module;
+pub mod network;
 pub mod optim;
 pub mod real;
 pub mod render;
@@ -29,5 +32,6 @@ pub use hashgrid::{HashGrid, HashGridConfig};
 pub use render::{RayGradients, RayRender, render_ray, render_ray_backward};
 pub use mlp::{Mlp, MlpConfig};
 pub use module::{Activation, Chain, Module, batch_gradients};
+pub use network::{Encoding, SdfNetwork};
 pub use optim::{Adam, WarmupCosine};
 pub use real::Real;

@@ -101,6 +101,52 @@ impl Mlp {
         }
     }
 
+    /// Refits the output layer's first row (weights and bias) by ridge regression so that the
+    /// first output matches `target` on `inputs` (rows of `n_inputs`): a cheap calibration after
+    /// [`Self::init_geometric`], whose finite-width result is |x| − r only on average (measured
+    /// ±0.2 at 8 × 256). The hidden layers stay random features; this solves for the readout.
+    pub fn calibrate_first_output(&self, params: &mut [f32], inputs: &[f32], target: &[f32]) {
+        let rows = target.len();
+        let &(n_in, _, off) = self.layers.last().expect("an MLP has an output layer");
+        // The last hidden activations (the output layer's inputs) from the context.
+        let per_row = self.ctx_layout();
+        let mut out = vec![0.0f32; rows * self.config.n_outputs];
+        let mut ctx = vec![0.0f32; rows * per_row];
+        Module::<f32>::forward(self, params, inputs, &mut out, &mut ctx);
+        let a_start: usize = self.layers[..self.layers.len() - 1].iter().map(|(i, o, _)| i + o).sum();
+        // Normal equations for [w, b]: (AᵀA + λI) θ = Aᵀy, in f64.
+        let m = n_in + 1;
+        let mut ata = vec![0.0f64; m * m];
+        let mut aty = vec![0.0f64; m];
+        let mut a = vec![0.0f64; m];
+        for r in 0..rows {
+            let c = &ctx[r * per_row + a_start..r * per_row + a_start + n_in];
+            for i in 0..n_in {
+                a[i] = c[i] as f64;
+            }
+            a[n_in] = 1.0;
+            for i in 0..m {
+                aty[i] += a[i] * target[r] as f64;
+                for j in 0..=i {
+                    ata[i * m + j] += a[i] * a[j];
+                }
+            }
+        }
+        let ridge = 1e-6 * (0..m).map(|i| ata[i * m + i]).sum::<f64>() / m as f64;
+        for i in 0..m {
+            ata[i * m + i] += ridge;
+            for j in 0..i {
+                ata[j * m + i] = ata[i * m + j];
+            }
+        }
+        let theta = cholesky_solve(&mut ata, &aty, m).expect("ridge regression is positive definite");
+        let (w, b) = params[off..off + n_in * self.config.n_outputs + self.config.n_outputs].split_at_mut(n_in * self.config.n_outputs);
+        for i in 0..n_in {
+            w[i] = theta[i] as f32;
+        }
+        b[0] = theta[n_in] as f32;
+    }
+
     /// Context values per row: each layer's input and pre-activation.
     fn ctx_layout(&self) -> usize {
         self.layers.iter().map(|(i, o, _)| i + o).sum()
@@ -238,4 +284,41 @@ impl<R: Real> Module<R> for Mlp {
             }
         }
     }
+}
+
+/// Solves A x = b for a symmetric positive-definite A (row-major, overwritten by its Cholesky
+/// factor). `None` if A is not positive definite.
+fn cholesky_solve(a: &mut [f64], b: &[f64], n: usize) -> Option<Vec<f64>> {
+    for j in 0..n {
+        let mut d = a[j * n + j];
+        for k in 0..j {
+            d -= a[j * n + k] * a[j * n + k];
+        }
+        if !(d > 0.0) {
+            return None;
+        }
+        let d = d.sqrt();
+        a[j * n + j] = d;
+        for i in j + 1..n {
+            let mut s = a[i * n + j];
+            for k in 0..j {
+                s -= a[i * n + k] * a[j * n + k];
+            }
+            a[i * n + j] = s / d;
+        }
+    }
+    let mut y = b.to_vec();
+    for i in 0..n {
+        for k in 0..i {
+            y[i] -= a[i * n + k] * y[k];
+        }
+        y[i] /= a[i * n + i];
+    }
+    for i in (0..n).rev() {
+        for k in i + 1..n {
+            y[i] -= a[k * n + i] * y[k];
+        }
+        y[i] /= a[i * n + i];
+    }
+    Some(y)
 }

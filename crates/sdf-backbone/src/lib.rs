@@ -8,9 +8,13 @@
 //! multi-resolution hash grid with coarse-to-fine levels ([`HashGrid`]); NeuS volume rendering of
 //! one ray and its backward ([`render_ray`], [`render_ray_backward`]); Adam/AdamW and the
 //! warm-up-then-cosine schedule ([`optim`]); an SDF network ([`SdfNetwork`]) that implements
-//! `prob_grid::SdfField`. Not implemented yet: the colour network with normals (numerical
-//! gradients), hierarchical sampling and the batch renderer, the backbone API (render a batch,
-//! backward from per-ray losses, save/load), the NeuS/Neuralangelo presets, benchmarks.
+//! `prob_grid::SdfField`; the whole NeuS render + loss pipeline for a batch of rays with its
+//! backward ([`Pipeline`]: SDF network, normals by central differences, colour network on
+//! [x, n, SH(d), features], rendering, L1/L2 colour + eikonal + mask BCE, learnt variance).
+//! Not implemented yet: hierarchical up-sampling, merging of the sampler's extra depths, the
+//! learned background, a fast batched (GEMM-style, multi-threaded) path, curvature loss, the
+//! backbone API around it (save/load, presets sized for the CPU), the render-fit test and the
+//! benchmarks: the pipeline is correct (gradient-checked) but not yet fast.
 //!
 //! # Design (tiny-cuda-nn's shape)
 //! Modules own no parameters: a model is one flat `params` slice and one `grads` slice, each
@@ -24,6 +28,7 @@ pub mod mlp;
 pub mod module;
 pub mod network;
 pub mod optim;
+pub mod pipeline;
 pub mod real;
 pub mod render;
 
@@ -34,4 +39,5 @@ pub use mlp::{Mlp, MlpConfig};
 pub use module::{Activation, Chain, Module, batch_gradients};
 pub use network::{Encoding, SdfNetwork};
 pub use optim::{Adam, WarmupCosine};
+pub use pipeline::{ColorLoss, Pipeline, PipelineConfig, RayInput, RayOutput};
 pub use real::Real;

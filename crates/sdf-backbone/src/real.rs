@@ -33,6 +33,8 @@ pub trait Real:
     fn exp(self) -> Self;
     /// ln(1 + x), accurate for small x.
     fn ln_1p(self) -> Self;
+    /// ln x.
+    fn ln(self) -> Self;
     /// sin x.
     fn sin(self) -> Self;
     /// cos x.
@@ -67,6 +69,10 @@ macro_rules! impl_real {
             #[inline]
             fn ln_1p(self) -> Self {
                 <$t>::ln_1p(self)
+            }
+            #[inline]
+            fn ln(self) -> Self {
+                <$t>::ln(self)
             }
             #[inline]
             fn sin(self) -> Self {

@@ -305,3 +305,58 @@ fn spherical_harmonics_are_orthonormal_and_differentiable() {
         }
     }
 }
+
+/// The whole render + loss pipeline (SDF net with PE, normals by central differences, colour
+/// net on [x, n, SH(d), features], NeuS rendering, L2 colour + eikonal + mask BCE, learnt
+/// variance) against finite differences in f64.
+#[test]
+fn whole_pipeline_gradients_match_finite_differences() {
+    let pe = PositionalEncoding { frequencies: 2 };
+    let sdf_mlp = Mlp::new(MlpConfig {
+        n_inputs: 15, width: 8, hidden_layers: 2, n_outputs: 1 + 4, skip: None,
+        hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Identity,
+    });
+    let color = Mlp::new(MlpConfig {
+        n_inputs: 22 + 4, width: 8, hidden_layers: 1, n_outputs: 3, skip: None,
+        hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Sigmoid,
+    });
+    let pipeline = Pipeline {
+        sdf: Chain { a: pe, b: sdf_mlp },
+        color,
+        config: PipelineConfig { color_loss: ColorLoss::L2, eikonal_weight: 0.1, mask_weight: 0.1, normal_step: 1e-3 },
+    };
+    let n = pipeline.n_params::<f64>();
+    let mut params = random_params(n, 0.5, 21);
+    params[n - 1] = 0.25; // s = e^{2.5} ≈ 12
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(22);
+    let rays: Vec<RayInput<f64>> = (0..3)
+        .map(|r| {
+            let d = [0.3 + 0.1 * r as f64, -0.2, 1.0];
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            RayInput {
+                origin: [-0.1 * r as f64, 0.2, -1.0],
+                direction: d.map(|v| v / len),
+                depths: (0..7).map(|i| 0.2 + 0.25 * i as f64 + 0.05 * rng.random::<f64>()).collect(),
+                target: [0.2, 0.5 + 0.1 * r as f64, 0.7],
+                mask: Some(if r == 1 { 0.0 } else { 1.0 }),
+            }
+        })
+        .collect();
+    let mut grads = vec![0.0; n];
+    let (loss, out) = pipeline.loss(&params, &rays, Some(&mut grads));
+    assert!(loss.is_finite() && out.len() == 3);
+    let h = 1e-6;
+    let mut worst = 0.0f64;
+    for i in 0..n {
+        let (mut p, mut m) = (params.clone(), params.clone());
+        p[i] += h;
+        m[i] -= h;
+        let numeric = (pipeline.loss(&p, &rays, None).0 - pipeline.loss(&m, &rays, None).0) / (2.0 * h);
+        let rel = (grads[i] - numeric).abs() / grads[i].abs().max(numeric.abs()).max(1e-4);
+        if rel > 1e-5 {
+            eprintln!("param {i}/{n}: analytic {:e} numeric {numeric:e}", grads[i]);
+        }
+        worst = worst.max(rel);
+    }
+    assert!(worst <= 1e-5, "relative error {worst:e}");
+}

@@ -208,27 +208,48 @@ pub fn reproject(active: &ActiveCells, camera: &PinholeCamera, config: &CameraGr
     let (sru, srv, srl) = (f32x8::splat(fru), f32x8::splat(frv), f32x8::splat(frl));
     let (mrv, mrl) = (f32x8::splat(rv as f32), f32x8::splat(rl as f32));
     let mut inside = 0.0f64;
-    for (p, &mass) in active.points.iter().zip(&active.masses) {
-        let center = rotation * *p + translation;
-        let m = f32x8::splat(mass * share);
-        let (cx, cy, cz) = (f32x8::splat(center.x), f32x8::splat(center.y), f32x8::splat(center.z));
-        for &(ox, oy, oz, valid) in &lanes {
-            let (x, y, z) = (cx + ox, cy + oy, cz + oz);
-            let inv_z = f32x8::ONE / z;
-            let fu = ((sfx * x + sskew * y) * inv_z - su0) * sdu;
-            let fv = (sfy * y * inv_z - sv0) * sdv;
-            let fl = (z - sl0) * sdl;
-            // NaN fails every comparison; z ≤ 0 (behind the camera) gives fl < 0.
-            let ok = fu.simd_ge(zero) & fu.simd_lt(sru) & fv.simd_ge(zero) & fv.simd_lt(srv) & fl.simd_ge(zero) & fl.simd_lt(srl)
-                & valid.simd_gt(zero);
-            // Indices in f32 are exact (cells < 2²⁴); truncation is floor for the lanes kept.
-            let index = ok.bitselect((fu.trunc() * mrv + fv.trunc()) * mrl + fl.trunc(), sentinel).fast_trunc_int().to_array();
-            let w = if inverse_square { m * inv_z * inv_z } else { m };
-            let weight = ok.bitselect(w, zero).to_array();
-            for l in 0..8 {
-                grid.values[index[l] as usize] += weight[l];
+    if offsets.len() < 8 {
+        // F = 1 (one offset): lanes would be mostly padding; the scalar loop is faster.
+        for (p, &mass) in active.points.iter().zip(&active.masses) {
+            let center = rotation * *p + translation;
+            let m = mass * share;
+            for o in &offsets {
+                let x = center + *o;
+                let inv_z = 1.0 / x.z;
+                let fu = ((fx * x.x + skew * x.y) * inv_z - u0) * inv_du;
+                let fv = (fy * x.y * inv_z - v0) * inv_dv;
+                let fl = (x.z - l0) * inv_dl;
+                // x.z ≤ 0 (behind the camera) gives fl < 0; NaN fails every comparison.
+                if fu >= 0.0 && fu < fru && fv >= 0.0 && fv < frv && fl >= 0.0 && fl < frl {
+                    let idx = ((fu as usize) * rv + fv as usize) * rl + fl as usize;
+                    grid.values[idx] += if inverse_square { m * inv_z * inv_z } else { m };
+                    inside += m as f64;
+                }
             }
-            inside += ok.bitselect(m, zero).reduce_add() as f64;
+        }
+    } else {
+        for (p, &mass) in active.points.iter().zip(&active.masses) {
+            let center = rotation * *p + translation;
+            let m = f32x8::splat(mass * share);
+            let (cx, cy, cz) = (f32x8::splat(center.x), f32x8::splat(center.y), f32x8::splat(center.z));
+            for &(ox, oy, oz, valid) in &lanes {
+                let (x, y, z) = (cx + ox, cy + oy, cz + oz);
+                let inv_z = f32x8::ONE / z;
+                let fu = ((sfx * x + sskew * y) * inv_z - su0) * sdu;
+                let fv = (sfy * y * inv_z - sv0) * sdv;
+                let fl = (z - sl0) * sdl;
+                // NaN fails every comparison; z ≤ 0 (behind the camera) gives fl < 0.
+                let ok = fu.simd_ge(zero) & fu.simd_lt(sru) & fv.simd_ge(zero) & fv.simd_lt(srv) & fl.simd_ge(zero) & fl.simd_lt(srl)
+                    & valid.simd_gt(zero);
+                // Indices in f32 are exact (cells < 2²⁴); truncation is floor for the lanes kept.
+                let index = ok.bitselect((fu.trunc() * mrv + fv.trunc()) * mrl + fl.trunc(), sentinel).fast_trunc_int().to_array();
+                let w = if inverse_square { m * inv_z * inv_z } else { m };
+                let weight = ok.bitselect(w, zero).to_array();
+                for l in 0..8 {
+                    grid.values[index[l] as usize] += weight[l];
+                }
+                inside += ok.bitselect(m, zero).reduce_add() as f64;
+            }
         }
     }
     grid.values.truncate(cells);

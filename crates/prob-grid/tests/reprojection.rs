@@ -167,3 +167,20 @@ fn initial_sphere_has_mass_in_every_camera_that_sees_it() {
     let g = initial_sphere(0.5, 50.0, &cams, &scene(32), &CameraGridConfig { ru: 16, rv: 16, rl: 32, ..Default::default() }).unwrap();
     assert!(g.empty_cameras.is_empty());
 }
+
+#[test]
+fn scalar_and_simd_projection_paths_conserve_mass_for_every_partition() {
+    // F = 1 takes the scalar path; F = 2 fills one 8-lane vector; F = 3 (27 sub-cells) pads.
+    let config = CameraGridConfig { weighting: Weighting::MassPreserving, view_dependency: ViewDependency::Off, ..Default::default() };
+    let cam = camera_at(DVec3::new(0.3, -2.5, 0.8));
+    let mut totals = Vec::new();
+    for partition in [1, 2, 3] {
+        let scene = SceneGridConfig { resolution: 48, partition, ..Default::default() };
+        let g = update(&sphere(), 200.0, &[cam], &scene, &config).unwrap();
+        let sum = g.cameras[0].total() + g.cameras[0].mass_outside;
+        assert!((sum - g.scene_mass).abs() < 1e-4 * g.scene_mass, "F {partition}: {sum} vs {}", g.scene_mass);
+        totals.push(g.cameras[0].total());
+    }
+    // The same mass lands in the grid whatever F (the sphere is fully in view).
+    assert!((totals[0] - totals[2]).abs() < 1e-3 * totals[0], "{totals:?}");
+}

@@ -253,8 +253,7 @@ pub fn reproject(active: &ActiveCells, camera: &PinholeCamera, config: &CameraGr
         }
     }
     grid.values.truncate(cells);
-    let total: f64 = active.masses.iter().map(|m| *m as f64).sum::<f64>();
-    let outside = (total - inside).max(0.0);
+    let outside = (active.total_mass - inside).max(0.0);
     grid.mass_outside = outside;
     apply_view_dependency(&mut grid, config);
     grid

@@ -293,7 +293,7 @@ fn torus_obj(dir: &std::path::Path) -> std::path::PathBuf {
 fn golden_mesh_scene_guides_rays_onto_the_silhouette_and_surface() {
     let dir = tempfile_dir();
     let g = golden::generate(&golden_spec(GeometrySource::Mesh(torus_obj(&dir)))).unwrap();
-    let mesh: TriangleMesh = g.mesh.as_ref().unwrap().mesh.clone();
+    let mesh: TriangleMesh = g.mesh().unwrap().mesh.clone();
     let field = MeshSdf { mesh };
     // Sanity: the mesh SDF is ≈ 0 on the golden surface points.
     let pts: Vec<Vec3> = g.surface_points.iter().map(|p| p.as_vec3()).collect();

@@ -80,12 +80,20 @@ pub struct GoldenScene {
     pub normals: Vec<Vec<[f32; 3]>>,
     /// Surface points uniform by area, in the normalised frame.
     pub surface_points: Vec<DVec3>,
-    /// The mesh in the normalised frame, if the geometry is a mesh.
-    pub mesh: Option<TexturedMesh>,
     /// The geometry that was rendered (normalised frame).
     pub geometry: Geometry,
     /// The spec it was made from.
     pub spec: GoldenSpec,
+}
+
+impl GoldenScene {
+    /// The mesh in the normalised frame, if the geometry is a mesh.
+    pub fn mesh(&self) -> Option<&TexturedMesh> {
+        match &self.geometry {
+            Geometry::Mesh { mesh, .. } => Some(mesh),
+            Geometry::Analytic(_) => None,
+        }
+    }
 }
 
 fn sample_mesh_surface(mesh: &prob_grid::TriangleMesh, count: usize, seed: u64) -> Vec<DVec3> {
@@ -127,18 +135,18 @@ fn normalize_mesh(mut mesh: TexturedMesh, y_up: bool) -> (TexturedMesh, DMat4) {
 
 /// Renders a golden scene.
 pub fn generate(spec: &GoldenSpec) -> Result<GoldenScene> {
-    let (geometry, mesh, world_from_normalized, label) = match &spec.geometry {
+    let (geometry, world_from_normalized, label) = match &spec.geometry {
         GeometrySource::Shape(name) => {
             let shape = Shape::by_name(name).ok_or_else(|| DatasetError::InvalidValue {
                 path: PathBuf::from(name),
                 entry: "shape".into(),
                 message: format!("unknown shape (known: {})", Shape::NAMES.join(", ")),
             })?;
-            (Geometry::Analytic(shape), None, DMat4::IDENTITY, format!("analytic {name}"))
+            (Geometry::Analytic(shape), DMat4::IDENTITY, format!("analytic {name}"))
         }
         GeometrySource::Mesh(path) => {
             let (mesh, world_from_normalized) = normalize_mesh(load_mesh(path)?, spec.mesh_y_up);
-            (Geometry::from_mesh(mesh.clone()), Some(mesh), world_from_normalized, format!("mesh {}", path.display()))
+            (Geometry::from_mesh(mesh), world_from_normalized, format!("mesh {}", path.display()))
         }
     };
     let cameras = rig::cameras(&spec.rig);
@@ -165,7 +173,6 @@ pub fn generate(spec: &GoldenSpec) -> Result<GoldenScene> {
         depths,
         normals,
         surface_points,
-        mesh,
         geometry,
         spec: spec.clone(),
     })
@@ -236,7 +243,7 @@ pub fn write_idr(golden: &GoldenScene, out: &Path) -> Result<()> {
     let to_world = |p: DVec3| scale_mat.transform_point3(p).as_vec3();
     PlyData { positions: golden.surface_points.iter().map(|p| to_world(*p)).collect(), ..Default::default() }
         .write(&out.join("gt_points.ply"))?;
-    if let Some(mesh) = &golden.mesh {
+    if let Some(mesh) = golden.mesh() {
         PlyData {
             positions: mesh.mesh.positions.iter().map(|p| to_world(p.as_dvec3())).collect(),
             faces: mesh.mesh.triangles.clone(),

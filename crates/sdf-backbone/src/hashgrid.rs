@@ -57,12 +57,10 @@ impl HashGrid {
 
     /// Uniform initialisation in ±`scale` (Instant-NGP: 1e-4), deterministic for a seed.
     pub fn init(&self, params: &mut [f32], scale: f32, seed: u64) {
-        let mut state = seed ^ 0x9E37_79B9_7F4A_7C15;
+        use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
         for p in params.iter_mut() {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            *p = ((state >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0) * scale;
+            *p = (rng.random::<f32>() * 2.0 - 1.0) * scale;
         }
     }
 

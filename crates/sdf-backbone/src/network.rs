@@ -7,6 +7,7 @@ use crate::hashgrid::{HashGrid, HashGridConfig};
 use crate::mlp::{Mlp, MlpConfig};
 use crate::module::{Activation, Module};
 use glam::Vec3;
+use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
 
 /// The input encoding of an SDF network.
 #[derive(Debug, Clone)]
@@ -85,15 +86,9 @@ impl SdfNetwork {
         }
         mlp.init_geometric(&mut params[n_enc..], radius, 3, seed ^ 1);
         // Calibrate the SDF readout on points of the cube [−1, 1]³ (the scene bound).
-        let mut state = seed ^ 0xC0FF_EE00_D15E_A5E5;
-        let mut uniform = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
-        };
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ 0xC0FF_EE00_D15E_A5E5);
         let n = 32 * (width + 1);
-        let x: Vec<f32> = (0..3 * n).map(|_| uniform()).collect();
+        let x: Vec<f32> = (0..3 * n).map(|_| rng.random::<f32>() * 2.0 - 1.0).collect();
         let target: Vec<f32> = x.chunks_exact(3).map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - radius as f32).collect();
         let mut enc = vec![0.0; n * encoding.n_outputs()];
         encoding.forward(&params[..n_enc], &x, &mut enc);

@@ -132,3 +132,55 @@ impl<R: Real> Module<R> for SphericalHarmonics {
         }
     }
 }
+
+/// The raw input alongside an encoding: `[x, m(x)]` (NeuS and Neuralangelo feed xyz next to
+/// their encodings).
+#[derive(Debug, Clone)]
+pub struct WithInput<M> {
+    /// The encoding.
+    pub encoding: M,
+}
+
+impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
+    fn n_params(&self) -> usize {
+        self.encoding.n_params()
+    }
+    fn n_inputs(&self) -> usize {
+        self.encoding.n_inputs()
+    }
+    fn n_outputs(&self) -> usize {
+        self.encoding.n_inputs() + self.encoding.n_outputs()
+    }
+    fn ctx_per_row(&self) -> usize {
+        self.encoding.ctx_per_row() + self.encoding.n_outputs()
+    }
+    fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
+        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
+        let rows = input.len() / n_in;
+        let (enc_ctx, enc_out) = ctx.split_at_mut(rows * self.encoding.ctx_per_row());
+        self.encoding.forward(params, input, enc_out, enc_ctx);
+        let n_out = n_in + n_enc;
+        for r in 0..rows {
+            output[r * n_out..r * n_out + n_in].copy_from_slice(&input[r * n_in..(r + 1) * n_in]);
+            output[r * n_out + n_in..(r + 1) * n_out].copy_from_slice(&enc_out[r * n_enc..(r + 1) * n_enc]);
+        }
+    }
+    fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
+        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
+        let rows = input.len() / n_in;
+        let n_out = n_in + n_enc;
+        let enc_ctx = &ctx[..rows * self.encoding.ctx_per_row()];
+        let d_enc: Vec<R> = (0..rows).flat_map(|r| d_output[r * n_out + n_in..(r + 1) * n_out].iter().copied()).collect();
+        match d_input {
+            Some(d_in) => {
+                self.encoding.backward(params, input, enc_ctx, &d_enc, d_params, Some(&mut *d_in));
+                for r in 0..rows {
+                    for k in 0..n_in {
+                        d_in[r * n_in + k] += d_output[r * n_out + k];
+                    }
+                }
+            }
+            None => self.encoding.backward(params, input, enc_ctx, &d_enc, d_params, None),
+        }
+    }
+}

@@ -32,7 +32,7 @@ pub mod pipeline;
 pub mod real;
 pub mod render;
 
-pub use encoding::{PositionalEncoding, SphericalHarmonics};
+pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};
 pub use hashgrid::{HashGrid, HashGridConfig};
 pub use render::{RayGradients, RayRender, render_ray, render_ray_backward};
 pub use mlp::{Mlp, MlpConfig};

@@ -87,8 +87,56 @@ impl<S, C> Pipeline<S, C> {
     }
 
     /// Loss of a batch (averaged over rays) and, if `d_params` is given, its gradient added into
-    /// it. Returns the loss and the per-ray outputs.
-    pub fn loss<R: Real>(&self, params: &[R], rays: &[RayInput<R>], mut d_params: Option<&mut [R]>) -> (R, Vec<RayOutput<R>>)
+    /// it. Returns the loss and the per-ray outputs. Sequential; see [`Self::loss_parallel`].
+    pub fn loss<R: Real>(&self, params: &[R], rays: &[RayInput<R>], d_params: Option<&mut [R]>) -> (R, Vec<RayOutput<R>>)
+    where
+        S: Module<R>,
+        C: Module<R>,
+    {
+        self.accumulate(params, rays, d_params, R::of(rays.len() as f64))
+    }
+
+    /// [`Self::loss`] over chunks of `chunk` rays in parallel, one gradient buffer per worker
+    /// (rayon `fold`), summed at the end. Same result as `loss` up to the order of additions.
+    pub fn loss_parallel<R: Real>(&self, params: &[R], rays: &[RayInput<R>], d_params: &mut [R], chunk: usize) -> (R, Vec<RayOutput<R>>)
+    where
+        S: Module<R> + Sync,
+        C: Module<R> + Sync,
+    {
+        use rayon::prelude::*;
+        let n = d_params.len();
+        let m = R::of(rays.len() as f64);
+        type Partial<R> = (R, Vec<R>, Vec<(usize, Vec<RayOutput<R>>)>);
+        let (loss, grads, mut outputs): Partial<R> = rays
+            .par_chunks(chunk.max(1))
+            .enumerate()
+            .fold(
+                || (R::ZERO, vec![R::ZERO; n], Vec::new()),
+                |(l, mut g, mut o), (i, c)| {
+                    let (cl, co) = self.accumulate(params, c, Some(&mut g), m);
+                    o.push((i, co));
+                    (l + cl, g, o)
+                },
+            )
+            .reduce(
+                || (R::ZERO, vec![R::ZERO; n], Vec::new()),
+                |(la, mut ga, mut oa), (lb, gb, ob)| {
+                    for (a, b) in ga.iter_mut().zip(&gb) {
+                        *a += *b;
+                    }
+                    oa.extend(ob);
+                    (la + lb, ga, oa)
+                },
+            );
+        for (d, g) in d_params.iter_mut().zip(&grads) {
+            *d += *g;
+        }
+        outputs.sort_by_key(|(i, _)| *i);
+        (loss, outputs.into_iter().flat_map(|(_, o)| o).collect())
+    }
+
+    /// The loss of `rays` divided by `m` (the whole batch's ray count), gradients added.
+    fn accumulate<R: Real>(&self, params: &[R], rays: &[RayInput<R>], mut d_params: Option<&mut [R]>, m: R) -> (R, Vec<RayOutput<R>>)
     where
         S: Module<R>,
         C: Module<R>,
@@ -100,7 +148,6 @@ impl<S, C> Pipeline<S, C> {
         let s = (R::of(10.0) * var).exp();
         let f = self.sdf.n_outputs() - 1;
         let h = R::of(self.config.normal_step);
-        let m = R::of(rays.len() as f64);
         let mut total = R::ZERO;
         let mut outputs = Vec::with_capacity(rays.len());
         let sh = SphericalHarmonics;

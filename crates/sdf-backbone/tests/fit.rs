@@ -30,33 +30,10 @@ fn hash_grid_mlp_learns_a_torus_sdf() {
         hidden_activation: Activation::Softplus { beta: 100.0 }, output_activation: Activation::Identity,
     });
     // Raw coordinates alongside the grid features, as NeuS-style networks do.
-    struct Input {
-        grid: HashGrid,
-    }
-    impl Module<f32> for Input {
-        fn n_params(&self) -> usize { Module::<f32>::n_params(&self.grid) }
-        fn n_inputs(&self) -> usize { 3 }
-        fn n_outputs(&self) -> usize { 3 + Module::<f32>::n_outputs(&self.grid) }
-        fn ctx_per_row(&self) -> usize { 0 }
-        fn forward(&self, p: &[f32], x: &[f32], y: &mut [f32], _: &mut [f32]) {
-            let n = Module::<f32>::n_outputs(self);
-            let mut feats = vec![0.0; x.len() / 3 * 16];
-            self.grid.forward(p, x, &mut feats, &mut []);
-            for r in 0..x.len() / 3 {
-                y[r * n..r * n + 3].copy_from_slice(&x[3 * r..3 * r + 3]);
-                y[r * n + 3..(r + 1) * n].copy_from_slice(&feats[16 * r..16 * r + 16]);
-            }
-        }
-        fn backward(&self, p: &[f32], x: &[f32], _: &[f32], dy: &[f32], dp: &mut [f32], _: Option<&mut [f32]>) {
-            let n = Module::<f32>::n_outputs(self);
-            let d_feats: Vec<f32> = (0..x.len() / 3).flat_map(|r| dy[r * n + 3..(r + 1) * n].to_vec()).collect();
-            self.grid.backward(p, x, &[], &d_feats, dp, None);
-        }
-    }
-    let input = Input { grid };
+    let input = WithInput { encoding: grid };
     let mut params = vec![0.0f32; Module::<f32>::n_params(&input) + Module::<f32>::n_params(&mlp)];
     let split = Module::<f32>::n_params(&input);
-    input.grid.init(&mut params[..split], 1e-4, 1);
+    input.encoding.init(&mut params[..split], 1e-4, 1);
     mlp.init_geometric(&mut params[split..], 0.5, 3, 2);
     let net = Chain { a: input, b: mlp };
     let mut adam = Adam::new(params.len());

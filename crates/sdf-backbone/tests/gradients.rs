@@ -360,3 +360,48 @@ fn whole_pipeline_gradients_match_finite_differences() {
     }
     assert!(worst <= 1e-5, "relative error {worst:e}");
 }
+
+#[test]
+fn with_input_gradients_match() {
+    let grid = HashGrid::new(HashGridConfig { levels: 2, features: 2, log2_table: 8, base_resolution: 3, finest_resolution: 9 });
+    let m = WithInput { encoding: grid };
+    let params = random_params(Module::<f64>::n_params(&m), 1.0, 31);
+    assert!(grad_check(&m, &params, 5, 32) <= 1e-5);
+}
+
+#[test]
+fn parallel_pipeline_equals_sequential() {
+    let pe = PositionalEncoding { frequencies: 2 };
+    let sdf_mlp = Mlp::new(MlpConfig {
+        n_inputs: 15, width: 8, hidden_layers: 2, n_outputs: 1 + 4, skip: None,
+        hidden_activation: Activation::Softplus { beta: 100.0 }, output_activation: Activation::Identity,
+    });
+    let color = Mlp::new(MlpConfig {
+        n_inputs: 26, width: 8, hidden_layers: 1, n_outputs: 3, skip: None,
+        hidden_activation: Activation::Relu, output_activation: Activation::Sigmoid,
+    });
+    let pipeline = Pipeline {
+        sdf: Chain { a: pe, b: sdf_mlp },
+        color,
+        config: PipelineConfig { color_loss: ColorLoss::L1, eikonal_weight: 0.1, mask_weight: 0.0, normal_step: 1e-3 },
+    };
+    let n = pipeline.n_params::<f64>();
+    let params = random_params(n, 0.5, 41);
+    let rays: Vec<RayInput<f64>> = (0..37)
+        .map(|r| RayInput {
+            origin: [0.01 * r as f64, 0.0, -2.0],
+            direction: [0.0, 0.0, 1.0],
+            depths: (0..9).map(|i| 1.0 + 0.25 * i as f64).collect(),
+            target: [0.5; 3],
+            mask: None,
+        })
+        .collect();
+    let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
+    let (la, oa) = pipeline.loss(&params, &rays, Some(&mut a));
+    let (lb, ob) = pipeline.loss_parallel(&params, &rays, &mut b, 5);
+    assert!((la - lb).abs() < 1e-12 * la.abs().max(1.0));
+    assert_eq!(oa, ob);
+    for (x, y) in a.iter().zip(&b) {
+        assert!((x - y).abs() < 1e-12 * x.abs().max(1e-9), "{x} vs {y}");
+    }
+}

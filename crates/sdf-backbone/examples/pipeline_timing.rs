@@ -1,0 +1,61 @@
+//! Times one training step (forward + backward of the whole render + loss pipeline) on random
+//! rays, for a Neuralangelo-style CPU configuration (a profiling aid, not the benchmark of
+//! issue #4): `cargo run --release -p sdf-backbone --example pipeline_timing [rays] [samples]`.
+use sdf_backbone::*;
+use std::time::Instant;
+
+fn main() {
+    let args: Vec<usize> = std::env::args().skip(1).filter_map(|a| a.parse().ok()).collect();
+    let (n_rays, n_samples) = (args.first().copied().unwrap_or(512), args.get(1).copied().unwrap_or(64));
+    let grid = HashGrid::new(HashGridConfig { levels: 8, features: 2, log2_table: 16, base_resolution: 16, finest_resolution: 256 });
+    let sdf_mlp = Mlp::new(MlpConfig {
+        n_inputs: 19, width: 64, hidden_layers: 2, n_outputs: 1 + 15, skip: None,
+        hidden_activation: Activation::Softplus { beta: 100.0 }, output_activation: Activation::Identity,
+    });
+    let color = Mlp::new(MlpConfig {
+        n_inputs: 22 + 15, width: 64, hidden_layers: 2, n_outputs: 3, skip: None,
+        hidden_activation: Activation::Relu, output_activation: Activation::Sigmoid,
+    });
+    let pipeline = Pipeline {
+        sdf: Chain { a: WithInput { encoding: grid.clone() }, b: sdf_mlp.clone() },
+        color: color.clone(),
+        config: PipelineConfig { color_loss: ColorLoss::L1, eikonal_weight: 0.1, mask_weight: 0.1, normal_step: 1.0 / 256.0 },
+    };
+    let n = pipeline.n_params::<f32>();
+    let mut params = vec![0.0f32; n];
+    let n_grid = Module::<f32>::n_params(&grid);
+    let n_sdf = n_grid + Module::<f32>::n_params(&sdf_mlp);
+    grid.init(&mut params[..n_grid], 1e-4, 1);
+    sdf_mlp.init_geometric(&mut params[n_grid..n_sdf], 0.5, 3, 2);
+    color.init_default(&mut params[n_sdf..n - 1], 3);
+    params[n - 1] = 0.3;
+    let rays: Vec<RayInput<f32>> = (0..n_rays)
+        .map(|r| {
+            let a = r as f32 * 0.01;
+            RayInput {
+                origin: [3.0 * a.cos(), 3.0 * a.sin(), 0.3],
+                direction: [-a.cos(), -a.sin(), -0.1],
+                depths: (0..=n_samples).map(|i| 2.0 + 2.0 * i as f32 / n_samples as f32).collect(),
+                target: [0.5, 0.4, 0.3],
+                mask: Some(1.0),
+            }
+        })
+        .collect();
+    let mut grads = vec![0.0f32; n];
+    // One chunk per thread: each chunk has its own gradient buffer (1 M parameters).
+    let chunk = n_rays.div_ceil(rayon::current_num_threads());
+    let _ = pipeline.loss_parallel(&params, &rays, &mut grads, chunk);
+    let steps = 3;
+    let t = Instant::now();
+    for _ in 0..steps {
+        grads.fill(0.0);
+        let _ = pipeline.loss_parallel(&params, &rays, &mut grads, chunk);
+    }
+    let per_step = t.elapsed().as_secs_f64() / steps as f64;
+    let evaluations = n_rays * (7 * n_samples + 1);
+    println!(
+        "{n_rays} rays × {n_samples} samples ({evaluations} SDF evaluations incl. normals), {n} parameters: {:.3} s per step on {} threads",
+        per_step,
+        rayon::current_num_threads()
+    );
+}

@@ -114,15 +114,20 @@ impl Mlp {
         let mut ctx = vec![0.0f32; rows * per_row];
         Module::<f32>::forward(self, params, inputs, &mut out, &mut ctx);
         let a_start: usize = self.layers[..self.layers.len() - 1].iter().map(|(i, o, _)| i + o).sum();
+        // The context is tiled by LANES rows: value k of row r sits at tile_base + k·w + lane.
+        let value = |r: usize, k: usize| {
+            let r0 = r / LANES * LANES;
+            let w = LANES.min(rows - r0);
+            ctx[r0 * per_row + k * w + (r - r0)]
+        };
         // Normal equations for [w, b]: (AᵀA + λI) θ = Aᵀy, in f64.
         let m = n_in + 1;
         let mut ata = vec![0.0f64; m * m];
         let mut aty = vec![0.0f64; m];
         let mut a = vec![0.0f64; m];
         for r in 0..rows {
-            let c = &ctx[r * per_row + a_start..r * per_row + a_start + n_in];
             for i in 0..n_in {
-                a[i] = c[i] as f64;
+                a[i] = value(r, a_start + i) as f64;
             }
             a[n_in] = 1.0;
             for i in 0..m {
@@ -169,94 +174,137 @@ impl<R: Real> Module<R> for Mlp {
 
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
         let n_x = self.config.n_inputs;
+        let n_y = self.config.n_outputs;
         let per_row = self.ctx_layout();
-        let last = self.layers.len() - 1;
+        let rows = input.len() / n_x;
         let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
-        for (row, x) in input.chunks_exact(n_x).enumerate() {
-            let c = &mut ctx[row * per_row..(row + 1) * per_row];
+        let widest = self.layers.iter().map(|(i, o, _)| (*i).max(*o)).max().unwrap_or(0);
+        let (mut a, mut z) = (vec![[R::ZERO; LANES]; widest], vec![[R::ZERO; LANES]; widest]);
+        for r0 in (0..rows).step_by(LANES) {
+            let w = LANES.min(rows - r0);
+            // This tile's context: value k of lane j at k·w + j.
+            let c = &mut ctx[r0 * per_row..(r0 + w) * per_row];
             let mut at = 0;
-            let mut prev = at; // where the previous activation starts in c (unused for l = 0)
-            let mut prev_len = 0;
             for (l, &(n_in, n_out, off)) in self.layers.iter().enumerate() {
-                // Layer input a_l.
-                let a_start = at;
+                // Layer input a_l (lanes past w stay zero).
                 if l == 0 {
-                    c[at..at + n_x].copy_from_slice(x);
+                    for k in 0..n_x {
+                        a[k] = [R::ZERO; LANES];
+                        for j in 0..w {
+                            a[k][j] = input[(r0 + j) * n_x + k];
+                        }
+                    }
                 } else {
-                    let act = if l - 1 == last { self.config.output_activation } else { self.config.hidden_activation };
-                    for k in 0..prev_len {
-                        c[at + k] = act.apply(c[prev + k]);
+                    let prev = self.layers[l - 1].1;
+                    let act = self.config.hidden_activation;
+                    for k in 0..prev {
+                        for j in 0..w {
+                            a[k][j] = act.apply(z[k][j]);
+                        }
                     }
                     if self.config.skip == Some(l) {
-                        for k in 0..prev_len {
-                            c[at + k] *= inv_sqrt2;
+                        for k in 0..prev {
+                            for j in 0..w {
+                                a[k][j] *= inv_sqrt2;
+                            }
                         }
                         for k in 0..n_x {
-                            c[at + prev_len + k] = x[k] * inv_sqrt2;
+                            for j in 0..w {
+                                a[prev + k][j] = input[(r0 + j) * n_x + k] * inv_sqrt2;
+                            }
                         }
                     }
                 }
-                at += n_in;
-                // Pre-activation z_l = W a + b.
-                let (w, b) = params[off..off + n_in * n_out + n_out].split_at(n_in * n_out);
-                let (head, tail) = c.split_at_mut(at);
-                let a = &head[a_start..a_start + n_in];
-                for o in 0..n_out {
-                    tail[o] = b[o] + dot(&w[o * n_in..(o + 1) * n_in], a);
+                for k in 0..n_in {
+                    c[(at + k) * w..(at + k) * w + w].copy_from_slice(&a[k][..w]);
                 }
-                prev = at;
-                prev_len = n_out;
+                at += n_in;
+                // z = W a + b, eight rows at a time (one vector lane per row).
+                let (wt, b) = params[off..off + n_in * n_out + n_out].split_at(n_in * n_out);
+                for o in 0..n_out {
+                    let mut acc = [b[o]; LANES];
+                    for (i, wv) in wt[o * n_in..(o + 1) * n_in].iter().enumerate() {
+                        for j in 0..LANES {
+                            acc[j] += *wv * a[i][j];
+                        }
+                    }
+                    z[o] = acc;
+                    c[(at + o) * w..(at + o) * w + w].copy_from_slice(&acc[..w]);
+                }
                 at += n_out;
             }
-            let out = &mut output[row * self.config.n_outputs..(row + 1) * self.config.n_outputs];
-            for k in 0..self.config.n_outputs {
-                out[k] = self.config.output_activation.apply(c[prev + k]);
+            for j in 0..w {
+                for k in 0..n_y {
+                    output[(r0 + j) * n_y + k] = self.config.output_activation.apply(z[k][j]);
+                }
             }
         }
     }
 
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], mut d_input: Option<&mut [R]>) {
         let n_x = self.config.n_inputs;
+        let n_y = self.config.n_outputs;
         let per_row = self.ctx_layout();
+        let rows = input.len() / n_x;
         let last = self.layers.len() - 1;
         let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
-        let max_width = self.layers.iter().map(|(i, o, _)| (*i).max(*o)).max().unwrap_or(0);
-        let mut dz = vec![R::ZERO; max_width];
-        let mut da = vec![R::ZERO; max_width];
-        // Offsets of a_l and z_l inside a row's context.
+        let widest = self.layers.iter().map(|(i, o, _)| (*i).max(*o)).max().unwrap_or(0);
+        let (mut dz, mut da) = (vec![[R::ZERO; LANES]; widest], vec![[R::ZERO; LANES]; widest]);
+        let mut a = vec![[R::ZERO; LANES]; widest];
+        // Offsets of a_l and z_l in a tile's context (in values per lane).
         let mut starts = Vec::with_capacity(self.layers.len());
         let mut at = 0;
         for &(n_in, n_out, _) in &self.layers {
             starts.push((at, at + n_in));
             at += n_in + n_out;
         }
-        for row in 0..input.len() / n_x {
-            let c = &ctx[row * per_row..(row + 1) * per_row];
-            let dy = &d_output[row * self.config.n_outputs..(row + 1) * self.config.n_outputs];
+        for r0 in (0..rows).step_by(LANES) {
+            let w = LANES.min(rows - r0);
+            let c = &ctx[r0 * per_row..(r0 + w) * per_row];
+            let lane = |k: usize, j: usize| c[k * w + j];
             let (_, z_last) = starts[last];
-            for k in 0..self.config.n_outputs {
-                dz[k] = dy[k] * self.config.output_activation.derivative(c[z_last + k]);
+            for k in 0..n_y {
+                dz[k] = [R::ZERO; LANES];
+                for j in 0..w {
+                    dz[k][j] = d_output[(r0 + j) * n_y + k] * self.config.output_activation.derivative(lane(z_last + k, j));
+                }
             }
-            let mut dx_row = vec![R::ZERO; n_x];
+            let mut dx = vec![[R::ZERO; LANES]; n_x];
             for l in (0..self.layers.len()).rev() {
                 let (n_in, n_out, off) = self.layers[l];
                 let (a_start, _) = starts[l];
+                for i in 0..n_in {
+                    a[i] = [R::ZERO; LANES];
+                    for j in 0..w {
+                        a[i][j] = lane(a_start + i, j);
+                    }
+                }
                 let (dw, db) = d_params[off..off + n_in * n_out + n_out].split_at_mut(n_in * n_out);
-                let w = &params[off..off + n_in * n_out];
-                da[..n_in].fill(R::ZERO);
+                let wt = &params[off..off + n_in * n_out];
+                for i in 0..n_in {
+                    da[i] = [R::ZERO; LANES];
+                }
+                // (Accumulating dW per lane across tiles and summing once was measured slower:
+                // the lane buffers leave L1. The horizontal sum per weight and tile stays.)
                 for o in 0..n_out {
                     let g = dz[o];
-                    db[o] += g;
-                    let row_w = &w[o * n_in..(o + 1) * n_in];
+                    db[o] += lanes_sum(&g);
+                    let row_w = &wt[o * n_in..(o + 1) * n_in];
                     let row_dw = &mut dw[o * n_in..(o + 1) * n_in];
                     for i in 0..n_in {
-                        row_dw[i] += g * c[a_start + i];
-                        da[i] += g * row_w[i];
+                        let mut prod = [R::ZERO; LANES];
+                        for j in 0..LANES {
+                            prod[j] = g[j] * a[i][j];
+                            da[i][j] += row_w[i] * g[j];
+                        }
+                        row_dw[i] += lanes_sum(&prod);
                     }
                 }
                 if l == 0 {
                     for k in 0..n_x {
-                        dx_row[k] += da[k];
+                        for j in 0..LANES {
+                            dx[k][j] += da[k][j];
+                        }
                     }
                     break;
                 }
@@ -264,24 +312,44 @@ impl<R: Real> Module<R> for Mlp {
                 let prev_len = self.layers[l - 1].1;
                 if self.config.skip == Some(l) {
                     for k in 0..n_x {
-                        dx_row[k] += da[prev_len + k] * inv_sqrt2;
+                        for j in 0..LANES {
+                            dx[k][j] += da[prev_len + k][j] * inv_sqrt2;
+                        }
                     }
                     for k in 0..prev_len {
-                        da[k] *= inv_sqrt2;
+                        for j in 0..LANES {
+                            da[k][j] *= inv_sqrt2;
+                        }
                     }
                 }
                 let (_, z_prev) = starts[l - 1];
-                let act = if l - 1 == last { self.config.output_activation } else { self.config.hidden_activation };
+                let act = self.config.hidden_activation;
                 for k in 0..prev_len {
-                    dz[k] = da[k] * act.derivative(c[z_prev + k]);
+                    dz[k] = [R::ZERO; LANES];
+                    for j in 0..w {
+                        dz[k][j] = da[k][j] * act.derivative(lane(z_prev + k, j));
+                    }
                 }
             }
             if let Some(d_in) = d_input.as_deref_mut() {
-                d_in[row * n_x..(row + 1) * n_x].copy_from_slice(&dx_row);
+                for j in 0..w {
+                    for k in 0..n_x {
+                        d_in[(r0 + j) * n_x + k] = dx[k][j];
+                    }
+                }
             }
         }
     }
 }
+
+/// Σ of the lanes, pairwise.
+#[inline]
+fn lanes_sum<R: Real>(v: &[R; LANES]) -> R {
+    ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]))
+}
+
+/// Rows processed together: one vector lane per row in the layer products.
+const LANES: usize = 8;
 
 /// Solves A x = b for a symmetric positive-definite A (row-major, overwritten by its Cholesky
 /// factor). `None` if A is not positive definite.
@@ -320,21 +388,3 @@ fn cholesky_solve(a: &mut [f64], b: &[f64], n: usize) -> Option<Vec<f64>> {
     Some(y)
 }
 
-/// A dot product with eight independent partial sums, so that the compiler vectorises it (a
-/// single running sum is a dependency chain it may not reorder).
-#[inline]
-fn dot<R: Real>(a: &[R], b: &[R]) -> R {
-    let mut acc = [R::ZERO; 8];
-    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
-    let (ra, rb) = (ca.remainder(), cb.remainder());
-    for (x, y) in ca.zip(cb) {
-        for k in 0..8 {
-            acc[k] += x[k] * y[k];
-        }
-    }
-    let mut sum = ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]));
-    for (x, y) in ra.iter().zip(rb) {
-        sum += *x * *y;
-    }
-    sum
-}

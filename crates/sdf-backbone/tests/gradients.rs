@@ -401,7 +401,8 @@ fn parallel_pipeline_equals_sequential() {
     let (lb, ob) = pipeline.loss_parallel(&params, &rays, &mut b, 5);
     assert!((la - lb).abs() < 1e-12 * la.abs().max(1.0));
     assert_eq!(oa, ob);
+    // Equal up to the order of additions (rayon's fold/reduce sums the chunks in another order).
     for (x, y) in a.iter().zip(&b) {
-        assert!((x - y).abs() < 1e-12 * x.abs().max(1e-9), "{x} vs {y}");
+        assert!((x - y).abs() < 1e-9 * x.abs().max(1e-9), "{x} vs {y}");
     }
 }

@@ -7,28 +7,8 @@ use std::time::Instant;
 fn main() {
     let args: Vec<usize> = std::env::args().skip(1).filter_map(|a| a.parse().ok()).collect();
     let (n_rays, n_samples) = (args.first().copied().unwrap_or(512), args.get(1).copied().unwrap_or(64));
-    let grid = HashGrid::new(HashGridConfig { levels: 8, features: 2, log2_table: 16, base_resolution: 16, finest_resolution: 256 });
-    let sdf_mlp = Mlp::new(MlpConfig {
-        n_inputs: 19, width: 64, hidden_layers: 2, n_outputs: 1 + 15, skip: None,
-        hidden_activation: Activation::Softplus { beta: 100.0 }, output_activation: Activation::Identity,
-    });
-    let color = Mlp::new(MlpConfig {
-        n_inputs: 22 + 15, width: 64, hidden_layers: 2, n_outputs: 3, skip: None,
-        hidden_activation: Activation::Relu, output_activation: Activation::Sigmoid,
-    });
-    let pipeline = Pipeline {
-        sdf: Chain { a: WithInput { encoding: grid.clone() }, b: sdf_mlp.clone() },
-        color: color.clone(),
-        config: PipelineConfig { color_loss: ColorLoss::L1, eikonal_weight: 0.1, mask_weight: 0.1, normal_step: 1.0 / 256.0 },
-    };
-    let n = pipeline.n_params::<f32>();
-    let mut params = vec![0.0f32; n];
-    let n_grid = Module::<f32>::n_params(&grid);
-    let n_sdf = n_grid + Module::<f32>::n_params(&sdf_mlp);
-    grid.init(&mut params[..n_grid], 1e-4, 1);
-    sdf_mlp.init_geometric(&mut params[n_grid..n_sdf], 0.5, 3, 2);
-    color.init_default(&mut params[n_sdf..n - 1], 3);
-    params[n - 1] = 0.3;
+    let (pipeline, params) = neuralangelo_cpu(0.5, 1);
+    let n = params.len();
     let rays: Vec<RayInput<f32>> = (0..n_rays)
         .map(|r| {
             let a = r as f32 * 0.01;

@@ -25,6 +25,13 @@ pub struct HashGridConfig {
     pub finest_resolution: u32,
 }
 
+impl HashGridConfig {
+    /// The CPU-sized Neuralangelo-style grid: 8 levels × 2 features, 2¹⁶ entries, 16 → 256.
+    pub fn neuralangelo_cpu() -> HashGridConfig {
+        HashGridConfig { levels: 8, features: 2, log2_table: 16, base_resolution: 16, finest_resolution: 256 }
+    }
+}
+
 /// The encoding. Parameters: L tables of T × F features.
 #[derive(Debug, Clone)]
 pub struct HashGrid {

@@ -39,5 +39,5 @@ pub use mlp::{Mlp, MlpConfig};
 pub use module::{Activation, Chain, Module, batch_gradients};
 pub use network::{Encoding, SdfNetwork};
 pub use optim::{Adam, WarmupCosine};
-pub use pipeline::{ColorLoss, Pipeline, PipelineConfig, RayInput, RayOutput};
+pub use pipeline::{ColorLoss, HashGridPipeline, Pipeline, PipelineConfig, RayInput, RayOutput, neuralangelo_cpu};
 pub use real::Real;

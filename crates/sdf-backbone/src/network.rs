@@ -99,7 +99,7 @@ impl SdfNetwork {
     /// A small Neuralangelo-style network: hash grid 8 levels × 2 features (16 → 256, 2¹⁶ entries),
     /// MLP 2 × 64.
     pub fn neuralangelo_cpu(radius: f64, seed: u64) -> SdfNetwork {
-        let grid = HashGrid::new(HashGridConfig { levels: 8, features: 2, log2_table: 16, base_resolution: 16, finest_resolution: 256 });
+        let grid = HashGrid::new(HashGridConfig::neuralangelo_cpu());
         SdfNetwork::new_sphere(Encoding::HashGrid(grid), 64, 2, 15, radius, seed)
     }
 

@@ -24,12 +24,12 @@ fn main() {
     let mut grads = vec![0.0f32; n];
     // One chunk per thread: each chunk has its own gradient buffer (1 M parameters).
     let chunk = n_rays.div_ceil(rayon::current_num_threads());
-    let _ = pipeline.loss_parallel(&params, &rays, &mut grads, chunk);
+    let _ = pipeline.loss_parallel(&params, &rays, &mut grads, chunk, &NoSampleLoss);
     let steps = 3;
     let t = Instant::now();
     for _ in 0..steps {
         grads.fill(0.0);
-        let _ = pipeline.loss_parallel(&params, &rays, &mut grads, chunk);
+        let _ = pipeline.loss_parallel(&params, &rays, &mut grads, chunk, &NoSampleLoss);
     }
     let per_step = t.elapsed().as_secs_f64() / steps as f64;
     let evaluations = n_rays * (7 * n_samples + 1);

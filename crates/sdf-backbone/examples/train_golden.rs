@@ -49,7 +49,7 @@ fn main() {
         let rays: Vec<RayInput<f32>> =
             (0..v.camera.height).flat_map(|r| (0..v.camera.width).map(move |c| (c, r))).filter_map(|(c, r)| make_ray(view, c, r, 0.5)).collect();
         let mut g = vec![0.0f32; params.len()];
-        let (_, out) = pipeline.loss_parallel(params, &rays, &mut g, 256);
+        let (_, out) = pipeline.loss_parallel(params, &rays, &mut g, 256, &NoSampleLoss);
         let mse: f64 = rays.iter().zip(&out).map(|(ray, o)| (0..3).map(|k| ((o.color[k] - ray.target[k]) as f64).powi(2)).sum::<f64>() / 3.0).sum::<f64>()
             / rays.len() as f64;
         -10.0 * mse.log10()
@@ -68,7 +68,7 @@ fn main() {
             })
             .collect();
         grads.fill(0.0);
-        let (loss, _) = pipeline.loss_parallel(&params, &rays, &mut grads, rays.len().div_ceil(2));
+        let (loss, _) = pipeline.loss_parallel(&params, &rays, &mut grads, 64, &NoSampleLoss);
         adam.update(&mut params, &grads, schedule.at(step as u64));
         if (step + 1) % 50 == 0 || step + 1 == steps {
             println!(

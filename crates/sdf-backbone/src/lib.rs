@@ -34,10 +34,13 @@ pub mod render;
 
 pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};
 pub use hashgrid::{HashGrid, HashGridConfig};
-pub use render::{RayGradients, RayRender, render_ray, render_ray_backward};
+pub use render::{RayGradients, RayRender, merge_sorted, render_ray, render_ray_backward, sample_intervals};
 pub use mlp::{Mlp, MlpConfig};
 pub use module::{Activation, Chain, Module, batch_gradients};
 pub use network::{Encoding, SdfNetwork};
 pub use optim::{Adam, WarmupCosine};
-pub use pipeline::{ColorLoss, HashGridPipeline, Pipeline, PipelineConfig, RayInput, RayOutput, neuralangelo_cpu};
+pub use pipeline::{
+    ColorLoss, HashGridPipeline, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, interval_weights,
+    neuralangelo_cpu,
+};
 pub use real::Real;

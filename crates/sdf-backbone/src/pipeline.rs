@@ -1,12 +1,20 @@
 //! The NeuS render + loss pipeline for a batch of rays, with its hand-written backward.
 //!
 //! Per ray with sample depths t₀ … tₙ: the SDF network is evaluated at the n + 1 points
-//! `xᵢ = o + tᵢ d` (SDF and geometry features) and at the 6n points `xᵢ ± h·e_k` (i < n) that
-//! give the normals by central differences, `nᵢ = (S(xᵢ + h e_k) − S(xᵢ − h e_k)) / 2h`. The
+//! `xᵢ = o + tᵢ d` (SDF and geometry features) and at the probes that give the normals by
+//! numerical differences ([`NormalScheme`]): central, 6n points `xᵢ ± h·e_k`,
+//! `nᵢ = (S(xᵢ + h e_k) − S(xᵢ − h e_k)) / 2h`; or tetrahedral, 4n points `xᵢ + h·vⱼ` with
+//! v ∈ {(1,−1,−1), (−1,−1,1), (−1,1,−1), (1,1,1)}, `nᵢ = Σⱼ vⱼ S(xᵢ + h vⱼ) / 4h` (a third fewer
+//! network evaluations, the same O(h²) accuracy). The
 //! colour network maps `[xᵢ, nᵢ, SH₄(d), featuresᵢ]` to the colour of interval i; the ray is
 //! rendered with [`render_ray`] at scale `s = exp(10·v)` (NeuS's learnt variance v). The loss is
-//! the colour error (L1 as NeuS, or L2), plus `λ_eik · mean (|nᵢ| − 1)²`, plus, with a mask,
-//! `λ_mask · BCE(opacity, mask)`.
+//! the colour error (L1 as NeuS, or L2) of `colour + (1 − opacity)·background`, plus
+//! `λ_eik · mean (|nᵢ| − 1)²`, plus, with a mask, `λ_mask · BCE(opacity, mask)`, plus any
+//! per-ray loss on the samples supplied by the caller ([`SampleLoss`]: the surface losses).
+//!
+//! Gradients of a batch are deterministic: rays are cut into fixed chunks, each chunk's gradient
+//! is computed on its own and the chunks are summed in order, so the result does not depend on
+//! the thread count.
 //!
 //! The backward pass chains [`render_ray_backward`] → colour network → normals (each ∂L/∂nᵢ
 //! becomes ±1/2h on the six neighbour evaluations) → SDF network at all 7n + 1 points.
@@ -27,6 +35,54 @@ pub enum ColorLoss {
     L1,
     /// (c − ĉ)² summed over channels.
     L2,
+}
+
+/// How normals are taken from the SDF network.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NormalScheme {
+    /// Central differences: 6 probes per sample.
+    Central,
+    /// Tetrahedral differences: 4 probes per sample.
+    Tetrahedral,
+}
+
+impl NormalScheme {
+    /// Probe offsets (in units of the step h) and the weight of each probe in `nᵢ` per unit h.
+    fn probes(self) -> &'static [([f64; 3], f64)] {
+        const C: [([f64; 3], f64); 6] = [
+            ([1.0, 0.0, 0.0], 0.5),
+            ([-1.0, 0.0, 0.0], 0.5),
+            ([0.0, 1.0, 0.0], 0.5),
+            ([0.0, -1.0, 0.0], 0.5),
+            ([0.0, 0.0, 1.0], 0.5),
+            ([0.0, 0.0, -1.0], 0.5),
+        ];
+        const T: [([f64; 3], f64); 4] =
+            [([1.0, -1.0, -1.0], 0.25), ([-1.0, -1.0, 1.0], 0.25), ([-1.0, 1.0, -1.0], 0.25), ([1.0, 1.0, 1.0], 0.25)];
+        match self {
+            NormalScheme::Central => &C,
+            NormalScheme::Tetrahedral => &T,
+        }
+    }
+}
+
+/// A per-ray loss on the samples, added to the pipeline's loss (the surface losses of
+/// `surface-losses` plug in here). Works in f64 whatever the pipeline's precision.
+pub trait SampleLoss: Sync {
+    /// Loss of ray `ray` (its index in the batch) from its sample depths `t` (n + 1), SDF values
+    /// `sdf` (n + 1) and rendering weights `weights` (n); adds ∂loss/∂S into `d_sdf` and
+    /// ∂loss/∂w into `d_weights`. The pipeline divides the loss by the batch's ray count.
+    fn ray_loss(&self, ray: usize, t: &[f64], sdf: &[f64], weights: &[f64], d_sdf: &mut [f64], d_weights: &mut [f64]) -> f64;
+}
+
+/// No extra loss.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoSampleLoss;
+
+impl SampleLoss for NoSampleLoss {
+    fn ray_loss(&self, _: usize, _: &[f64], _: &[f64], _: &[f64], _: &mut [f64], _: &mut [f64]) -> f64 {
+        0.0
+    }
 }
 
 /// One ray of a batch.
@@ -53,8 +109,12 @@ pub struct PipelineConfig {
     pub eikonal_weight: f64,
     /// Mask BCE weight (NeuS with masks: 0.1).
     pub mask_weight: f64,
-    /// Step of the central differences for normals (Neuralangelo ties it to the finest level).
+    /// Step of the numerical differences for normals (Neuralangelo ties it to the finest level).
     pub normal_step: f64,
+    /// Central or tetrahedral differences.
+    pub normals: NormalScheme,
+    /// Colour behind the surface (what an empty ray renders), e.g. black for masked training.
+    pub background: [f64; 3],
 }
 
 /// SDF network + colour network + learnt variance, parameters `[sdf | colour | v]`.
@@ -75,8 +135,10 @@ pub struct RayOutput<R> {
     pub color: [R; 3],
     /// Opacity Σ w.
     pub opacity: R,
-    /// Depth Σ w t.
+    /// Depth Σ w t (distance along the ray).
     pub depth: R,
+    /// Normal Σ w n (not normalised).
+    pub normal: [R; 3],
 }
 
 impl<S, C> Pipeline<S, C> {
@@ -91,17 +153,25 @@ impl<S, C> Pipeline<S, C> {
 
     /// Loss of a batch (averaged over rays) and, if `d_params` is given, its gradient added into
     /// it. Returns the loss and the per-ray outputs. Sequential; see [`Self::loss_parallel`].
-    pub fn loss<R: Real>(&self, params: &[R], rays: &[RayInput<R>], d_params: Option<&mut [R]>) -> (R, Vec<RayOutput<R>>)
+    pub fn loss<R: Real>(&self, params: &[R], rays: &[RayInput<R>], d_params: Option<&mut [R]>, extra: &dyn SampleLoss) -> (R, Vec<RayOutput<R>>)
     where
         S: Module<R>,
         C: Module<R>,
     {
-        self.accumulate(params, rays, d_params, R::of(rays.len() as f64))
+        self.accumulate(params, rays, 0, d_params, R::of(rays.len() as f64), extra)
     }
 
-    /// [`Self::loss`] over chunks of `chunk` rays in parallel, one gradient buffer per worker
-    /// (rayon `fold`), summed at the end. Same result as `loss` up to the order of additions.
-    pub fn loss_parallel<R: Real>(&self, params: &[R], rays: &[RayInput<R>], d_params: &mut [R], chunk: usize) -> (R, Vec<RayOutput<R>>)
+    /// [`Self::loss`] over chunks of `chunk` rays in parallel: one gradient buffer per chunk,
+    /// summed in chunk order, so the result is the same for any thread count (and equals `loss`
+    /// up to the order of additions).
+    pub fn loss_parallel<R: Real>(
+        &self,
+        params: &[R],
+        rays: &[RayInput<R>],
+        d_params: &mut [R],
+        chunk: usize,
+        extra: &dyn SampleLoss,
+    ) -> (R, Vec<RayOutput<R>>)
     where
         S: Module<R> + Sync,
         C: Module<R> + Sync,
@@ -109,37 +179,94 @@ impl<S, C> Pipeline<S, C> {
         use rayon::prelude::*;
         let n = d_params.len();
         let m = R::of(rays.len() as f64);
-        type Partial<R> = (R, Vec<R>, Vec<(usize, Vec<RayOutput<R>>)>);
-        let (loss, grads, mut outputs): Partial<R> = rays
-            .par_chunks(chunk.max(1))
+        let chunk = chunk.max(1);
+        let parts: Vec<(R, Vec<R>, Vec<RayOutput<R>>)> = rays
+            .par_chunks(chunk)
             .enumerate()
-            .fold(
-                || (R::ZERO, vec![R::ZERO; n], Vec::new()),
-                |(l, mut g, mut o), (i, c)| {
-                    let (cl, co) = self.accumulate(params, c, Some(&mut g), m);
-                    o.push((i, co));
-                    (l + cl, g, o)
-                },
-            )
-            .reduce(
-                || (R::ZERO, vec![R::ZERO; n], Vec::new()),
-                |(la, mut ga, mut oa), (lb, gb, ob)| {
-                    for (a, b) in ga.iter_mut().zip(&gb) {
-                        *a += *b;
-                    }
-                    oa.extend(ob);
-                    (la + lb, ga, oa)
-                },
-            );
-        for (d, g) in d_params.iter_mut().zip(&grads) {
-            *d += *g;
+            .map(|(i, c)| {
+                let mut g = vec![R::ZERO; n];
+                let (l, o) = self.accumulate(params, c, i * chunk, Some(&mut g), m, extra);
+                (l, g, o)
+            })
+            .collect();
+        let mut loss = R::ZERO;
+        let mut outputs = Vec::with_capacity(rays.len());
+        for (l, g, o) in parts {
+            loss += l;
+            d_params.par_iter_mut().zip(g.par_iter()).for_each(|(d, g)| *d += *g);
+            outputs.extend(o);
         }
-        outputs.sort_by_key(|(i, _)| *i);
-        (loss, outputs.into_iter().flat_map(|(_, o)| o).collect())
+        (loss, outputs)
     }
 
-    /// The loss of `rays` divided by `m` (the whole batch's ray count), gradients added.
-    fn accumulate<R: Real>(&self, params: &[R], rays: &[RayInput<R>], mut d_params: Option<&mut [R]>, m: R) -> (R, Vec<RayOutput<R>>)
+    /// SDF values (first output of the SDF network) at `points` (xyz rows), in parallel chunks.
+    pub fn sdf_values<R: Real>(&self, params: &[R], points: &[R]) -> Vec<R>
+    where
+        S: Module<R> + Sync,
+    {
+        use rayon::prelude::*;
+        let net = &self.sdf;
+        let p_sdf = &params[..net.n_params()];
+        let n_out = net.n_outputs();
+        let mut out = vec![R::ZERO; points.len() / 3];
+        out.par_chunks_mut(1024).zip(points.par_chunks(3 * 1024)).for_each(|(o, x)| {
+            let rows = o.len();
+            let mut y = vec![R::ZERO; rows * n_out];
+            let mut ctx = vec![R::ZERO; rows * net.ctx_per_row()];
+            net.forward(p_sdf, x, &mut y, &mut ctx);
+            for (v, row) in o.iter_mut().zip(y.chunks_exact(n_out)) {
+                *v = row[0];
+            }
+        });
+        out
+    }
+
+    /// NeuS's hierarchical up-sampling: `rounds` rounds, each evaluating the SDF at the ray's
+    /// current depths, weighting the intervals as rendering would at scale `base_s · 2^round`
+    /// (NeuS: 64 · 2^i), and inserting `n_fine / rounds` depths at the weights' quantiles
+    /// (midpoints, deterministic). Depths stay sorted. No gradient flows through the placement.
+    pub fn upsample(&self, params: &[f32], rays: &mut [RayInput<f32>], n_fine: usize, rounds: usize, base_s: f64)
+    where
+        S: Module<f32> + Sync,
+    {
+        use rayon::prelude::*;
+        if n_fine == 0 || rounds == 0 {
+            return;
+        }
+        let net = &self.sdf;
+        let p_sdf = &params[..net.n_params()];
+        let n_out = net.n_outputs();
+        rays.par_chunks_mut(16).for_each(|rays| {
+            for round in 0..rounds {
+                let k = n_fine / rounds + usize::from(round < n_fine % rounds);
+                let s = (base_s * f64::from(1u32 << round.min(30))) as f32;
+                for ray in rays.iter_mut() {
+                    let points: Vec<f32> =
+                        ray.depths.iter().flat_map(|&t| [0, 1, 2].map(|j| ray.origin[j] + t * ray.direction[j])).collect();
+                    let rows = ray.depths.len();
+                    let mut y = vec![0.0; rows * n_out];
+                    let mut ctx = vec![0.0; rows * net.ctx_per_row()];
+                    net.forward(p_sdf, &points, &mut y, &mut ctx);
+                    let sdf: Vec<f32> = y.chunks_exact(n_out).map(|r| r[0]).collect();
+                    let weights = interval_weights(&sdf, s);
+                    let new = crate::render::sample_intervals(&ray.depths, &weights, k);
+                    ray.depths = crate::render::merge_sorted(&ray.depths, &new);
+                }
+            }
+        });
+    }
+
+    /// The loss of `rays` (the batch's rays from index `first`) divided by `m` (the whole batch's
+    /// ray count), gradients added.
+    fn accumulate<R: Real>(
+        &self,
+        params: &[R],
+        rays: &[RayInput<R>],
+        first: usize,
+        mut d_params: Option<&mut [R]>,
+        m: R,
+        extra: &dyn SampleLoss,
+    ) -> (R, Vec<RayOutput<R>>)
     where
         S: Module<R>,
         C: Module<R>,
@@ -151,24 +278,25 @@ impl<S, C> Pipeline<S, C> {
         let s = (R::of(10.0) * var).exp();
         let f = self.sdf.n_outputs() - 1;
         let h = R::of(self.config.normal_step);
+        let probes = self.config.normals.probes();
+        let np = probes.len();
+        let background = self.config.background.map(R::of);
         let mut total = R::ZERO;
         let mut outputs = Vec::with_capacity(rays.len());
         let sh = SphericalHarmonics;
-        for ray in rays {
+        for (ray_index, ray) in rays.iter().enumerate() {
             let n = ray.depths.len() - 1;
-            // Points: n + 1 samples, then 6n normal probes (+x, −x, +y, −y, +z, −z per sample).
-            let mut points = Vec::with_capacity(3 * (7 * n + 1));
+            // Points: n + 1 samples, then np probes per sample (i < n).
+            let mut points = Vec::with_capacity(3 * ((np + 1) * n + 1));
             for &t in &ray.depths {
                 for k in 0..3 {
                     points.push(ray.origin[k] + t * ray.direction[k]);
                 }
             }
             for i in 0..n {
-                for k in 0..3 {
-                    for sign in [R::ONE, -R::ONE] {
-                        let mut p = [points[3 * i], points[3 * i + 1], points[3 * i + 2]];
-                        p[k] += sign * h;
-                        points.extend_from_slice(&p);
+                for (offset, _) in probes {
+                    for k in 0..3 {
+                        points.push(points[3 * i + k] + R::of(offset[k]) * h);
                     }
                 }
             }
@@ -178,8 +306,18 @@ impl<S, C> Pipeline<S, C> {
             let mut sdf_ctx = vec![R::ZERO; rows * self.sdf.ctx_per_row()];
             self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
             let sdf_values: Vec<R> = (0..=n).map(|i| sdf_out[i * n_out]).collect();
-            let probe = |i: usize, k: usize, side: usize| sdf_out[(n + 1 + 6 * i + 2 * k + side) * n_out];
-            let normals: Vec<[R; 3]> = (0..n).map(|i| [0, 1, 2].map(|k| (probe(i, k, 0) - probe(i, k, 1)) / (h + h))).collect();
+            let probe = |i: usize, j: usize| sdf_out[(n + 1 + np * i + j) * n_out];
+            let normals: Vec<[R; 3]> = (0..n)
+                .map(|i| {
+                    let mut g = [R::ZERO; 3];
+                    for (j, (offset, w)) in probes.iter().enumerate() {
+                        for k in 0..3 {
+                            g[k] += R::of(offset[k] * w) * probe(i, j);
+                        }
+                    }
+                    g.map(|v| v / h)
+                })
+                .collect();
 
             // Colour network inputs [x, n, SH(d), features].
             let mut sh_d = [R::ZERO; 16];
@@ -199,11 +337,12 @@ impl<S, C> Pipeline<S, C> {
             let colors: Vec<[R; 3]> = colors_flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
 
             let r = render_ray(&sdf_values, &ray.depths, &colors, s);
+            let composited: [R; 3] = [0, 1, 2].map(|k| r.color[k] + (R::ONE - r.opacity) * background[k]);
             // Losses.
             let mut d_color = [R::ZERO; 3];
             let mut loss = R::ZERO;
             for k in 0..3 {
-                let e = r.color[k] - ray.target[k];
+                let e = composited[k] - ray.target[k];
                 match self.config.color_loss {
                     ColorLoss::L1 => {
                         loss += e.abs();
@@ -215,6 +354,7 @@ impl<S, C> Pipeline<S, C> {
                     }
                 }
             }
+            let mut d_opacity = -(d_color[0] * background[0] + d_color[1] * background[1] + d_color[2] * background[2]);
             let eik_w = R::of(self.config.eikonal_weight) / R::of(n as f64);
             let mut d_normals = vec![[R::ZERO; 3]; n];
             for i in 0..n {
@@ -227,7 +367,6 @@ impl<S, C> Pipeline<S, C> {
                     }
                 }
             }
-            let mut d_opacity = R::ZERO;
             if let Some(mask) = ray.mask {
                 // BCE with the opacity clamped away from 0 and 1 (NeuS clips to [1e-3, 1 − 1e-3]).
                 let eps = R::of(1e-3);
@@ -235,14 +374,28 @@ impl<S, C> Pipeline<S, C> {
                 let w = R::of(self.config.mask_weight);
                 loss += -w * (mask * o.ln() + (R::ONE - mask) * (R::ONE - o).ln());
                 if r.opacity > eps && r.opacity < R::ONE - eps {
-                    d_opacity = -w * (mask / o - (R::ONE - mask) / (R::ONE - o));
+                    d_opacity += -w * (mask / o - (R::ONE - mask) / (R::ONE - o));
                 }
             }
+            // The caller's loss on the samples (f64).
+            let t64: Vec<f64> = ray.depths.iter().map(|v| v.to_f64()).collect();
+            let sdf64: Vec<f64> = sdf_values.iter().map(|v| v.to_f64()).collect();
+            let w64: Vec<f64> = r.weights.iter().map(|v| v.to_f64()).collect();
+            let mut d_sdf_extra = vec![0.0f64; n + 1];
+            let mut d_w_extra = vec![0.0f64; n];
+            loss += R::of(extra.ray_loss(first + ray_index, &t64, &sdf64, &w64, &mut d_sdf_extra, &mut d_w_extra));
             total += loss / m;
-            outputs.push(RayOutput { color: r.color, opacity: r.opacity, depth: r.depth });
+            let mut normal = [R::ZERO; 3];
+            for i in 0..n {
+                for k in 0..3 {
+                    normal[k] += r.weights[i] * normals[i][k];
+                }
+            }
+            outputs.push(RayOutput { color: composited, opacity: r.opacity, depth: r.depth, normal });
 
             let Some(d_params) = d_params.as_deref_mut() else { continue };
             let inv_m = R::ONE / m;
+            let d_w: Vec<R> = d_w_extra.iter().map(|&v| R::of(v) * inv_m).collect();
             let g = render_ray_backward(
                 &sdf_values,
                 &ray.depths,
@@ -252,7 +405,7 @@ impl<S, C> Pipeline<S, C> {
                 d_color.map(|d| d * inv_m),
                 R::ZERO,
                 d_opacity * inv_m,
-                None,
+                Some(&d_w),
             );
             let (d_sdf_params, rest) = d_params.split_at_mut(n_sdf);
             let (d_col_params, d_var) = rest.split_at_mut(n_col);
@@ -264,17 +417,19 @@ impl<S, C> Pipeline<S, C> {
             // ∂L/∂(SDF outputs) at every point.
             let mut d_sdf_out = vec![R::ZERO; rows * n_out];
             for i in 0..=n {
-                d_sdf_out[i * n_out] = g.sdf[i];
+                d_sdf_out[i * n_out] = g.sdf[i] + R::of(d_sdf_extra[i]) * inv_m;
             }
             for i in 0..n {
                 let row = &d_color_in[i * c_in..(i + 1) * c_in];
                 for j in 0..f {
                     d_sdf_out[i * n_out + 1 + j] += row[22 + j];
                 }
-                for k in 0..3 {
-                    let dn = (row[3 + k] + d_normals[i][k] * inv_m) / (h + h);
-                    d_sdf_out[(n + 1 + 6 * i + 2 * k) * n_out] += dn;
-                    d_sdf_out[(n + 1 + 6 * i + 2 * k + 1) * n_out] -= dn;
+                for (j, (offset, w)) in probes.iter().enumerate() {
+                    let mut d = R::ZERO;
+                    for k in 0..3 {
+                        d += (row[3 + k] + d_normals[i][k] * inv_m) * R::of(offset[k] * w);
+                    }
+                    d_sdf_out[(n + 1 + np * i + j) * n_out] += d / h;
                 }
             }
             self.sdf.backward(p_sdf, &points, &sdf_ctx, &d_sdf_out, d_sdf_params, None);
@@ -283,6 +438,12 @@ impl<S, C> Pipeline<S, C> {
     }
 }
 
+/// Rendering weights of the intervals between samples with SDF values `sdf` at scale `s`.
+pub fn interval_weights(sdf: &[f32], s: f32) -> Vec<f32> {
+    let colors = vec![[0.0f32; 3]; sdf.len().saturating_sub(1)];
+    let t: Vec<f32> = (0..sdf.len()).map(|i| i as f32).collect();
+    render_ray(sdf, &t, &colors, s).weights
+}
 
 /// The Neuralangelo-style pipeline sized for a 2-core CPU.
 pub type HashGridPipeline = Pipeline<Chain<WithInput<HashGrid>, Mlp>, Mlp>;
@@ -318,7 +479,14 @@ pub fn neuralangelo_cpu(radius: f64, seed: u64) -> (HashGridPipeline, Vec<f32>) 
     let pipeline = Pipeline {
         sdf: Chain { a: WithInput { encoding: grid }, b: sdf_mlp },
         color,
-        config: PipelineConfig { color_loss: ColorLoss::L1, eikonal_weight: 0.1, mask_weight: 0.1, normal_step: 1.0 / 256.0 },
+        config: PipelineConfig {
+            color_loss: ColorLoss::L1,
+            eikonal_weight: 0.1,
+            mask_weight: 0.1,
+            normal_step: 1.0 / 256.0,
+            normals: NormalScheme::Tetrahedral,
+            background: [0.0; 3],
+        },
     };
     let n = pipeline.n_params::<f32>();
     let mut params = vec![0.0f32; n];

@@ -131,3 +131,67 @@ pub fn render_ray_backward<R: Real>(
     }
     grads
 }
+
+/// `k` depths at the quantiles `(j + ½)/k` of the piecewise-constant density over the intervals
+/// of `depths` with masses `weights + 1e-5` (NeuS's padding, so that an empty ray still gets
+/// samples spread along it), each placed linearly inside its interval. Sorted.
+pub fn sample_intervals(depths: &[f32], weights: &[f32], k: usize) -> Vec<f32> {
+    let n = weights.len();
+    debug_assert_eq!(depths.len(), n + 1);
+    let mut cdf = Vec::with_capacity(n + 1);
+    cdf.push(0.0f64);
+    for &w in weights {
+        let w = if w.is_finite() { f64::from(w.max(0.0)) } else { 0.0 };
+        cdf.push(cdf.last().copied().unwrap_or(0.0) + w + 1e-5);
+    }
+    let total = cdf[n];
+    let mut out = Vec::with_capacity(k);
+    let mut i = 0;
+    for j in 0..k {
+        let target = (j as f64 + 0.5) / k as f64 * total;
+        while i + 1 < n && cdf[i + 1] < target {
+            i += 1;
+        }
+        let frac = ((target - cdf[i]) / (cdf[i + 1] - cdf[i])).clamp(0.0, 1.0) as f32;
+        out.push(depths[i] + frac * (depths[i + 1] - depths[i]));
+    }
+    out
+}
+
+/// The union of two sorted depth lists, sorted.
+pub fn merge_sorted(a: &[f32], b: &[f32]) -> Vec<f32> {
+    let mut out = Vec::with_capacity(a.len() + b.len());
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() || j < b.len() {
+        if j >= b.len() || (i < a.len() && a[i] <= b[j]) {
+            out.push(a[i]);
+            i += 1;
+        } else {
+            out.push(b[j]);
+            j += 1;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn up_sampling_puts_new_depths_where_the_weight_is() {
+        // All weight in interval 2 of [0, 1, 2, 3, 4]: every new depth falls in [2, 3].
+        let d = [0.0, 1.0, 2.0, 3.0, 4.0];
+        let new = sample_intervals(&d, &[0.0, 0.0, 1.0, 0.0], 8);
+        assert!(new.iter().all(|&t| (2.0..=3.0).contains(&t)), "{new:?}");
+        assert!(new.windows(2).all(|w| w[0] <= w[1]));
+        // No weight at all: spread evenly.
+        let even = sample_intervals(&d, &[0.0; 4], 4);
+        for (t, want) in even.iter().zip([0.5, 1.5, 2.5, 3.5]) {
+            assert!((t - want).abs() < 1e-4, "{even:?}");
+        }
+        let m = merge_sorted(&d, &new);
+        assert_eq!(m.len(), 13);
+        assert!(m.windows(2).all(|w| w[0] <= w[1]));
+    }
+}

@@ -306,59 +306,124 @@ fn spherical_harmonics_are_orthonormal_and_differentiable() {
     }
 }
 
-/// The whole render + loss pipeline (SDF net with PE, normals by central differences, colour
-/// net on [x, n, SH(d), features], NeuS rendering, L2 colour + eikonal + mask BCE, learnt
-/// variance) against finite differences in f64.
+/// A per-ray loss on the samples for the checks: Σ (S·w)² + 0.3 Σ S·t (touches SDF values,
+/// weights and depths the way the surface losses do).
+struct TestSampleLoss;
+
+impl SampleLoss for TestSampleLoss {
+    fn ray_loss(&self, ray: usize, t: &[f64], sdf: &[f64], w: &[f64], d_sdf: &mut [f64], d_w: &mut [f64]) -> f64 {
+        let scale = 1.0 + ray as f64;
+        let mut loss = 0.0;
+        for i in 0..w.len() {
+            loss += scale * (sdf[i] * w[i]).powi(2);
+            d_sdf[i] += scale * 2.0 * sdf[i] * w[i] * w[i];
+            d_w[i] += scale * 2.0 * sdf[i] * sdf[i] * w[i];
+        }
+        for i in 0..sdf.len() {
+            loss += 0.3 * sdf[i] * t[i];
+            d_sdf[i] += 0.3 * t[i];
+        }
+        loss
+    }
+}
+
+/// The whole render + loss pipeline (SDF net with PE, normals by central and by tetrahedral
+/// differences, colour net on [x, n, SH(d), features], NeuS rendering, L2 colour over a grey
+/// background + eikonal + mask BCE + a loss on the samples, learnt variance) against finite
+/// differences in f64.
 #[test]
 fn whole_pipeline_gradients_match_finite_differences() {
-    let pe = PositionalEncoding { frequencies: 2 };
-    let sdf_mlp = Mlp::new(MlpConfig {
-        n_inputs: 15, width: 8, hidden_layers: 2, n_outputs: 1 + 4, skip: None,
-        hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Identity,
+    for normals in [NormalScheme::Central, NormalScheme::Tetrahedral] {
+        let pe = PositionalEncoding { frequencies: 2 };
+        let sdf_mlp = Mlp::new(MlpConfig {
+            n_inputs: 15, width: 8, hidden_layers: 2, n_outputs: 1 + 4, skip: None,
+            hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Identity,
+        });
+        let color = Mlp::new(MlpConfig {
+            n_inputs: 22 + 4, width: 8, hidden_layers: 1, n_outputs: 3, skip: None,
+            hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Sigmoid,
+        });
+        let pipeline = Pipeline {
+            sdf: Chain { a: pe, b: sdf_mlp },
+            color,
+            config: PipelineConfig {
+                color_loss: ColorLoss::L2, eikonal_weight: 0.1, mask_weight: 0.1, normal_step: 1e-3, normals,
+                background: [0.3, 0.5, 0.1],
+            },
+        };
+        let n = pipeline.n_params::<f64>();
+        let mut params = random_params(n, 0.5, 21);
+        params[n - 1] = 0.25; // s = e^{2.5} ≈ 12
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(22);
+        let rays: Vec<RayInput<f64>> = (0..3)
+            .map(|r| {
+                let d = [0.3 + 0.1 * r as f64, -0.2, 1.0];
+                let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                RayInput {
+                    origin: [-0.1 * r as f64, 0.2, -1.0],
+                    direction: d.map(|v| v / len),
+                    depths: (0..7).map(|i| 0.2 + 0.25 * i as f64 + 0.05 * rng.random::<f64>()).collect(),
+                    target: [0.2, 0.5 + 0.1 * r as f64, 0.7],
+                    mask: Some(if r == 1 { 0.0 } else { 1.0 }),
+                }
+            })
+            .collect();
+        let mut grads = vec![0.0; n];
+        let (loss, out) = pipeline.loss(&params, &rays, Some(&mut grads), &TestSampleLoss);
+        assert!(loss.is_finite() && out.len() == 3);
+        let h = 1e-6;
+        let mut worst = 0.0f64;
+        for i in 0..n {
+            let (mut p, mut m) = (params.clone(), params.clone());
+            p[i] += h;
+            m[i] -= h;
+            let numeric =
+                (pipeline.loss(&p, &rays, None, &TestSampleLoss).0 - pipeline.loss(&m, &rays, None, &TestSampleLoss).0) / (2.0 * h);
+            let rel = (grads[i] - numeric).abs() / grads[i].abs().max(numeric.abs()).max(1e-4);
+            if rel > 1e-5 {
+                eprintln!("{normals:?} param {i}/{n}: analytic {:e} numeric {numeric:e}", grads[i]);
+            }
+            worst = worst.max(rel);
+        }
+        assert!(worst <= 1e-5, "{normals:?}: relative error {worst:e}");
+    }
+}
+
+/// Central and tetrahedral differences both give the gradient of a smooth SDF to O(h²).
+#[test]
+fn both_normal_schemes_recover_a_known_gradient() {
+    // S(x) = |x| − 0.5 via PE-free identity network is not available; use a one-layer MLP whose
+    // SDF output is linear, S(x) = a·x + b: every scheme must return a exactly (up to rounding).
+    let mlp = Mlp::new(MlpConfig {
+        n_inputs: 3, width: 4, hidden_layers: 0, n_outputs: 1, skip: None,
+        hidden_activation: Activation::Identity, output_activation: Activation::Identity,
     });
     let color = Mlp::new(MlpConfig {
-        n_inputs: 22 + 4, width: 8, hidden_layers: 1, n_outputs: 3, skip: None,
-        hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Sigmoid,
+        n_inputs: 22, width: 4, hidden_layers: 0, n_outputs: 3, skip: None,
+        hidden_activation: Activation::Identity, output_activation: Activation::Sigmoid,
     });
-    let pipeline = Pipeline {
-        sdf: Chain { a: pe, b: sdf_mlp },
-        color,
-        config: PipelineConfig { color_loss: ColorLoss::L2, eikonal_weight: 0.1, mask_weight: 0.1, normal_step: 1e-3 },
-    };
-    let n = pipeline.n_params::<f64>();
-    let mut params = random_params(n, 0.5, 21);
-    params[n - 1] = 0.25; // s = e^{2.5} ≈ 12
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(22);
-    let rays: Vec<RayInput<f64>> = (0..3)
-        .map(|r| {
-            let d = [0.3 + 0.1 * r as f64, -0.2, 1.0];
-            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            RayInput {
-                origin: [-0.1 * r as f64, 0.2, -1.0],
-                direction: d.map(|v| v / len),
-                depths: (0..7).map(|i| 0.2 + 0.25 * i as f64 + 0.05 * rng.random::<f64>()).collect(),
-                target: [0.2, 0.5 + 0.1 * r as f64, 0.7],
-                mask: Some(if r == 1 { 0.0 } else { 1.0 }),
-            }
-        })
-        .collect();
-    let mut grads = vec![0.0; n];
-    let (loss, out) = pipeline.loss(&params, &rays, Some(&mut grads));
-    assert!(loss.is_finite() && out.len() == 3);
-    let h = 1e-6;
-    let mut worst = 0.0f64;
-    for i in 0..n {
-        let (mut p, mut m) = (params.clone(), params.clone());
-        p[i] += h;
-        m[i] -= h;
-        let numeric = (pipeline.loss(&p, &rays, None).0 - pipeline.loss(&m, &rays, None).0) / (2.0 * h);
-        let rel = (grads[i] - numeric).abs() / grads[i].abs().max(numeric.abs()).max(1e-4);
-        if rel > 1e-5 {
-            eprintln!("param {i}/{n}: analytic {:e} numeric {numeric:e}", grads[i]);
+    for normals in [NormalScheme::Central, NormalScheme::Tetrahedral] {
+        let pipeline = Pipeline {
+            sdf: mlp.clone(),
+            color: color.clone(),
+            config: PipelineConfig {
+                color_loss: ColorLoss::L2, eikonal_weight: 0.0, mask_weight: 0.0, normal_step: 1e-2, normals,
+                background: [0.0; 3],
+            },
+        };
+        let n = pipeline.n_params::<f64>();
+        let mut params = vec![0.0; n];
+        let a = [0.6, -0.48, 0.64]; // |a| = 1
+        params[..3].copy_from_slice(&a); // weights of the single (linear) layer, then bias
+        params[3] = -0.2;
+        params[n - 1] = 0.5;
+        let ray = RayInput { origin: [0.0, 0.0, -1.0], direction: [0.0, 0.0, 1.0], depths: vec![0.5, 1.0, 1.5], target: [0.0; 3], mask: None };
+        let (_, out) = pipeline.loss(&params, &[ray], None, &NoSampleLoss);
+        let o = &out[0];
+        for k in 0..3 {
+            assert!((o.normal[k] - a[k] * o.opacity).abs() < 1e-9, "{normals:?}: {:?} vs {a:?}·{}", o.normal, o.opacity);
         }
-        worst = worst.max(rel);
     }
-    assert!(worst <= 1e-5, "relative error {worst:e}");
 }
 
 #[test]
@@ -370,7 +435,7 @@ fn with_input_gradients_match() {
 }
 
 #[test]
-fn parallel_pipeline_equals_sequential() {
+fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
     let pe = PositionalEncoding { frequencies: 2 };
     let sdf_mlp = Mlp::new(MlpConfig {
         n_inputs: 15, width: 8, hidden_layers: 2, n_outputs: 1 + 4, skip: None,
@@ -383,7 +448,10 @@ fn parallel_pipeline_equals_sequential() {
     let pipeline = Pipeline {
         sdf: Chain { a: pe, b: sdf_mlp },
         color,
-        config: PipelineConfig { color_loss: ColorLoss::L1, eikonal_weight: 0.1, mask_weight: 0.0, normal_step: 1e-3 },
+        config: PipelineConfig {
+            color_loss: ColorLoss::L1, eikonal_weight: 0.1, mask_weight: 0.0, normal_step: 1e-3, normals: NormalScheme::Tetrahedral,
+            background: [0.2; 3],
+        },
     };
     let n = pipeline.n_params::<f64>();
     let params = random_params(n, 0.5, 41);
@@ -397,12 +465,20 @@ fn parallel_pipeline_equals_sequential() {
         })
         .collect();
     let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
-    let (la, oa) = pipeline.loss(&params, &rays, Some(&mut a));
-    let (lb, ob) = pipeline.loss_parallel(&params, &rays, &mut b, 5);
+    let (la, oa) = pipeline.loss(&params, &rays, Some(&mut a), &TestSampleLoss);
+    let (lb, ob) = pipeline.loss_parallel(&params, &rays, &mut b, 5, &TestSampleLoss);
     assert!((la - lb).abs() < 1e-12 * la.abs().max(1.0));
     assert_eq!(oa, ob);
-    // Equal up to the order of additions (rayon's fold/reduce sums the chunks in another order).
+    // Equal up to the order of additions (chunks are summed one after another).
     for (x, y) in a.iter().zip(&b) {
         assert!((x - y).abs() < 1e-9 * x.abs().max(1e-9), "{x} vs {y}");
+    }
+    // Bit-identical whatever the thread count (resumed runs depend on it).
+    for threads in [1, 3] {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let mut c = vec![0.0; n];
+        let (lc, _) = pool.install(|| pipeline.loss_parallel(&params, &rays, &mut c, 5, &TestSampleLoss));
+        assert_eq!(lc.to_bits(), lb.to_bits(), "{threads} threads");
+        assert!(c.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()), "{threads} threads");
     }
 }

@@ -43,12 +43,15 @@
 pub mod camera;
 pub mod density;
 pub mod field;
+pub mod marching_cubes;
+mod mc_tables;
 pub mod mesh;
 pub mod scene;
 
 pub use camera::{CameraGrid, CameraGridConfig, ViewDependency, Weighting, reproject};
 pub use density::{CellDensity, logistic_density};
 pub use field::{SdfField, Shape};
+pub use marching_cubes::{ExtractionStats, IsoMesh, MarchingCubesConfig, marching_cubes};
 pub use mesh::{MeshHit, MeshSdf, TriangleMesh};
 pub use scene::{ActiveCells, Evaluation, GridError, SceneGridConfig, SubcellMass, evaluate};
 

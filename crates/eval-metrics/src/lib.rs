@@ -1,4 +1,343 @@
-//! psneus: PSNR, SSIM, DTU-protocol Chamfer and F-score.
+//! Evaluation on plain slices: image metrics (PSNR whole and masked, SSIM) and geometry metrics
+//! (Chamfer distance by the DTU protocol, F-score, normal consistency).
 //!
-//! **Status: not implemented yet** (issue #5). This crate is an empty placeholder in the
-//! workspace so that the crate layout of the design card is visible; it exports nothing.
+//! # Invariants
+//! - Takes plain data (`[f32; 3]` points and colours, `bool` masks): knows nothing of cameras,
+//!   datasets or backbones. Culling by masks is the caller's predicate ([`cull`]).
+//! - Deterministic: mesh sampling takes a seed; nearest neighbours are exact (k-d tree).
+//!
+//! # The DTU protocol ([`chamfer`])
+//! As the DTU evaluation script used by NeuS/Neuralangelo (`eval.py`): the predicted mesh is
+//! sampled at a fixed density ([`sample_mesh`], spacing d: ≈ one point per d² of area); accuracy
+//! is the mean distance from predicted points to the ground-truth points, completeness from
+//! ground-truth points to predicted points, each over the distances below `max_dist` (DTU: 20 mm;
+//! larger ones are outliers and are left out of the mean, not clamped); Chamfer = their mean.
+#![deny(missing_docs)]
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
+use rayon::prelude::*;
+
+/// Errors of the metrics.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MetricsError {
+    /// Inputs that must match in size do not.
+    #[error("{what}: sizes differ ({a} vs {b})")]
+    SizeMismatch {
+        /// What was compared.
+        what: &'static str,
+        /// First size.
+        a: usize,
+        /// Second size.
+        b: usize,
+    },
+    /// An input is empty (no pixels in the mask, no points).
+    #[error("{0} is empty")]
+    Empty(&'static str),
+}
+
+/// PSNR in dB of colours in [0, 1] over the pixels where `mask` is true (all pixels without a
+/// mask). Identical images give `f64::INFINITY`.
+pub fn psnr(pred: &[[f32; 3]], target: &[[f32; 3]], mask: Option<&[bool]>) -> Result<f64, MetricsError> {
+    if pred.len() != target.len() {
+        return Err(MetricsError::SizeMismatch { what: "psnr images", a: pred.len(), b: target.len() });
+    }
+    if let Some(m) = mask
+        && m.len() != pred.len()
+    {
+        return Err(MetricsError::SizeMismatch { what: "psnr mask", a: m.len(), b: pred.len() });
+    }
+    let (mut sum, mut count) = (0.0f64, 0usize);
+    for (i, (p, t)) in pred.iter().zip(target).enumerate() {
+        if mask.is_some_and(|m| !m[i]) {
+            continue;
+        }
+        for k in 0..3 {
+            sum += f64::from(p[k] - t[k]).powi(2);
+        }
+        count += 3;
+    }
+    if count == 0 {
+        return Err(MetricsError::Empty("psnr mask"));
+    }
+    Ok(-10.0 * (sum / count as f64).log10())
+}
+
+/// Mean SSIM (Wang et al. 2004: 11 × 11 Gaussian window, σ = 1.5, K₁ = 0.01, K₂ = 0.03, data
+/// range 1) over the valid window positions, averaged over the three channels.
+pub fn ssim(pred: &[[f32; 3]], target: &[[f32; 3]], width: usize, height: usize) -> Result<f64, MetricsError> {
+    if pred.len() != target.len() || pred.len() != width * height {
+        return Err(MetricsError::SizeMismatch { what: "ssim images", a: pred.len(), b: target.len().max(width * height) });
+    }
+    const R: usize = 5;
+    if width < 2 * R + 1 || height < 2 * R + 1 {
+        return Err(MetricsError::Empty("ssim window (image smaller than 11 × 11)"));
+    }
+    let g: Vec<f64> = (0..=2 * R).map(|i| (-((i as f64 - R as f64).powi(2)) / (2.0 * 1.5 * 1.5)).exp()).collect();
+    let norm: f64 = g.iter().sum();
+    let g: Vec<f64> = g.iter().map(|v| v / norm).collect();
+    let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
+    let mut total = 0.0;
+    for k in 0..3 {
+        let x: Vec<f64> = pred.iter().map(|p| f64::from(p[k])).collect();
+        let y: Vec<f64> = target.iter().map(|p| f64::from(p[k])).collect();
+        // Separable blur of x, y, x², y², xy ("valid" region only).
+        let blur = |f: &dyn Fn(usize) -> f64| -> Vec<f64> {
+            let (w2, h2) = (width - 2 * R, height - 2 * R);
+            let mut rows = vec![0.0; w2 * height];
+            for r in 0..height {
+                for c in 0..w2 {
+                    rows[r * w2 + c] = (0..=2 * R).map(|i| g[i] * f(r * width + c + i)).sum();
+                }
+            }
+            let mut out = vec![0.0; w2 * h2];
+            for r in 0..h2 {
+                for c in 0..w2 {
+                    out[r * w2 + c] = (0..=2 * R).map(|i| g[i] * rows[(r + i) * w2 + c]).sum();
+                }
+            }
+            out
+        };
+        let mx = blur(&|i| x[i]);
+        let my = blur(&|i| y[i]);
+        let sxx = blur(&|i| x[i] * x[i]);
+        let syy = blur(&|i| y[i] * y[i]);
+        let sxy = blur(&|i| x[i] * y[i]);
+        let n = mx.len();
+        let mut sum = 0.0;
+        for i in 0..n {
+            let (vx, vy, cxy) = (sxx[i] - mx[i] * mx[i], syy[i] - my[i] * my[i], sxy[i] - mx[i] * my[i]);
+            sum += ((2.0 * mx[i] * my[i] + c1) * (2.0 * cxy + c2)) / ((mx[i] * mx[i] + my[i] * my[i] + c1) * (vx + vy + c2));
+        }
+        total += sum / n as f64;
+    }
+    Ok(total / 3.0)
+}
+
+/// Points on a triangle mesh at a fixed density: `⌈area / spacing²⌉` points per unit of area in
+/// total, each triangle getting its share (stratified by area: the expected count is exact and
+/// every triangle with area ≥ spacing² gets at least one point). Deterministic in `seed`.
+pub fn sample_mesh(vertices: &[[f32; 3]], triangles: &[[u32; 3]], spacing: f32, seed: u64) -> Vec<[f32; 3]> {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let per_area = 1.0 / f64::from(spacing * spacing);
+    let mut carry = 0.0f64;
+    let mut out = Vec::new();
+    for t in triangles {
+        let [a, b, c] = t.map(|i| vertices[i as usize].map(f64::from));
+        let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let e2 = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+        let cross = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
+        let area = 0.5 * (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]).sqrt();
+        carry += area * per_area;
+        while carry >= 1.0 {
+            carry -= 1.0;
+            let (mut u, mut v): (f64, f64) = (rng.random(), rng.random());
+            if u + v > 1.0 {
+                (u, v) = (1.0 - u, 1.0 - v);
+            }
+            out.push([0, 1, 2].map(|k| (a[k] + u * e1[k] + v * e2[k]) as f32));
+        }
+    }
+    out
+}
+
+/// Keeps the points for which `keep` is true (e.g. NeuralWarp-style culling: inside the dilated
+/// masks of at least two views; or inside an observation bound).
+pub fn cull(points: &[[f32; 3]], keep: impl Fn([f32; 3]) -> bool + Sync) -> Vec<[f32; 3]> {
+    points.par_iter().copied().filter(|&p| keep(p)).collect()
+}
+
+/// A k-d tree over a point set, for repeated nearest-neighbour distances.
+pub struct PointCloud {
+    tree: ImmutableKdTree<f32, 3>,
+    len: usize,
+}
+
+impl PointCloud {
+    /// Builds the tree.
+    pub fn new(points: &[[f32; 3]]) -> Result<PointCloud, MetricsError> {
+        if points.is_empty() {
+            return Err(MetricsError::Empty("point cloud"));
+        }
+        let tree = ImmutableKdTree::new_from_slice(points).map_err(|_| MetricsError::Empty("point cloud (k-d tree construction)"))?;
+        Ok(PointCloud { tree, len: points.len() })
+    }
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Always false (empty clouds are rejected by [`PointCloud::new`]).
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Distance to the nearest point, and its index, for every query point (in parallel).
+    pub fn nearest(&self, queries: &[[f32; 3]]) -> Vec<(f32, usize)> {
+        queries
+            .par_iter()
+            .map(|q| {
+                let r = self.tree.query(q).nearest_one::<SquaredEuclidean<f32>>().execute();
+                (r.distance.max(0.0).sqrt(), r.item as usize)
+            })
+            .collect()
+    }
+}
+
+/// Chamfer distance and F-score of a predicted point set against a ground-truth one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GeometryMetrics {
+    /// Mean distance predicted → truth over distances < max_dist.
+    pub accuracy: f64,
+    /// Mean distance truth → predicted over distances < max_dist.
+    pub completeness: f64,
+    /// (accuracy + completeness) / 2.
+    pub chamfer: f64,
+    /// Fraction of predicted points within τ of the truth.
+    pub precision: f64,
+    /// Fraction of truth points within τ of the prediction.
+    pub recall: f64,
+    /// 2PR / (P + R) (0 when both are 0).
+    pub f_score: f64,
+    /// τ used.
+    pub tau: f64,
+    /// Predicted points.
+    pub n_pred: usize,
+    /// Ground-truth points.
+    pub n_gt: usize,
+}
+
+fn mean_below(d: &[(f32, usize)], max: f64) -> f64 {
+    let (s, n) = d.iter().filter(|(v, _)| f64::from(*v) < max).fold((0.0, 0usize), |(s, n), (v, _)| (s + f64::from(*v), n + 1));
+    if n == 0 { f64::INFINITY } else { s / n as f64 }
+}
+
+/// The DTU-protocol Chamfer distance and the F-score at `tau` between point sets (sample a mesh
+/// with [`sample_mesh`] first).
+pub fn chamfer(pred: &[[f32; 3]], gt: &[[f32; 3]], max_dist: f64, tau: f64) -> Result<GeometryMetrics, MetricsError> {
+    let pred_cloud = PointCloud::new(pred)?;
+    let gt_cloud = PointCloud::new(gt)?;
+    let d_pred = gt_cloud.nearest(pred);
+    let d_gt = pred_cloud.nearest(gt);
+    let accuracy = mean_below(&d_pred, max_dist);
+    let completeness = mean_below(&d_gt, max_dist);
+    let within = |d: &[(f32, usize)]| d.iter().filter(|(v, _)| f64::from(*v) < tau).count() as f64 / d.len() as f64;
+    let (precision, recall) = (within(&d_pred), within(&d_gt));
+    let f_score = if precision + recall > 0.0 { 2.0 * precision * recall / (precision + recall) } else { 0.0 };
+    Ok(GeometryMetrics {
+        accuracy,
+        completeness,
+        chamfer: 0.5 * (accuracy + completeness),
+        precision,
+        recall,
+        f_score,
+        tau,
+        n_pred: pred.len(),
+        n_gt: gt.len(),
+    })
+}
+
+/// Normal consistency: mean over both directions of |n_a · n_b| between each point's normal and
+/// its nearest neighbour's in the other set (1 = identical orientation up to sign).
+pub fn normal_consistency(a: &[[f32; 3]], na: &[[f32; 3]], b: &[[f32; 3]], nb: &[[f32; 3]]) -> Result<f64, MetricsError> {
+    if a.len() != na.len() || b.len() != nb.len() {
+        return Err(MetricsError::SizeMismatch { what: "normal consistency points/normals", a: a.len() + b.len(), b: na.len() + nb.len() });
+    }
+    let one_way = |p: &[[f32; 3]], np: &[[f32; 3]], q: &[[f32; 3]], nq: &[[f32; 3]]| -> Result<f64, MetricsError> {
+        let cloud = PointCloud::new(q)?;
+        let nn = cloud.nearest(p);
+        let dot = |x: [f32; 3], y: [f32; 3]| {
+            let (lx, ly) = ((x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt(), (y[0] * y[0] + y[1] * y[1] + y[2] * y[2]).sqrt());
+            if lx > 0.0 && ly > 0.0 { f64::from((x[0] * y[0] + x[1] * y[1] + x[2] * y[2]).abs() / (lx * ly)) } else { 0.0 }
+        };
+        Ok(nn.iter().enumerate().map(|(i, &(_, j))| dot(np[i], nq[j])).sum::<f64>() / p.len() as f64)
+    };
+    Ok(0.5 * (one_way(a, na, b, nb)? + one_way(b, nb, a, na)?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn psnr_of_a_known_error() {
+        // Every channel off by 0.1: MSE 0.01 → 20 dB; the mask picks the half that is off by 0.1.
+        let t = vec![[0.5f32; 3]; 4];
+        let p = vec![[0.6f32; 3]; 4];
+        assert!((psnr(&p, &t, None).unwrap() - 20.0).abs() < 1e-4);
+        let mut q = p.clone();
+        q[2] = [0.5; 3];
+        q[3] = [0.5; 3];
+        let mask = [true, true, false, false];
+        assert!((psnr(&q, &t, Some(&mask)).unwrap() - 20.0).abs() < 1e-4);
+        assert!((psnr(&q, &t, None).unwrap() - 23.0103).abs() < 1e-3);
+        assert_eq!(psnr(&t, &t, None).unwrap(), f64::INFINITY);
+        assert!(matches!(psnr(&p, &t, Some(&[false; 4])), Err(MetricsError::Empty(_))));
+        assert!(matches!(psnr(&p[..3], &t, None), Err(MetricsError::SizeMismatch { .. })));
+    }
+
+    #[test]
+    fn ssim_is_one_for_identical_images_and_drops_with_noise() {
+        let (w, h) = (32, 24);
+        let img: Vec<[f32; 3]> = (0..w * h).map(|i| [((i % w) as f32 / w as f32), ((i / w) as f32 / h as f32), 0.5]).collect();
+        assert!((ssim(&img, &img, w, h).unwrap() - 1.0).abs() < 1e-9);
+        let noisy: Vec<[f32; 3]> =
+            img.iter().enumerate().map(|(i, p)| p.map(|v| v + if (i * 7919) % 3 == 0 { 0.1 } else { -0.05 })).collect();
+        let s = ssim(&noisy, &img, w, h).unwrap();
+        assert!(s < 0.9 && s > 0.0, "ssim {s}");
+    }
+
+    fn sphere_points(r: f32, n: usize, seed: u64) -> Vec<[f32; 3]> {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+        (0..n)
+            .map(|_| {
+                let z: f32 = rng.random::<f32>() * 2.0 - 1.0;
+                let a: f32 = rng.random::<f32>() * std::f32::consts::TAU;
+                let s = (1.0 - z * z).sqrt();
+                [r * s * a.cos(), r * s * a.sin(), r * z]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn chamfer_of_concentric_spheres_is_their_gap() {
+        // Dense samples of spheres of radius 1 and 1.05: every distance ≈ 0.05.
+        let a = sphere_points(1.0, 40_000, 1);
+        let b = sphere_points(1.05, 40_000, 2);
+        let m = chamfer(&a, &b, 1.0, 0.06).unwrap();
+        assert!((m.accuracy - 0.05).abs() < 0.006, "{m:?}");
+        assert!((m.completeness - 0.05).abs() < 0.006, "{m:?}");
+        assert!(m.f_score > 0.8, "{m:?}");
+        let m = chamfer(&a, &b, 1.0, 0.04).unwrap();
+        assert!(m.f_score < 0.05, "{m:?}");
+        // Outliers beyond max_dist leave the mean.
+        let mut c = a.clone();
+        c.push([50.0, 0.0, 0.0]);
+        let m2 = chamfer(&c, &b, 1.0, 0.06).unwrap();
+        assert!((m2.accuracy - chamfer(&a, &b, 1.0, 0.06).unwrap().accuracy).abs() < 1e-6);
+        assert!(matches!(chamfer(&[], &b, 1.0, 0.1), Err(MetricsError::Empty(_))));
+    }
+
+    #[test]
+    fn mesh_sampling_has_the_requested_density() {
+        // A unit square (two triangles) at spacing 0.01: 10 000 points, all inside.
+        let v = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
+        let p = sample_mesh(&v, &[[0, 1, 2], [0, 2, 3]], 0.01, 3);
+        assert!((p.len() as i64 - 10_000).abs() <= 1, "{}", p.len());
+        assert!(p.iter().all(|q| (0.0..=1.0).contains(&q[0]) && (0.0..=1.0).contains(&q[1]) && q[2] == 0.0));
+        let mean_x = p.iter().map(|q| f64::from(q[0])).sum::<f64>() / p.len() as f64;
+        assert!((mean_x - 0.5).abs() < 0.01);
+        assert_eq!(p, sample_mesh(&v, &[[0, 1, 2], [0, 2, 3]], 0.01, 3));
+    }
+
+    #[test]
+    fn normal_consistency_of_a_sphere_with_itself_and_with_random_normals() {
+        let a = sphere_points(1.0, 5000, 4);
+        let b = sphere_points(1.0, 5000, 5);
+        assert!(normal_consistency(&a, &a, &b, &b).unwrap() > 0.99);
+        let random = sphere_points(1.0, 5000, 6);
+        let nc = normal_consistency(&a, &random, &b, &b).unwrap();
+        assert!((nc - 0.5).abs() < 0.05, "{nc}");
+    }
+}

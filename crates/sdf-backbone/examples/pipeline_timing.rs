@@ -7,7 +7,7 @@ use std::time::Instant;
 fn main() {
     let args: Vec<usize> = std::env::args().skip(1).filter_map(|a| a.parse().ok()).collect();
     let (n_rays, n_samples) = (args.first().copied().unwrap_or(512), args.get(1).copied().unwrap_or(64));
-    let (pipeline, params) = neuralangelo_cpu(0.5, 1);
+    let (pipeline, params) = build(Preset::NeuralangeloCpu, 0.5, 1);
     let n = params.len();
     let rays: Vec<RayInput<f32>> = (0..n_rays)
         .map(|r| {

@@ -22,11 +22,11 @@
 //! Modules are generic over [`Real`] (f32 for training, f64 for gradient checks).
 #![deny(missing_docs)]
 
+pub mod backbone;
 pub mod encoding;
 pub mod hashgrid;
 pub mod mlp;
 pub mod module;
-pub mod network;
 pub mod optim;
 pub mod pipeline;
 pub mod real;
@@ -37,10 +37,9 @@ pub use hashgrid::{HashGrid, HashGridConfig};
 pub use render::{RayGradients, RayRender, merge_sorted, render_ray, render_ray_backward, sample_intervals};
 pub use mlp::{Mlp, MlpConfig};
 pub use module::{Activation, Chain, Module, batch_gradients};
-pub use network::{Encoding, SdfNetwork};
+pub use backbone::{Backbone, BackboneError, BackboneField, Checkpoint, InputEncoding, ParamLayout, Preset, SdfNet, adam_step, build};
 pub use optim::{Adam, WarmupCosine};
 pub use pipeline::{
-    ColorLoss, HashGridPipeline, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, interval_weights,
-    neuralangelo_cpu,
+    ColorLoss, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, interval_weights,
 };
 pub use real::Real;

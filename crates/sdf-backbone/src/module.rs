@@ -127,10 +127,10 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
     }
 }
 
-/// Forward and backward of `module` over a batch, in parallel chunks of `chunk_rows` rows, with
-/// one gradient accumulator per worker (rayon `fold`), summed at the end; deterministic for a
-/// given thread count. `loss` gets each chunk's (input, output) and writes ∂L/∂output; it returns
-/// the chunk's loss. Returns the total loss; gradients are *added* to `d_params`.
+/// Forward and backward of `module` over a batch, in parallel chunks of `chunk_rows` rows, one
+/// gradient buffer per chunk summed in chunk order: the same result for any thread count.
+/// `loss` gets each chunk's (input, output) and writes ∂L/∂output; it returns the chunk's loss.
+/// Returns the total loss; gradients are *added* to `d_params`.
 pub fn batch_gradients<R: Real, M: Module<R>>(
     module: &M,
     params: &[R],
@@ -141,32 +141,26 @@ pub fn batch_gradients<R: Real, M: Module<R>>(
 ) -> f64 {
     use rayon::prelude::*;
     let (n_in, n_out, n_ctx, n_params) = (module.n_inputs(), module.n_outputs(), module.ctx_per_row(), module.n_params());
-    let (total, grads) = input
-        .par_chunks(chunk_rows * n_in)
-        .fold(
-            || (0.0f64, vec![R::ZERO; n_params]),
-            |(acc, mut grads), x| {
-                let rows = x.len() / n_in;
-                let mut out = vec![R::ZERO; rows * n_out];
-                let mut ctx = vec![R::ZERO; rows * n_ctx];
-                let mut d_out = vec![R::ZERO; rows * n_out];
-                module.forward(params, x, &mut out, &mut ctx);
-                let l = loss(x, &out, &mut d_out);
-                module.backward(params, x, &ctx, &d_out, &mut grads, None);
-                (acc + l, grads)
-            },
-        )
-        .reduce(
-            || (0.0f64, vec![R::ZERO; n_params]),
-            |(la, mut ga), (lb, gb)| {
-                for (a, b) in ga.iter_mut().zip(&gb) {
-                    *a += *b;
-                }
-                (la + lb, ga)
-            },
-        );
-    for (d, g) in d_params.iter_mut().zip(&grads) {
-        *d += *g;
+    let parts: Vec<(f64, Vec<R>)> = input
+        .par_chunks(chunk_rows.max(1) * n_in)
+        .map(|x| {
+            let rows = x.len() / n_in;
+            let mut grads = vec![R::ZERO; n_params];
+            let mut out = vec![R::ZERO; rows * n_out];
+            let mut ctx = vec![R::ZERO; rows * n_ctx];
+            let mut d_out = vec![R::ZERO; rows * n_out];
+            module.forward(params, x, &mut out, &mut ctx);
+            let l = loss(x, &out, &mut d_out);
+            module.backward(params, x, &ctx, &d_out, &mut grads, None);
+            (l, grads)
+        })
+        .collect();
+    let mut total = 0.0;
+    for (l, g) in parts {
+        total += l;
+        for (d, g) in d_params.iter_mut().zip(&g) {
+            *d += *g;
+        }
     }
     total
 }

@@ -28,18 +28,27 @@ impl Adam {
 
     /// One step with learning rate `lr` over all parameters.
     pub fn update(&mut self, params: &mut [f32], grads: &[f32], lr: f32) {
+        let n = params.len();
+        self.update_groups(params, grads, &[(0..n, lr)]);
+    }
+
+    /// One step with a learning rate per group of parameters (e.g. hash tables and MLPs);
+    /// parameters in no group are left as they are (with their moments).
+    pub fn update_groups(&mut self, params: &mut [f32], grads: &[f32], groups: &[(std::ops::Range<usize>, f32)]) {
         assert_eq!(params.len(), self.m.len(), "Adam: parameter count changed");
         assert_eq!(grads.len(), self.m.len(), "Adam: gradient count differs");
         self.step += 1;
         let t = self.step as i32;
         let c1 = 1.0 / (1.0 - self.beta1.powi(t));
         let c2 = 1.0 / (1.0 - self.beta2.powi(t));
-        for i in 0..params.len() {
-            let g = grads[i];
-            self.m[i] = self.beta1 * self.m[i] + (1.0 - self.beta1) * g;
-            self.v[i] = self.beta2 * self.v[i] + (1.0 - self.beta2) * g * g;
-            let update = (self.m[i] * c1) / ((self.v[i] * c2).sqrt() + self.epsilon);
-            params[i] -= lr * (update + self.weight_decay * params[i]);
+        for (range, lr) in groups {
+            for i in range.clone() {
+                let g = grads[i];
+                self.m[i] = self.beta1 * self.m[i] + (1.0 - self.beta1) * g;
+                self.v[i] = self.beta2 * self.v[i] + (1.0 - self.beta2) * g * g;
+                let update = (self.m[i] * c1) / ((self.v[i] * c2).sqrt() + self.epsilon);
+                params[i] -= lr * (update + self.weight_decay * params[i]);
+            }
         }
     }
 }

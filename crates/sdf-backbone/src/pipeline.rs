@@ -20,10 +20,7 @@
 //! becomes ±1/2h on the six neighbour evaluations) → SDF network at all 7n + 1 points.
 //! Everything is generic over [`Real`] so that the whole pipeline is gradient-checked in f64.
 
-use crate::encoding::{SphericalHarmonics, WithInput};
-use crate::hashgrid::{HashGrid, HashGridConfig};
-use crate::mlp::{Mlp, MlpConfig};
-use crate::module::{Activation, Chain};
+use crate::encoding::SphericalHarmonics;
 use crate::module::Module;
 use crate::real::Real;
 use crate::render::{render_ray, render_ray_backward};
@@ -443,56 +440,4 @@ pub fn interval_weights(sdf: &[f32], s: f32) -> Vec<f32> {
     let colors = vec![[0.0f32; 3]; sdf.len().saturating_sub(1)];
     let t: Vec<f32> = (0..sdf.len()).map(|i| i as f32).collect();
     render_ray(sdf, &t, &colors, s).weights
-}
-
-/// The Neuralangelo-style pipeline sized for a 2-core CPU.
-pub type HashGridPipeline = Pipeline<Chain<WithInput<HashGrid>, Mlp>, Mlp>;
-
-/// The CPU preset: raw xyz + hash grid ([`HashGridConfig::neuralangelo_cpu`]) → SDF MLP 2 × 64
-/// (softplus 100) → SDF + 15 features; colour MLP 2 × 64 (ReLU, sigmoid output); L1 colour loss,
-/// eikonal 0.1, mask BCE 0.1, normal step = the finest cell (1/256). Returns it with its
-/// parameters initialised: grid ±1e-4, SDF MLP geometric (sphere of radius `radius`), colour MLP
-/// He, variance 0.3 (NeuS: s = e³ ≈ 20).
-pub fn neuralangelo_cpu(radius: f64, seed: u64) -> (HashGridPipeline, Vec<f32>) {
-    let grid = HashGrid::new(HashGridConfig::neuralangelo_cpu());
-    let features = 15;
-    let sdf_mlp = Mlp::new(MlpConfig {
-        n_inputs: 3 + Module::<f32>::n_outputs(&grid),
-        width: 64,
-        hidden_layers: 2,
-        n_outputs: 1 + features,
-        skip: None,
-        hidden_activation: Activation::Softplus { beta: 100.0 },
-        output_activation: Activation::Identity,
-    });
-    let color = Mlp::new(MlpConfig {
-        n_inputs: 22 + features,
-        width: 64,
-        hidden_layers: 2,
-        n_outputs: 3,
-        skip: None,
-        hidden_activation: Activation::Relu,
-        output_activation: Activation::Sigmoid,
-    });
-    let n_grid = Module::<f32>::n_params(&grid);
-    let n_sdf = n_grid + Module::<f32>::n_params(&sdf_mlp);
-    let pipeline = Pipeline {
-        sdf: Chain { a: WithInput { encoding: grid }, b: sdf_mlp },
-        color,
-        config: PipelineConfig {
-            color_loss: ColorLoss::L1,
-            eikonal_weight: 0.1,
-            mask_weight: 0.1,
-            normal_step: 1.0 / 256.0,
-            normals: NormalScheme::Tetrahedral,
-            background: [0.0; 3],
-        },
-    };
-    let n = pipeline.n_params::<f32>();
-    let mut params = vec![0.0f32; n];
-    pipeline.sdf.a.encoding.init(&mut params[..n_grid], 1e-4, seed);
-    pipeline.sdf.b.init_geometric(&mut params[n_grid..n_sdf], radius, 3, seed + 1);
-    pipeline.color.init_default(&mut params[n_sdf..n - 1], seed + 2);
-    params[n - 1] = 0.3;
-    (pipeline, params)
 }

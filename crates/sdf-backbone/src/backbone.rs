@@ -1,0 +1,496 @@
+//! The backbone API that trainer and sampler use: one pipeline type for both kinds of SDF
+//! encoding, presets sized for a 2-core CPU (and the paper-scale ones one name away), the SDF as
+//! a `prob_grid::SdfField`, coarse-to-fine levels with the normal step tied to the finest active
+//! level, parameter groups for separate learning rates, and checkpoints (safetensors).
+
+use crate::encoding::{PositionalEncoding, WithInput};
+use crate::hashgrid::{HashGrid, HashGridConfig};
+use crate::mlp::{Mlp, MlpConfig};
+use crate::module::{Activation, Chain, Module};
+use crate::optim::Adam;
+use crate::pipeline::{ColorLoss, NormalScheme, Pipeline, PipelineConfig};
+use crate::real::Real;
+use glam::Vec3;
+use std::collections::HashMap;
+use std::ops::Range;
+
+/// Errors of the backbone API.
+#[derive(Debug, thiserror::Error)]
+pub enum BackboneError {
+    /// Unknown preset name.
+    #[error("unknown backbone preset {0:?} (expected one of: neuralangelo-cpu, neus-cpu, neuralangelo, neus)")]
+    UnknownPreset(String),
+    /// A checkpoint could not be parsed.
+    #[error("checkpoint: {0}")]
+    Checkpoint(String),
+    /// A checkpoint does not fit this model.
+    #[error("checkpoint tensor {name:?} has {found} values, the model needs {expected}")]
+    SizeMismatch {
+        /// Tensor name.
+        name: String,
+        /// Values found.
+        found: usize,
+        /// Values needed.
+        expected: usize,
+    },
+}
+
+/// The SDF network's input encoding.
+#[derive(Debug, Clone)]
+pub enum InputEncoding {
+    /// Neuralangelo: raw xyz + multi-resolution hash-grid features.
+    HashGrid(WithInput<HashGrid>),
+    /// NeuS: positional encoding (raw xyz + sin/cos).
+    Positional(PositionalEncoding),
+}
+
+impl<R: Real> Module<R> for InputEncoding {
+    fn n_params(&self) -> usize {
+        match self {
+            InputEncoding::HashGrid(g) => Module::<R>::n_params(g),
+            InputEncoding::Positional(p) => Module::<R>::n_params(p),
+        }
+    }
+    fn n_inputs(&self) -> usize {
+        3
+    }
+    fn n_outputs(&self) -> usize {
+        match self {
+            InputEncoding::HashGrid(g) => Module::<R>::n_outputs(g),
+            InputEncoding::Positional(p) => Module::<R>::n_outputs(p),
+        }
+    }
+    fn ctx_per_row(&self) -> usize {
+        match self {
+            InputEncoding::HashGrid(g) => Module::<R>::ctx_per_row(g),
+            InputEncoding::Positional(p) => Module::<R>::ctx_per_row(p),
+        }
+    }
+    fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
+        match self {
+            InputEncoding::HashGrid(g) => g.forward(params, input, output, ctx),
+            InputEncoding::Positional(p) => p.forward(params, input, output, ctx),
+        }
+    }
+    fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
+        match self {
+            InputEncoding::HashGrid(g) => g.backward(params, input, ctx, d_output, d_params, d_input),
+            InputEncoding::Positional(p) => p.backward(params, input, ctx, d_output, d_params, d_input),
+        }
+    }
+}
+
+/// The SDF network of every preset: encoding → MLP (first output: SDF; the rest: features).
+pub type SdfNet = Chain<InputEncoding, Mlp>;
+
+/// The render + loss pipeline of every preset.
+pub type Backbone = Pipeline<SdfNet, Mlp>;
+
+/// Named configurations.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Preset {
+    /// Hash grid 8 levels × 2 features, 2¹⁶ entries, 16 → 256; SDF MLP 2 × 64; colour MLP 2 × 64.
+    NeuralangeloCpu,
+    /// Positional encoding (6 frequencies); SDF MLP 4 × 64; colour MLP 2 × 64.
+    NeusCpu,
+    /// Neuralangelo's scale: 16 levels × 8 features, 2²² entries, 32 → 2048; SDF MLP 1 × 256;
+    /// colour MLP 4 × 256 (our colour input uses SH₄ of the direction, Neuralangelo's too).
+    Neuralangelo,
+    /// NeuS's scale: positional encoding (6), SDF MLP 8 × 256 with the skip at layer 4, 256
+    /// features; colour MLP 4 × 256 (view direction by SH₄ instead of NeuS's PE(4)).
+    Neus,
+}
+
+impl Preset {
+    /// Parses `neuralangelo-cpu`, `neus-cpu`, `neuralangelo`, `neus`.
+    pub fn from_name(name: &str) -> Result<Preset, BackboneError> {
+        match name {
+            "neuralangelo-cpu" => Ok(Preset::NeuralangeloCpu),
+            "neus-cpu" => Ok(Preset::NeusCpu),
+            "neuralangelo" => Ok(Preset::Neuralangelo),
+            "neus" => Ok(Preset::Neus),
+            other => Err(BackboneError::UnknownPreset(other.to_string())),
+        }
+    }
+
+    /// The name [`Preset::from_name`] accepts.
+    pub fn name(self) -> &'static str {
+        match self {
+            Preset::NeuralangeloCpu => "neuralangelo-cpu",
+            Preset::NeusCpu => "neus-cpu",
+            Preset::Neuralangelo => "neuralangelo",
+            Preset::Neus => "neus",
+        }
+    }
+}
+
+/// Where each part of the flat parameter buffer lives.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ParamLayout {
+    /// Encoding parameters (hash tables; empty for positional encoding).
+    pub encoding: Range<usize>,
+    /// SDF MLP.
+    pub sdf_mlp: Range<usize>,
+    /// Colour MLP.
+    pub color: Range<usize>,
+    /// The variance v (s = exp(10 v)).
+    pub variance: usize,
+}
+
+/// Builds a preset with its parameters initialised: hash tables ±1e-4, SDF MLP geometric
+/// (sphere of radius `radius`) with its readout calibrated by least squares, colour MLP He,
+/// v = 0.3 (NeuS: s = e³ ≈ 20). Coarse-to-fine starts with all levels active (see
+/// [`Backbone::set_active_levels`]).
+pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
+    let (encoding, width, layers, features, color_width, color_layers) = match preset {
+        Preset::NeuralangeloCpu => (InputEncoding::HashGrid(WithInput { encoding: HashGrid::new(HashGridConfig::neuralangelo_cpu()) }), 64, 2, 15, 64, 2),
+        Preset::NeusCpu => (InputEncoding::Positional(PositionalEncoding { frequencies: 6 }), 64, 4, 15, 64, 2),
+        Preset::Neuralangelo => (
+            InputEncoding::HashGrid(WithInput {
+                encoding: HashGrid::new(HashGridConfig { levels: 16, features: 8, log2_table: 22, base_resolution: 32, finest_resolution: 2048 }),
+            }),
+            256,
+            1,
+            255,
+            256,
+            4,
+        ),
+        Preset::Neus => (InputEncoding::Positional(PositionalEncoding { frequencies: 6 }), 256, 8, 256, 256, 4),
+    };
+    let n_enc = Module::<f32>::n_outputs(&encoding);
+    let sdf_mlp = Mlp::new(MlpConfig {
+        n_inputs: n_enc,
+        width,
+        hidden_layers: layers,
+        n_outputs: 1 + features,
+        skip: (layers >= 8).then_some(layers / 2),
+        hidden_activation: Activation::Softplus { beta: 100.0 },
+        output_activation: Activation::Identity,
+    });
+    let color = Mlp::new(MlpConfig {
+        n_inputs: 22 + features,
+        width: color_width,
+        hidden_layers: color_layers,
+        n_outputs: 3,
+        skip: None,
+        hidden_activation: Activation::Relu,
+        output_activation: Activation::Sigmoid,
+    });
+    let finest = match &encoding {
+        InputEncoding::HashGrid(g) => g.encoding.resolutions().last().copied().unwrap_or(256),
+        InputEncoding::Positional(_) => 512,
+    };
+    let backbone = Pipeline {
+        sdf: Chain { a: encoding, b: sdf_mlp },
+        color,
+        config: PipelineConfig {
+            color_loss: ColorLoss::L1,
+            eikonal_weight: 0.1,
+            mask_weight: 0.1,
+            normal_step: 1.0 / f64::from(finest),
+            normals: NormalScheme::Tetrahedral,
+            background: [0.0; 3],
+        },
+    };
+    let layout = backbone.layout();
+    let mut params = vec![0.0f32; layout.variance + 1];
+    if let InputEncoding::HashGrid(g) = &backbone.sdf.a {
+        g.encoding.init(&mut params[layout.encoding.clone()], 1e-4, seed);
+    }
+    let raw = 3;
+    backbone.sdf.b.init_geometric(&mut params[layout.sdf_mlp.clone()], radius, raw, seed + 1);
+    // Calibrate the SDF readout on points of [−1, 1]³ (the scene bound).
+    {
+        use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ 0xC0FF_EE00_D15E_A5E5);
+        let n = 32 * (width + 1);
+        let x: Vec<f32> = (0..3 * n).map(|_| rng.random::<f32>() * 2.0 - 1.0).collect();
+        let target: Vec<f32> = x.chunks_exact(3).map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - radius as f32).collect();
+        let mut enc = vec![0.0; n * n_enc];
+        let mut ctx = vec![0.0; n * Module::<f32>::ctx_per_row(&backbone.sdf.a)];
+        backbone.sdf.a.forward(&params[layout.encoding.clone()], &x, &mut enc, &mut ctx);
+        backbone.sdf.b.calibrate_first_output(&mut params[layout.sdf_mlp.clone()], &enc, &target);
+    }
+    // The paper-scale presets skip the fit (minutes on a CPU): their max error is ~0.1.
+    match preset {
+        Preset::NeuralangeloCpu => fit_sphere(&backbone.sdf, &mut params[..layout.sdf_mlp.end], radius, 200, seed + 3),
+        Preset::NeusCpu => fit_sphere(&backbone.sdf, &mut params[..layout.sdf_mlp.end], radius, 800, seed + 3),
+        Preset::Neuralangelo | Preset::Neus => {}
+    }
+    backbone.color.init_default(&mut params[layout.color.clone()], seed + 2);
+    params[layout.variance] = 0.3;
+    (backbone, params)
+}
+
+/// Fits the SDF network to the sphere SDF `|x| − radius` on points of [−1, 1]³, a quarter of them
+/// within 0.15 of the origin (`steps` Adam steps of 2048 points, L1): after the geometric initialisation and the calibrated readout, this
+/// removes the residual error near the kink of |x| at the origin that a smooth readout cannot.
+/// Deterministic in `seed`; ~2 s for the CPU presets.
+pub fn fit_sphere(sdf: &SdfNet, params: &mut [f32], radius: f64, steps: u64, seed: u64) {
+    use crate::module::batch_gradients;
+    use crate::optim::WarmupCosine;
+    use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let mut adam = Adam::new(params.len());
+    adam.epsilon = 1e-15;
+    let schedule = WarmupCosine { base: 1e-3, warmup: 10, total: steps, final_factor: 0.05 };
+    let batch = 2048;
+    let n_out = Module::<f32>::n_outputs(sdf);
+    let mut grads = vec![0.0f32; params.len()];
+    for step in 0..steps {
+        // A quarter of the points near the origin, where the kink of |x| is hardest to follow.
+        let x: Vec<f32> = (0..3 * batch).map(|i| (rng.random::<f32>() * 2.0 - 1.0) * if i < 3 * batch / 4 { 0.15 } else { 1.0 }).collect();
+        grads.fill(0.0);
+        batch_gradients(sdf, params, &x, 256, &mut grads, |x, y, dy| {
+            let mut l = 0.0;
+            for r in 0..x.len() / 3 {
+                let target = (x[3 * r] * x[3 * r] + x[3 * r + 1] * x[3 * r + 1] + x[3 * r + 2] * x[3 * r + 2]).sqrt() - radius as f32;
+                let e = y[r * n_out] - target;
+                l += f64::from(e.abs());
+                dy[r * n_out] = e.signum() / batch as f32;
+            }
+            l
+        });
+        adam.update(params, &grads, schedule.at(step));
+    }
+}
+
+impl Backbone {
+    /// Where each part of the parameters lives.
+    pub fn layout(&self) -> ParamLayout {
+        let n_enc = Module::<f32>::n_params(&self.sdf.a);
+        let n_sdf = n_enc + Module::<f32>::n_params(&self.sdf.b);
+        let n_col = n_sdf + Module::<f32>::n_params(&self.color);
+        ParamLayout { encoding: 0..n_enc, sdf_mlp: n_enc..n_sdf, color: n_sdf..n_col, variance: n_col }
+    }
+
+    /// The logistic scale s = exp(10 v) of these parameters.
+    pub fn scale(&self, params: &[f32]) -> f64 {
+        (10.0 * f64::from(params[self.layout().variance])).exp()
+    }
+
+    /// Hash-grid levels (None for positional encoding).
+    pub fn levels(&self) -> Option<usize> {
+        match &self.sdf.a {
+            InputEncoding::HashGrid(g) => Some(g.encoding.resolutions().len()),
+            InputEncoding::Positional(_) => None,
+        }
+    }
+
+    /// Coarse-to-fine: activates the first `active` hash-grid levels and ties the normal step to
+    /// the finest active level (h = 1/N, half its cell on [−1, 1]). No effect for positional
+    /// encoding.
+    pub fn set_active_levels(&mut self, active: usize) {
+        if let InputEncoding::HashGrid(g) = &mut self.sdf.a {
+            let levels = g.encoding.resolutions().len();
+            g.encoding.active_levels = active.clamp(1, levels);
+            let finest = g.encoding.resolutions()[g.encoding.active_levels - 1];
+            self.config.normal_step = 1.0 / f64::from(finest);
+        }
+    }
+
+    /// The SDF of these parameters as a field the sampler and the mesher read.
+    pub fn field<'a>(&'a self, params: &'a [f32]) -> BackboneField<'a> {
+        BackboneField { backbone: self, params, lipschitz: 1.5 }
+    }
+}
+
+/// A backbone's SDF with fixed parameters (implements `prob_grid::SdfField`).
+pub struct BackboneField<'a> {
+    backbone: &'a Backbone,
+    params: &'a [f32],
+    /// Bound on |∇S| the sparse grid update and the mesher may assume (a learnt SDF is ≈ 1;
+    /// default 1.5).
+    pub lipschitz: f32,
+}
+
+impl prob_grid::SdfField for BackboneField<'_> {
+    fn sdf_batch(&self, points: &[Vec3], out: &mut [f32]) {
+        assert_eq!(points.len(), out.len(), "sdf_batch: points and out differ in length");
+        let x: Vec<f32> = points.iter().flat_map(|p| p.to_array()).collect();
+        let values = self.backbone.sdf_values(self.params, &x);
+        out.copy_from_slice(&values);
+    }
+
+    fn lipschitz_bound(&self) -> f32 {
+        self.lipschitz
+    }
+}
+
+/// Adam over parameter groups with their own learning rates and optional clipping of the
+/// gradient's global norm.
+pub fn adam_step(adam: &mut Adam, params: &mut [f32], grads: &mut [f32], groups: &[(Range<usize>, f32)], clip_norm: Option<f32>) {
+    if let Some(max) = clip_norm {
+        let norm = grads.iter().map(|g| f64::from(*g) * f64::from(*g)).sum::<f64>().sqrt() as f32;
+        if norm > max && norm.is_finite() {
+            let k = max / norm;
+            grads.iter_mut().for_each(|g| *g *= k);
+        }
+    }
+    adam.update_groups(params, grads, groups);
+}
+
+/// A checkpoint: named f32 tensors and string metadata, stored as safetensors (readable from
+/// Python with `safetensors.numpy.load_file`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Checkpoint {
+    /// Tensors by name (1-D).
+    pub tensors: HashMap<String, Vec<f32>>,
+    /// Metadata (step, configuration, …).
+    pub metadata: HashMap<String, String>,
+}
+
+impl Checkpoint {
+    /// The model and optimiser state: `params`, `adam.m`, `adam.v`, metadata `adam_step`.
+    pub fn from_state(params: &[f32], adam: &Adam) -> Checkpoint {
+        let mut c = Checkpoint::default();
+        c.tensors.insert("params".into(), params.to_vec());
+        c.tensors.insert("adam.m".into(), adam.m.clone());
+        c.tensors.insert("adam.v".into(), adam.v.clone());
+        c.metadata.insert("adam_step".into(), adam.step.to_string());
+        c
+    }
+
+    /// A tensor of exactly `expected` values.
+    pub fn tensor(&self, name: &str, expected: usize) -> Result<&[f32], BackboneError> {
+        let t = self.tensors.get(name).ok_or_else(|| BackboneError::Checkpoint(format!("no tensor {name:?}")))?;
+        if t.len() != expected {
+            return Err(BackboneError::SizeMismatch { name: name.into(), found: t.len(), expected });
+        }
+        Ok(t)
+    }
+
+    /// Restores parameters and the optimiser (sizes must match the model).
+    pub fn restore(&self, params: &mut [f32], adam: &mut Adam) -> Result<(), BackboneError> {
+        params.copy_from_slice(self.tensor("params", params.len())?);
+        adam.m.copy_from_slice(self.tensor("adam.m", params.len())?);
+        adam.v.copy_from_slice(self.tensor("adam.v", params.len())?);
+        adam.step = self
+            .metadata
+            .get("adam_step")
+            .and_then(|s| s.parse().ok())
+            .ok_or_else(|| BackboneError::Checkpoint("missing or bad metadata adam_step".into()))?;
+        Ok(())
+    }
+
+    /// Serialises to safetensors bytes.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, BackboneError> {
+        use safetensors::tensor::{Dtype, TensorView};
+        let mut names: Vec<&String> = self.tensors.keys().collect();
+        names.sort();
+        let bytes: Vec<(String, Vec<u8>)> =
+            names.iter().map(|n| ((*n).clone(), self.tensors[*n].iter().flat_map(|v| v.to_le_bytes()).collect())).collect();
+        let views: Vec<(String, TensorView<'_>)> = bytes
+            .iter()
+            .map(|(n, b)| TensorView::new(Dtype::F32, vec![b.len() / 4], b).map(|v| (n.clone(), v)))
+            .collect::<Result<_, _>>()
+            .map_err(|e| BackboneError::Checkpoint(e.to_string()))?;
+        safetensors::serialize(views, Some(self.metadata.clone())).map_err(|e| BackboneError::Checkpoint(e.to_string()))
+    }
+
+    /// Parses safetensors bytes (f32 tensors only).
+    pub fn from_bytes(bytes: &[u8]) -> Result<Checkpoint, BackboneError> {
+        let (_, meta) = safetensors::SafeTensors::read_metadata(bytes).map_err(|e| BackboneError::Checkpoint(e.to_string()))?;
+        let st = safetensors::SafeTensors::deserialize(bytes).map_err(|e| BackboneError::Checkpoint(e.to_string()))?;
+        let mut c = Checkpoint { metadata: meta.metadata().clone().unwrap_or_default(), ..Default::default() };
+        for (name, view) in st.tensors() {
+            if view.dtype() != safetensors::Dtype::F32 {
+                return Err(BackboneError::Checkpoint(format!("tensor {name:?} is {:?}, expected F32", view.dtype())));
+            }
+            c.tensors.insert(name, view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect());
+        }
+        Ok(c)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use camera_geom::{Intrinsics, PinholeCamera, PixelCenters};
+    use glam::DVec3;
+    use prob_grid::{CameraGridConfig, SceneGridConfig, SdfField, Shape, update};
+
+    #[test]
+    fn the_sampler_reads_a_backbone_initialised_as_a_sphere() {
+        // The paper initialises the camera grids "as a sphere" (the backbone's initial SDF):
+        // the grids from the network at init match those from the analytic sphere.
+        let (backbone, params) = build(Preset::NeuralangeloCpu, 0.5, 7);
+        let k = Intrinsics { fx: 300.0, fy: 300.0, cx: 99.5, cy: 74.5, skew: 0.0 };
+        let cam = PinholeCamera::look_at(DVec3::new(0.0, -3.0, 0.5), DVec3::ZERO, DVec3::Z, k, 200, 150, PixelCenters::Integer).unwrap();
+        let scene = SceneGridConfig { resolution: 48, ..Default::default() };
+        let cams = CameraGridConfig { ru: 16, rv: 16, rl: 32, ..Default::default() };
+        let from_net = update(&backbone.field(&params), 20.0, &[cam], &scene, &cams).unwrap();
+        let from_sphere = update(&Shape::Sphere { center: DVec3::ZERO, radius: 0.5 }, 20.0, &[cam], &scene, &cams).unwrap();
+        let (a, b) = (from_net.cameras[0].pixel_marginal(), from_sphere.cameras[0].pixel_marginal());
+        let (sa, sb) = (a.iter().sum::<f32>(), b.iter().sum::<f32>());
+        let tv: f32 = 0.5 * a.iter().zip(&b).map(|(x, y)| (x / sa - y / sb).abs()).sum::<f32>();
+        assert!(tv < 0.05, "total variation between the pixel marginals: {tv}");
+    }
+
+    /// Max and mean of |SDF(x) − (|x| − r)| over 5000 points inside the unit sphere.
+    fn init_error(preset: Preset) -> (f32, f32) {
+        let (backbone, params) = build(preset, 0.5, 3);
+        let mut state = 12345u64;
+        let mut points = Vec::new();
+        while points.len() < 5000 {
+            let p = Vec3::ZERO.map(|_| {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                (state >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
+            });
+            if p.length() < 1.0 {
+                points.push(p);
+            }
+        }
+        let mut out = vec![0.0; points.len()];
+        backbone.field(&params).sdf_batch(&points, &mut out);
+        let errors: Vec<f32> = points.iter().zip(&out).map(|(p, d)| (d - (p.length() - 0.5)).abs()).collect();
+        (errors.iter().fold(0.0f32, |m, e| m.max(*e)), errors.iter().sum::<f32>() / errors.len() as f32)
+    }
+
+    #[test]
+    fn calibrated_init_is_a_sphere_sdf_within_one_hundredth_on_average() {
+        for preset in [Preset::NeuralangeloCpu, Preset::NeusCpu] {
+            let (worst, mean) = init_error(preset);
+            eprintln!("{}: max |SDF − (|x| − r)| = {worst}, mean {mean}", preset.name());
+            assert!(mean <= 1e-2, "{}: mean |SDF − (|x| − r)| inside the unit sphere: {mean}", preset.name());
+            assert!(worst <= 1e-2, "{}: max |SDF − (|x| − r)| inside the unit sphere: {worst}", preset.name());
+        }
+    }
+
+    #[test]
+    fn checkpoint_round_trips_parameters_optimiser_and_metadata() {
+        let (backbone, mut params) = build(Preset::NeuralangeloCpu, 0.5, 1);
+        let mut adam = Adam::new(params.len());
+        let mut grads: Vec<f32> = (0..params.len()).map(|i| ((i % 7) as f32 - 3.0) * 1e-3).collect();
+        let layout = backbone.layout();
+        let n = params.len();
+        adam_step(&mut adam, &mut params, &mut grads, &[(layout.encoding.clone(), 1e-2), (layout.encoding.end..n, 1e-3)], Some(1.0));
+        let mut c = Checkpoint::from_state(&params, &adam);
+        c.metadata.insert("step".into(), "1".into());
+        let bytes = c.to_bytes().unwrap();
+        let back = Checkpoint::from_bytes(&bytes).unwrap();
+        assert_eq!(back, c);
+        let (mut p2, mut a2) = (vec![0.0; params.len()], Adam::new(params.len()));
+        back.restore(&mut p2, &mut a2).unwrap();
+        assert_eq!(p2, params);
+        assert_eq!((a2.m, a2.v, a2.step), (adam.m.clone(), adam.v.clone(), 1));
+        // A checkpoint of another model is refused with the sizes named.
+        let other = params.len() - 10;
+        let err = back.restore(&mut vec![0.0; other], &mut Adam::new(other)).unwrap_err();
+        assert!(err.to_string().contains("params"), "{err}");
+        assert!(Checkpoint::from_bytes(b"not a checkpoint").is_err());
+    }
+
+    #[test]
+    fn coarse_to_fine_ties_the_normal_step_to_the_finest_active_level() {
+        let (mut backbone, _) = build(Preset::NeuralangeloCpu, 0.5, 1);
+        backbone.set_active_levels(1);
+        assert!((backbone.config.normal_step - 1.0 / 16.0).abs() < 1e-12);
+        backbone.set_active_levels(100);
+        assert!((backbone.config.normal_step - 1.0 / 256.0).abs() < 1e-12);
+        assert_eq!(Preset::from_name("neus").unwrap(), Preset::Neus);
+        assert!(Preset::from_name("nerf").is_err());
+    }
+}

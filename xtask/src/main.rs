@@ -12,8 +12,12 @@ use glam::{DVec2, DVec3};
 use std::path::PathBuf;
 
 mod bench;
+mod bench_backbone;
+mod compare;
 mod draw;
+mod eval;
 mod sample;
+mod train;
 
 #[derive(Parser)]
 #[command(name = "xtask", about = "psneus: neural implicit surfaces with a probability-guided sampler")]
@@ -57,6 +61,14 @@ enum Command {
         #[command(flatten)]
         data: DataArgs,
     },
+    /// Train a backbone with the probability-guided (or uniform) sampler: progress, pictures,
+    /// checkpoints, the mesh and its metrics. With no arguments: the built-in scene in ≤ 5 min.
+    Train(train::TrainArgs),
+    /// Evaluate a mesh against ground truth (DTU-protocol Chamfer, F-score), or a run's model on
+    /// its held-out views (PSNR, SSIM).
+    Eval(eval::EvalArgs),
+    /// Train uniform and guided with the same seed, rays and samples; table and plot.
+    Compare(compare::CompareArgs),
     /// The guided sampler on a dataset with an analytic or mesh field: heat maps of the pixel
     /// marginal with the drawn pixels, depth profiles, and a JSON summary.
     Sample(sample::SampleArgs),
@@ -106,6 +118,16 @@ enum Command {
 
 #[derive(Subcommand)]
 enum BenchKind {
+    /// Backbone presets: training-step time (512 rays × 128 samples), FLOP per sample, MLP rate
+    /// against the measured f32 matrix-product rate, peak memory.
+    Backbone {
+        /// One JSON object per figure on stdout.
+        #[arg(long)]
+        json: bool,
+        /// Skip the paper-scale presets.
+        #[arg(long)]
+        quick: bool,
+    },
     /// Probability update (F, s, dense vs sparse), draw throughput, accuracy vs cost.
     Sampler {
         /// DTU scan 24 folder (default ../shared/data/dtu_scan24; a golden DTU-like rig if absent).
@@ -123,7 +145,11 @@ enum BenchKind {
 fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Sample(args) => sample::run(&args),
+        Command::Train(args) => train::run(&args).map(|_| ()),
+        Command::Eval(args) => eval::run(&args),
+        Command::Compare(args) => compare::run(&args),
         Command::Bench { which: BenchKind::Sampler { data, json, quick } } => bench::sampler(data.as_deref(), json, quick),
+        Command::Bench { which: BenchKind::Backbone { json, quick } } => bench_backbone::run(json, quick),
         Command::Cameras { data, ply } => cameras(&data, &ply),
         Command::Inspect { data } => inspect(&data),
         Command::Golden { shape, mesh, rig, out, views, width, height, seed, mesh_z_up, no_backdrop, thumbnail } => {

@@ -35,7 +35,13 @@ impl RgbImage {
         }
     }
 
-    /// Writes a PNG (atomically).
+    /// Area-averaged by an integer factor (remainder dropped), as the loaders' `downscale`.
+    pub fn downscaled(&self, n: u32) -> RgbImage {
+        let (data, width, height) = downscale_u8(&self.data, self.width, self.height, 3, n.max(1));
+        RgbImage { width, height, data }
+    }
+
+    /// Writes a PNG atomically.
     pub fn save_png(&self, path: &Path) -> Result<()> {
         write_png(path, &self.data, self.width, self.height, image::ExtendedColorType::Rgb8)
     }
@@ -78,8 +84,7 @@ impl Mask {
         self.bits.iter().map(|w| w.count_ones() as usize).sum()
     }
 
-    /// Writes a grey PNG (255 = foreground).
-    pub fn save_png(&self, path: &Path) -> Result<()> {
+    fn to_grey(&self) -> Vec<u8> {
         let mut grey = vec![0u8; self.width as usize * self.height as usize];
         for row in 0..self.height {
             for col in 0..self.width {
@@ -88,7 +93,24 @@ impl Mask {
                 }
             }
         }
-        write_png(path, &grey, self.width, self.height, image::ExtendedColorType::L8)
+        grey
+    }
+
+    /// Downscaled by an integer factor: foreground where more than half the block is.
+    pub fn downscaled(&self, n: u32) -> Mask {
+        let (grey, width, height) = downscale_u8(&self.to_grey(), self.width, self.height, 1, n.max(1));
+        let mut out = Mask::new(width, height);
+        for (i, v) in grey.iter().enumerate() {
+            if *v > 127 {
+                out.set(i as u32 % width, i as u32 / width, true);
+            }
+        }
+        out
+    }
+
+    /// Writes a grey PNG (255 = foreground).
+    pub fn save_png(&self, path: &Path) -> Result<()> {
+        write_png(path, &self.to_grey(), self.width, self.height, image::ExtendedColorType::L8)
     }
 }
 

@@ -1,4 +1,4 @@
-//! Atomic file writes and a binary PLY writer.
+//! Atomic file writes, a binary PLY writer and a PLY reader (points and triangles).
 
 use crate::error::{Result, io_err};
 use glam::Vec3;
@@ -91,6 +91,113 @@ impl PlyData {
     pub fn write(&self, path: &Path) -> Result<()> {
         write_atomic(path, &self.to_bytes())
     }
+
+    /// Reads vertex positions (x, y, z) and triangles (polygons are fanned) from an ASCII or
+    /// binary little-endian PLY; other properties and elements are skipped.
+    pub fn read(path: &Path) -> Result<PlyData> {
+        let bytes = std::fs::read(path).map_err(io_err(path))?;
+        parse_ply(&bytes).map_err(|message| crate::error::DatasetError::Corrupt { path: path.to_path_buf(), kind: "PLY file", message })
+    }
+}
+
+fn type_size(t: &str) -> std::result::Result<usize, String> {
+    Ok(match t {
+        "char" | "uchar" | "int8" | "uint8" => 1,
+        "short" | "ushort" | "int16" | "uint16" => 2,
+        "int" | "uint" | "float" | "int32" | "uint32" | "float32" => 4,
+        "double" | "float64" => 8,
+        other => return Err(format!("unknown property type {other:?}")),
+    })
+}
+
+fn read_scalar(t: &str, b: &[u8]) -> f64 {
+    match t {
+        "char" | "int8" => b[0] as i8 as f64,
+        "uchar" | "uint8" => b[0] as f64,
+        "short" | "int16" => i16::from_le_bytes([b[0], b[1]]) as f64,
+        "ushort" | "uint16" => u16::from_le_bytes([b[0], b[1]]) as f64,
+        "int" | "int32" => i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+        "uint" | "uint32" => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+        "float" | "float32" => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+        _ => f64::from_le_bytes([b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7]]),
+    }
+}
+
+/// (name, scalar type, list count type).
+type Property = (String, String, Option<String>);
+
+fn parse_ply(bytes: &[u8]) -> std::result::Result<PlyData, String> {
+    let end = bytes.windows(11).position(|w| w == b"end_header\n").ok_or("no end_header line")? + 11;
+    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| "header is not text")?;
+    let mut lines = header.lines();
+    if lines.next() != Some("ply") {
+        return Err("not a PLY file (first line is not 'ply')".into());
+    }
+    let mut format = "";
+    let mut elements: Vec<(String, usize, Vec<Property>)> = Vec::new();
+    for line in lines {
+        let w: Vec<&str> = line.split_whitespace().collect();
+        match w.as_slice() {
+            ["format", f, ..] => format = f,
+            ["element", name, count] => elements.push((name.to_string(), count.parse().map_err(|_| format!("bad element count {count:?}"))?, Vec::new())),
+            ["property", "list", c, t, name] => elements.last_mut().ok_or("property before element")?.2.push((name.to_string(), t.to_string(), Some(c.to_string()))),
+            ["property", t, name] => elements.last_mut().ok_or("property before element")?.2.push((name.to_string(), t.to_string(), None)),
+            _ => {}
+        }
+    }
+    let ascii = match format {
+        "ascii" => true,
+        "binary_little_endian" => false,
+        other => return Err(format!("unsupported PLY format {other:?} (ascii or binary_little_endian)")),
+    };
+    let mut out = PlyData::default();
+    let body = &bytes[end..];
+    let mut tokens = if ascii { std::str::from_utf8(body).map_err(|_| "ASCII body is not text")?.split_whitespace().collect::<Vec<_>>() } else { Vec::new() };
+    tokens.reverse();
+    let mut pos = 0usize;
+    let mut next = |t: &str| -> std::result::Result<f64, String> {
+        if ascii {
+            tokens.pop().ok_or("file ends early")?.parse::<f64>().map_err(|e| e.to_string())
+        } else {
+            let n = type_size(t)?;
+            let b = body.get(pos..pos + n).ok_or("file ends early")?;
+            pos += n;
+            Ok(read_scalar(t, b))
+        }
+    };
+    for (name, count, props) in &elements {
+        for _ in 0..*count {
+            let mut xyz = [0.0f32; 3];
+            for (pname, t, list) in props {
+                if let Some(ct) = list {
+                    let k = next(ct)? as usize;
+                    let idx: Vec<u32> = (0..k).map(|_| next(t).map(|v| v as u32)).collect::<std::result::Result<_, _>>()?;
+                    if name == "face" && pname.starts_with("vertex_ind") {
+                        for j in 1..k.saturating_sub(1) {
+                            out.faces.push([idx[0], idx[j], idx[j + 1]]);
+                        }
+                    }
+                } else {
+                    let v = next(t)?;
+                    if name == "vertex" {
+                        match pname.as_str() {
+                            "x" => xyz[0] = v as f32,
+                            "y" => xyz[1] = v as f32,
+                            "z" => xyz[2] = v as f32,
+                            _ => {}
+                        }
+                    }
+                }
+            }
+            if name == "vertex" {
+                out.positions.push(Vec3::from_array(xyz));
+            }
+        }
+    }
+    if let Some(bad) = out.faces.iter().flatten().find(|&&i| i as usize >= out.positions.len()) {
+        return Err(format!("face index {bad} ≥ vertex count {}", out.positions.len()));
+    }
+    Ok(out)
 }
 
 #[cfg(test)]
@@ -111,6 +218,24 @@ mod tests {
         let header_end = text.find("end_header\n").unwrap() + "end_header\n".len();
         assert!(text.contains("element vertex 3") && text.contains("element face 1") && text.contains("element edge 1"));
         assert_eq!(bytes.len() - header_end, 3 * (12 + 3) + (1 + 12) + 8);
+    }
+
+    #[test]
+    fn ply_reads_back_what_it_writes_and_reads_ascii() {
+        let ply = PlyData {
+            positions: vec![Vec3::ZERO, Vec3::X, Vec3::new(0.5, 2.0, -1.0)],
+            colors: vec![[1, 2, 3]; 3],
+            faces: vec![[0, 1, 2]],
+            ..Default::default()
+        };
+        let back = parse_ply(&ply.to_bytes()).unwrap();
+        assert_eq!((back.positions, back.faces), (ply.positions.clone(), ply.faces.clone()));
+        let ascii = b"ply\nformat ascii 1.0\nelement vertex 4\nproperty double x\nproperty double y\nproperty double z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n";
+        let q = parse_ply(ascii).unwrap();
+        assert_eq!(q.positions.len(), 4);
+        assert_eq!(q.faces, vec![[0, 1, 2], [0, 2, 3]]);
+        assert!(parse_ply(b"ply\nformat binary_big_endian 1.0\nend_header\n").unwrap_err().contains("big"));
+        assert!(parse_ply(b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1\n").unwrap_err().contains("early"));
     }
 
     #[test]

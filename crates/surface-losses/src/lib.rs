@@ -113,6 +113,7 @@ pub struct SurfaceTerms {
 
 /// `L_surf` of one ray at scale `s`; adds ∂L/∂Sᵢ (n + 1 values) into `d_sdf` and ∂L/∂wᵢ (n) into
 /// `d_weights`. Returns the weighted loss and its unweighted terms.
+#[allow(clippy::too_many_arguments)]
 pub fn ray_loss(
     config: &SurfaceLossConfig,
     ray: &RaySurface,

@@ -100,6 +100,9 @@ pub struct RaySample {
     pub pdf_pixel: f32,
     /// True for guided rays, false for uniform ones.
     pub guided: bool,
+    /// True when λ̃ was drawn from the pixel's depth conditional; false when the pixel's column
+    /// held no mass and λ̃ is uniform over the depth range (the ray likely misses the surface).
+    pub depth_from_grid: bool,
 }
 
 /// Guided ray sampling over a set of cameras.
@@ -162,17 +165,24 @@ impl ViewSampler {
         }
     }
 
-    /// Second half of a ray: λ̃ for its pixel (uniform in depth where the column is empty).
-    fn ray_depth(&self, camera: usize, coords: DVec2, u: f64) -> (f64, f64) {
+    /// Second half of a ray: λ̃ for its pixel (uniform in depth where the column is empty), and
+    /// whether it came from the grid.
+    fn ray_depth(&self, camera: usize, coords: DVec2, u: f64) -> (f64, f64, bool) {
         let d = &self.cameras[camera];
-        d.sample_depth(coords, u).unwrap_or_else(|| Self::uniform_depth(d, u))
+        match d.sample_depth(coords, u) {
+            Some((depth, pdf)) => (depth, pdf, true),
+            None => {
+                let (depth, pdf) = Self::uniform_depth(d, u);
+                (depth, pdf, false)
+            }
+        }
     }
 
     /// Draws one ray of `camera` from four uniform numbers (the fourth is unused today and
     /// reserved, so that streams stay aligned when a choice is added).
     pub fn sample_ray(&self, camera: usize, guided: bool, u: [f64; 4]) -> RaySample {
         let (pixel, coords, pdf_pixel) = self.ray_pixel(camera, guided, [u[0], u[1]]);
-        let (depth, pdf_depth) = self.ray_depth(camera, coords, u[2]);
+        let (depth, pdf_depth, depth_from_grid) = self.ray_depth(camera, coords, u[2]);
         RaySample {
             camera: camera as u32,
             pixel: [pixel.0, pixel.1],
@@ -181,6 +191,7 @@ impl ViewSampler {
             pdf_depth: pdf_depth as f32,
             pdf_pixel: pdf_pixel as f32,
             guided,
+            depth_from_grid,
         }
     }
 
@@ -190,7 +201,16 @@ impl ViewSampler {
     pub fn sample_batch(&self, n: usize, progress: f64, seed: u64, step: u64) -> Vec<RaySample> {
         let uniform = (self.config.schedule.fraction(progress) * n as f64).round() as usize;
         let mut out = vec![
-            RaySample { camera: 0, pixel: [0, 0], pixel_coords: DVec2::ZERO, depth: 0.0, pdf_depth: 0.0, pdf_pixel: 0.0, guided: false };
+            RaySample {
+                camera: 0,
+                pixel: [0, 0],
+                pixel_coords: DVec2::ZERO,
+                depth: 0.0,
+                pdf_depth: 0.0,
+                pdf_pixel: 0.0,
+                guided: false,
+                depth_from_grid: false
+            };
             n
         ];
         let cameras = self.cameras.len();

@@ -1,0 +1,180 @@
+//! `cargo xtask eval`: a mesh against ground truth (DTU-protocol Chamfer, F-score), or a run's
+//! held-out views (PSNR whole and masked, SSIM).
+
+use crate::train::RestoredRun;
+use crate::train::outputs::render_view;
+use anyhow::{Context, Result, bail};
+use datasets::io::{PlyData, write_atomic};
+use datasets::{LoadOptions, load_scene};
+use glam::Vec3;
+use serde_json::json;
+use std::path::{Path, PathBuf};
+
+/// Options of `cargo xtask eval`.
+#[derive(clap::Args, Debug)]
+pub struct EvalArgs {
+    /// The mesh to evaluate (.ply, .obj, .gltf, .glb), in the data's world units.
+    #[arg(long, required_unless_present = "run")]
+    pub mesh: Option<PathBuf>,
+    /// Ground-truth points (.ply).
+    #[arg(long, conflicts_with_all = ["gt_mesh", "run"])]
+    pub gt_points: Option<PathBuf>,
+    /// Ground-truth mesh (sampled at the same density as the prediction).
+    #[arg(long, conflicts_with = "run")]
+    pub gt_mesh: Option<PathBuf>,
+    /// A data folder with gt_mesh.ply or gt_points.ply (golden scenes); with --cull its masks.
+    #[arg(long, conflicts_with = "run")]
+    pub data: Option<PathBuf>,
+    /// A run folder: PSNR/SSIM of its model on its held-out views.
+    #[arg(long)]
+    pub run: Option<PathBuf>,
+    /// Sampling spacing on meshes (world units; DTU: 0.2 mm). Default: GT diagonal / 1000.
+    #[arg(long)]
+    pub spacing: Option<f64>,
+    /// Outlier distance (DTU: 20 mm). Default: GT diagonal / 20.
+    #[arg(long)]
+    pub max_dist: Option<f64>,
+    /// F-score threshold τ. Default: GT diagonal / 200.
+    #[arg(long)]
+    pub tau: Option<f64>,
+    /// NeuralWarp-style culling: keep predicted points inside the masks (dilated by
+    /// `--dilate` pixels) of at least two views of --data.
+    #[arg(long, requires = "data")]
+    pub cull: bool,
+    /// Mask dilation in pixels for --cull.
+    #[arg(long, default_value_t = 12)]
+    pub dilate: u32,
+    /// Image downscale for --run renders.
+    #[arg(long, default_value_t = 2)]
+    pub downscale: u32,
+    /// Print one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Vertices and triangles.
+type MeshArrays = (Vec<[f32; 3]>, Vec<[u32; 3]>);
+
+fn read_mesh(path: &Path) -> Result<MeshArrays> {
+    let is_ply = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("ply"));
+    if is_ply {
+        let ply = PlyData::read(path)?;
+        Ok((ply.positions.iter().map(|p| p.to_array()).collect(), ply.faces))
+    } else {
+        let m = datasets::golden::mesh_io::load_mesh(path)?;
+        Ok((m.mesh.positions.iter().map(|p| p.to_array()).collect(), m.mesh.triangles.clone()))
+    }
+}
+
+/// Runs `cargo xtask eval`.
+pub fn run(args: &EvalArgs) -> Result<()> {
+    if let Some(dir) = &args.run {
+        return eval_run(dir, args);
+    }
+    let mesh_path = args.mesh.as_ref().context("--mesh is required")?;
+    let (vertices, triangles) = read_mesh(mesh_path).with_context(|| format!("reading the mesh {}", mesh_path.display()))?;
+    if triangles.is_empty() {
+        bail!("the mesh {} has no triangles", mesh_path.display());
+    }
+    // Ground truth: points, or a mesh to sample.
+    let gt_mesh = args.gt_mesh.clone().or_else(|| args.data.as_ref().map(|d| d.join("gt_mesh.ply")).filter(|p| p.exists()));
+    let gt_points_path = args.gt_points.clone().or_else(|| args.data.as_ref().map(|d| d.join("gt_points.ply")).filter(|p| p.exists()));
+    let (gt_v, gt_f, gt_points) = match (&gt_mesh, &gt_points_path) {
+        (Some(m), _) => {
+            let (v, f) = read_mesh(m).with_context(|| format!("reading the ground-truth mesh {}", m.display()))?;
+            (v, f, None)
+        }
+        (None, Some(p)) => {
+            let ply = PlyData::read(p).with_context(|| format!("reading the ground-truth points {}", p.display()))?;
+            (Vec::new(), Vec::new(), Some(ply.positions.iter().map(|p| p.to_array()).collect::<Vec<_>>()))
+        }
+        (None, None) => bail!("no ground truth: give --gt-points, --gt-mesh, or --data with gt_mesh.ply / gt_points.ply"),
+    };
+    let bounds = |pts: &[[f32; 3]]| {
+        pts.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(a, b), p| (a.min(Vec3::from_array(*p)), b.max(Vec3::from_array(*p))))
+    };
+    let (lo, hi) = bounds(gt_points.as_deref().unwrap_or(&gt_v));
+    let diagonal = f64::from((hi - lo).length());
+    let spacing = args.spacing.unwrap_or(diagonal / 1000.0);
+    let max_dist = args.max_dist.unwrap_or(diagonal / 20.0);
+    let tau = args.tau.unwrap_or(diagonal / 200.0);
+    let gt = match gt_points {
+        Some(p) => p,
+        None => eval_metrics::sample_mesh(&gt_v, &gt_f, spacing as f32, 7),
+    };
+    let mut pred = eval_metrics::sample_mesh(&vertices, &triangles, spacing as f32, 11);
+    let before = pred.len();
+    if args.cull {
+        let dir = args.data.as_ref().expect("clap: --cull requires --data");
+        let scene = load_scene(dir, &LoadOptions::default()).with_context(|| format!("loading {} for culling", dir.display()))?;
+        let normalized_from_world = scene.world_from_normalized.inverse();
+        let masks: Vec<_> = scene.views.iter().filter_map(|v| v.mask.as_ref().map(|m| (v.camera, dilate(m, args.dilate)))).collect();
+        if masks.len() < 2 {
+            bail!("--cull needs masks for at least two views in {}", dir.display());
+        }
+        pred = eval_metrics::cull(&pred, |p| {
+            let x = normalized_from_world.transform_point3(glam::DVec3::from_array(p.map(f64::from)));
+            masks.iter().filter(|(cam, m)| cam.pixel_space_from_world(x).z > 0.0 && cam.nearest_pixel(cam.pixel_space_from_world(x).truncate()).is_some_and(|(c, r)| m.get(c, r))).count() >= 2
+        });
+    }
+    let m = eval_metrics::chamfer(&pred, &gt, max_dist, tau)?;
+    let result = json!({
+        "mesh": mesh_path.display().to_string(),
+        "chamfer": m.chamfer, "accuracy": m.accuracy, "completeness": m.completeness,
+        "precision": m.precision, "recall": m.recall, "f_score": m.f_score, "tau": tau,
+        "spacing": spacing, "max_dist": max_dist, "pred_points": m.n_pred, "culled": before - pred.len(), "gt_points": m.n_gt,
+    });
+    if args.json {
+        println!("{result}");
+    } else {
+        println!(
+            "Chamfer {:.5} (accuracy {:.5}, completeness {:.5}), F-score {:.4} at τ = {tau:.4} (P {:.3}, R {:.3}); {} / {} points, spacing {spacing:.4}, max distance {max_dist:.4}",
+            m.chamfer, m.accuracy, m.completeness, m.f_score, m.precision, m.recall, m.n_pred, m.n_gt
+        );
+    }
+    Ok(())
+}
+
+/// A mask dilated by a square of half-width `r` pixels.
+fn dilate(mask: &datasets::images::Mask, r: u32) -> datasets::images::Mask {
+    let (w, h) = (mask.width, mask.height);
+    let mut out = datasets::images::Mask::new(w, h);
+    for y in 0..h {
+        for x in 0..w {
+            if mask.get(x, y) {
+                for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                    for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                        out.set(xx, yy, true);
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
+    let run = RestoredRun::load(dir)?;
+    let views = run.held_out_views();
+    let mut per_view = Vec::new();
+    for &v in &views {
+        let r = render_view(&run.config, &run.backbone, &run.params, &run.scene().views[v], args.downscale);
+        let (whole, masked) = r.psnr();
+        per_view.push(json!({"view": v, "psnr": whole, "psnr_masked": masked, "ssim": r.ssim()}));
+        if !args.json {
+            println!("view {v}: PSNR {whole:.2} dB{}", masked.map_or(String::new(), |m| format!(", masked {m:.2} dB")));
+        }
+    }
+    let mean = |key: &str| {
+        let v: Vec<f64> = per_view.iter().filter_map(|p| p[key].as_f64()).collect();
+        (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+    };
+    let result = json!({"run": dir.display().to_string(), "step": run.step, "views": views, "psnr": mean("psnr"), "psnr_masked": mean("psnr_masked"), "ssim": mean("ssim"), "per_view": per_view, "downscale": args.downscale});
+    write_atomic(&dir.join("eval.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;
+    if args.json {
+        println!("{result}");
+    } else {
+        println!("mean over {} held-out views: PSNR {:.2} dB, masked {:?}, SSIM {:?} (written to {})", views.len(), mean("psnr").unwrap_or(f64::NAN), mean("psnr_masked"), mean("ssim"), dir.join("eval.json").display());
+    }
+    Ok(())
+}

@@ -189,6 +189,7 @@ pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
             mask_weight: 0.1,
             normal_step: 1.0 / f64::from(finest),
             normals: NormalScheme::Tetrahedral,
+            curvature_weight: 0.0,
             background: [0.0; 3],
         },
     };

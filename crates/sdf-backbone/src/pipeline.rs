@@ -110,6 +110,10 @@ pub struct PipelineConfig {
     pub normal_step: f64,
     /// Central or tetrahedral differences.
     pub normals: NormalScheme,
+    /// Weight of Neuralangelo's curvature loss, mean |ΔS| at the samples, with the Laplacian
+    /// from the same probes as the normals: `ΔS ≈ (Σⱼ S(x + h vⱼ) − m S(x)) / (h² c/2)`, where
+    /// Σⱼ vⱼvⱼᵀ = c I (c = 2 central, 4 tetrahedral; m probes). Neuralangelo: 5e-4.
+    pub curvature_weight: f64,
     /// Colour behind the surface (what an empty ray renders), e.g. black for masked training.
     pub background: [f64; 3],
 }
@@ -352,6 +356,22 @@ impl<S, C> Pipeline<S, C> {
                 }
             }
             let mut d_opacity = -(d_color[0] * background[0] + d_color[1] * background[1] + d_color[2] * background[2]);
+            // Curvature: mean |ΔS| over the samples; ∂/∂ΔS kept per sample for the backward pass.
+            let curv_w = R::of(self.config.curvature_weight) / R::of(n as f64);
+            let c_probe: f64 = probes.iter().map(|(o, _)| o[0] * o[0]).sum();
+            let lap_den = h * h * R::of(c_probe * 0.5);
+            let mut d_laplacian = vec![R::ZERO; n];
+            if self.config.curvature_weight > 0.0 {
+                for i in 0..n {
+                    let mut lap = -R::of(np as f64) * sdf_values[i];
+                    for j in 0..np {
+                        lap += probe(i, j);
+                    }
+                    lap = lap / lap_den;
+                    loss += curv_w * lap.abs();
+                    d_laplacian[i] = if lap > R::ZERO { curv_w / lap_den } else if lap < R::ZERO { -curv_w / lap_den } else { R::ZERO };
+                }
+            }
             let eik_w = R::of(self.config.eikonal_weight) / R::of(n as f64);
             let mut d_normals = vec![[R::ZERO; 3]; n];
             for i in 0..n {
@@ -426,8 +446,9 @@ impl<S, C> Pipeline<S, C> {
                     for k in 0..3 {
                         d += (row[3 + k] + d_normals[i][k] * inv_m) * R::of(offset[k] * w);
                     }
-                    d_sdf_out[(n + 1 + np * i + j) * n_out] += d / h;
+                    d_sdf_out[(n + 1 + np * i + j) * n_out] += d / h + d_laplacian[i] * inv_m;
                 }
+                d_sdf_out[i * n_out] -= R::of(np as f64) * d_laplacian[i] * inv_m;
             }
             self.sdf.backward(p_sdf, &points, &sdf_ctx, &d_sdf_out, d_sdf_params, None);
         }

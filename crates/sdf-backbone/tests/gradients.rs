@@ -327,8 +327,8 @@ impl SampleLoss for TestSampleLoss {
     }
 }
 
-/// The whole render + loss pipeline (SDF net with PE, normals by central and by tetrahedral
-/// differences, colour net on [x, n, SH(d), features], NeuS rendering, L2 colour over a grey
+/// The whole render + loss pipeline (SDF net with PE, normals and curvature by central and by
+/// tetrahedral differences, colour net on [x, n, SH(d), features], NeuS rendering, L2 colour over a grey
 /// background + eikonal + mask BCE + a loss on the samples, learnt variance) against finite
 /// differences in f64.
 #[test]
@@ -347,8 +347,10 @@ fn whole_pipeline_gradients_match_finite_differences() {
             sdf: Chain { a: pe, b: sdf_mlp },
             color,
             config: PipelineConfig {
-                color_loss: ColorLoss::L2, eikonal_weight: 0.1, mask_weight: 0.1, normal_step: 1e-3, normals,
-                background: [0.3, 0.5, 0.1],
+                // h = 1e-2: the Laplacian divides by h², and with h = 1e-3 the finite differences
+                // of the check itself lose 5 digits to rounding (measured 2e-4 "error").
+                color_loss: ColorLoss::L2, eikonal_weight: 0.1, mask_weight: 0.1, normal_step: 1e-2, normals,
+                curvature_weight: 1e-3, background: [0.3, 0.5, 0.1],
             },
         };
         let n = pipeline.n_params::<f64>();
@@ -408,7 +410,7 @@ fn both_normal_schemes_recover_a_known_gradient() {
             color: color.clone(),
             config: PipelineConfig {
                 color_loss: ColorLoss::L2, eikonal_weight: 0.0, mask_weight: 0.0, normal_step: 1e-2, normals,
-                background: [0.0; 3],
+                curvature_weight: 0.0, background: [0.0; 3],
             },
         };
         let n = pipeline.n_params::<f64>();
@@ -450,7 +452,7 @@ fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
         color,
         config: PipelineConfig {
             color_loss: ColorLoss::L1, eikonal_weight: 0.1, mask_weight: 0.0, normal_step: 1e-3, normals: NormalScheme::Tetrahedral,
-            background: [0.2; 3],
+            curvature_weight: 1e-4, background: [0.2; 3],
         },
     };
     let n = pipeline.n_params::<f64>();
@@ -480,5 +482,72 @@ fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
         let (lc, _) = pool.install(|| pipeline.loss_parallel(&params, &rays, &mut c, 5, &TestSampleLoss));
         assert_eq!(lc.to_bits(), lb.to_bits(), "{threads} threads");
         assert!(c.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()), "{threads} threads");
+    }
+}
+
+/// The curvature term is mean |ΔS|: for S(x) = sin(x₀) (positional encoding, one linear layer),
+/// ΔS = −sin(x₀), with both probe schemes.
+#[test]
+fn curvature_term_is_the_mean_absolute_laplacian() {
+    let pe = PositionalEncoding { frequencies: 1 };
+    let mlp = Mlp::new(MlpConfig {
+        n_inputs: 9, width: 4, hidden_layers: 0, n_outputs: 1, skip: None,
+        hidden_activation: Activation::Identity, output_activation: Activation::Identity,
+    });
+    let color = Mlp::new(MlpConfig {
+        n_inputs: 22, width: 4, hidden_layers: 0, n_outputs: 3, skip: None,
+        hidden_activation: Activation::Identity, output_activation: Activation::Sigmoid,
+    });
+    let ray = RayInput { origin: [-1.0, 0.2, 0.1], direction: [1.0, 0.0, 0.0], depths: vec![0.3, 0.7, 1.1, 1.6, 1.9], target: [0.1; 3], mask: None };
+    let expected: f64 = (0..4).map(|i| (ray.origin[0] + ray.depths[i]).sin().abs()).sum::<f64>() / 4.0;
+    for normals in [NormalScheme::Central, NormalScheme::Tetrahedral] {
+        let mut pipeline = Pipeline {
+            sdf: Chain { a: pe, b: mlp.clone() },
+            color: color.clone(),
+            config: PipelineConfig {
+                color_loss: ColorLoss::L2, eikonal_weight: 0.0, mask_weight: 0.0, normal_step: 1e-3, normals,
+                curvature_weight: 0.0, background: [0.0; 3],
+            },
+        };
+        let n = pipeline.n_params::<f64>();
+        let mut params = vec![0.0; n];
+        params[3] = 1.0; // weight of sin(x₀)
+        params[n - 1] = 0.3;
+        let base = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
+        pipeline.config.curvature_weight = 1.0;
+        let with = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
+        assert!(((with - base) - expected).abs() < 1e-5, "{normals:?}: {} vs {expected}", with - base);
+    }
+}
+
+/// The whole pipeline (CPU hash-grid preset) gives a finite loss and finite gradients at the
+/// extremes: s = 1e6, rays that graze or miss the unit sphere, zero-length intervals, and a batch
+/// where every ray is background (mask 0, target = background).
+#[test]
+fn pipeline_is_finite_at_the_extremes() {
+    let (mut backbone, mut params) = build(Preset::NeuralangeloCpu, 0.5, 9);
+    backbone.config.curvature_weight = 5e-4;
+    let n = params.len();
+    let ray = |origin: [f32; 3], direction: [f32; 3], depths: Vec<f32>, mask: f32| RayInput { origin, direction, depths, target: [0.0; 3], mask: Some(mask) };
+    let line = |a: f32, b: f32, k: usize| (0..=k).map(|i| a + (b - a) * i as f32 / k as f32).collect::<Vec<f32>>();
+    let cases: Vec<(&str, Vec<RayInput<f32>>)> = vec![
+        ("through the centre", vec![ray([0.0, -3.0, 0.0], [0.0, 1.0, 0.0], line(2.0, 4.0, 32), 1.0)]),
+        ("grazing the unit sphere", vec![ray([0.999, -3.0, 0.0], [0.0, 1.0, 0.0], line(2.9, 3.1, 32), 0.0)]),
+        ("missing the unit sphere", vec![ray([1.5, -3.0, 0.0], [0.0, 1.0, 0.0], line(2.0, 4.0, 32), 0.0)]),
+        ("zero-length intervals", vec![ray([0.0, -3.0, 0.0], [0.0, 1.0, 0.0], vec![2.0, 2.0, 2.5, 2.5, 2.5, 3.0, 3.0], 1.0)]),
+        (
+            "all background",
+            (0..8).map(|i| ray([1.2 + 0.1 * i as f32, -3.0, 0.0], [0.0, 1.0, 0.0], line(2.0, 4.0, 16), 0.0)).collect(),
+        ),
+    ];
+    for log10_s in [1.0f32, 3.0, 6.0] {
+        params[n - 1] = log10_s * std::f32::consts::LN_10 / 10.0; // s = exp(10 v)
+        for (name, rays) in &cases {
+            let mut grads = vec![0.0f32; n];
+            let (loss, out) = backbone.loss_parallel(&params, rays, &mut grads, 4, &NoSampleLoss);
+            assert!(loss.is_finite(), "s = 1e{log10_s}, {name}: loss {loss}");
+            assert!(out.iter().all(|o| o.color.iter().chain(&o.normal).all(|v| v.is_finite()) && o.opacity.is_finite() && o.depth.is_finite()), "s = 1e{log10_s}, {name}: outputs");
+            assert!(grads.iter().all(|g| g.is_finite()), "s = 1e{log10_s}, {name}: gradients");
+        }
     }
 }

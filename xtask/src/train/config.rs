@@ -71,6 +71,11 @@ pub struct ModelConfig {
     pub eikonal: f64,
     /// Mask BCE weight (NeuS: 0.1).
     pub mask: f64,
+    /// Curvature loss weight, reached linearly over the learning-rate warm-up (Neuralangelo:
+    /// 5e-4; default 0: not measured to help on 300-iteration runs).
+    pub curvature: f64,
+    /// Normals (and curvature) by "tetrahedral" (4 probes) or "central" (6 probes) differences.
+    pub normals: String,
     /// Colour behind the object (fixed background).
     pub background: [f64; 3],
 }
@@ -218,6 +223,8 @@ impl Default for ModelConfig {
             all_levels_at: 0.25,
             eikonal: 0.1,
             mask: 0.1,
+            curvature: 0.0,
+            normals: "tetrahedral".into(),
             background: [0.0; 3],
         }
     }
@@ -338,6 +345,8 @@ impl TrainConfig {
         need((0.0..=1.0).contains(&self.model.all_levels_at), "model.all_levels_at", self.model.all_levels_at, "in [0, 1]")?;
         need(self.model.eikonal.is_finite() && self.model.eikonal >= 0.0, "model.eikonal", self.model.eikonal, "≥ 0")?;
         need(self.model.mask.is_finite() && self.model.mask >= 0.0, "model.mask", self.model.mask, "≥ 0")?;
+        need(self.model.curvature.is_finite() && self.model.curvature >= 0.0, "model.curvature", self.model.curvature, "≥ 0")?;
+        need(["tetrahedral", "central"].contains(&self.model.normals.as_str()), "model.normals", &self.model.normals, "tetrahedral or central")?;
         need(self.model.background.iter().all(|c| (0.0..=1.0).contains(c)), "model.background", self.model.background, "each in [0, 1]")?;
         need(self.render.rays >= 1, "render.rays", self.render.rays, "≥ 1")?;
         need(self.render.coarse >= 2, "render.coarse", self.render.coarse, "≥ 2")?;

@@ -13,7 +13,7 @@ use datasets::{LoadOptions, Scene, load_scene};
 use prob_grid::{CameraGridConfig, SceneGridConfig, ViewDependency};
 use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
 use rays::{DrawnRay, build_batch, stream_seed};
-use sdf_backbone::{Adam, Backbone, Checkpoint, NoSampleLoss, Preset, SampleLoss, WarmupCosine, adam_step, build};
+use sdf_backbone::{Adam, Backbone, Checkpoint, NoSampleLoss, NormalScheme, Preset, SampleLoss, WarmupCosine, adam_step, build};
 use serde_json::json;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -208,6 +208,7 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
     backbone.config.eikonal_weight = config.model.eikonal;
     backbone.config.mask_weight = if use_masks { config.model.mask } else { 0.0 };
     backbone.config.background = config.model.background;
+    backbone.config.normals = if config.model.normals == "central" { NormalScheme::Central } else { NormalScheme::Tetrahedral };
     let layout = backbone.layout();
     let n = init_params.len();
     let mut adam = Adam::new(n);
@@ -265,12 +266,14 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
     let first_step = state.step;
     let mut grads = vec![0.0f32; n];
     let mut step_seconds = 0.0;
+    let mut ray_seconds = 0.0;
     let mut history = Vec::new();
     while state.step < config.steps {
         let step = state.step;
         if let Some(levels) = backbone.levels() {
             backbone.set_active_levels(active_levels(&config, levels, step));
         }
+        backbone.config.curvature_weight = config.model.curvature * ((step + 1) as f64 / config.optim.warmup.max(1) as f64).min(1.0);
         if guided && step > 0 && step.is_multiple_of(config.guide.update_every) {
             state.grid_params.copy_from_slice(&state.params);
             let (s, secs) = guide(&config, &backbone, &state.grid_params, &train_cameras)?;
@@ -305,6 +308,7 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
             (view.image.get_f32(c, r), m)
         };
         let batch = build_batch(&config, &backbone, &state.params, &cams, target, &drawn, step, s_now);
+        ray_seconds += t_step.elapsed().as_secs_f64();
         grads.fill(0.0);
         let hook = SurfaceHook { config: surface_config, rays: &batch.surfaces, s: s_now };
         let extra: &dyn SampleLoss = if guided && surface_config.weight > 0.0 { &hook } else { &NoSampleLoss };
@@ -328,6 +332,7 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
             let record = json!({
                 "step": state.step, "loss": loss, "psnr_batch": psnr, "s": s_now, "lr": config.optim.lr * f64::from(f),
                 "elapsed_s": elapsed, "step_s": step_seconds / (state.step - first_step) as f64,
+                "rays_s": ray_seconds / (state.step - first_step) as f64,
                 "levels": backbone.levels().map(|l| active_levels(&config, l, step)), "grid_updates": grid_updates, "grid_s": grid_seconds,
             });
             writeln!(log, "{record}").context("writing log.jsonl")?;
@@ -375,7 +380,8 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
     }
     save_checkpoint(&out, &state, &config)?;
     let train_seconds = start.elapsed().as_secs_f64();
-    let timing = Timing { train_seconds, step_seconds: step_seconds / (config.steps - first_step).max(1) as f64, grid_seconds, grid_updates };
+    let per_step = |t: f64| t / (config.steps - first_step).max(1) as f64;
+    let timing = Timing { train_seconds, step_seconds: per_step(step_seconds), ray_seconds: per_step(ray_seconds), grid_seconds, grid_updates };
     let mut summary = finish(&config, &backbone, &state.params, &data, &test_views, &train_views, sampler.as_ref(), &out, &timing)?;
     history.push(json!({"step": config.steps, "chamfer": summary.metrics["chamfer"], "f_score": summary.metrics["f_score"], "psnr": summary.metrics["psnr"], "psnr_masked": summary.metrics["psnr_masked"], "time_s": step_seconds + grid_seconds}));
     summary.history = history;
@@ -391,6 +397,8 @@ struct Timing {
     train_seconds: f64,
     /// Per iteration, without grid updates.
     step_seconds: f64,
+    /// Per iteration: drawing pixels and building rays (up-sampling, extra points).
+    ray_seconds: f64,
     grid_seconds: f64,
     grid_updates: usize,
 }
@@ -447,7 +455,7 @@ fn finish(
     timing: &Timing,
 ) -> Result<RunSummary> {
     let scene = &data.scene;
-    let Timing { train_seconds, step_seconds, grid_seconds, grid_updates } = *timing;
+    let Timing { train_seconds, step_seconds, ray_seconds, grid_seconds, grid_updates } = *timing;
     validation_pictures(config, backbone, params, scene, test_views, sampler, train_views, out, config.steps)?;
     // Image metrics on the held-out views (all views when none are held out).
     let candidates: Vec<usize> = if test_views.is_empty() { (0..scene.views.len()).collect() } else { test_views.to_vec() };
@@ -467,6 +475,11 @@ fn finish(
     let mesh = outputs::extract_mesh(config, backbone, params)?;
     let colors = config.output.vertex_colors.then(|| outputs::vertex_colors(backbone, params, &mesh));
     let meshes = outputs::write_mesh(out, &mesh, &scene.world_from_normalized, colors.as_deref(), &config.output.mesh_formats)?;
+    if !mesh.triangles.is_empty() {
+        let views = [eval_views[0], train_views[train_views.len() / 2]];
+        let cams: Vec<camera_geom::PinholeCamera> = views.iter().map(|&v| scene.views[v].camera).collect();
+        outputs::mesh_picture(&mesh, &cams).save_png(&out.join("pictures").join("mesh.png"))?;
+    }
     let mesh_seconds = t.elapsed().as_secs_f64();
     let world_scale = scene.world_from_normalized.determinant().abs().cbrt();
     let gt = outputs::ground_truth(data.path.as_deref(), scene, data.builtin_truth.as_deref(), config.output.chamfer_spacing)?;
@@ -494,6 +507,7 @@ fn finish(
         "train_s": train_seconds,
         "step_s": step_seconds,
         "iteration_s": step_seconds + grid_seconds / config.steps as f64,
+        "rays_s": ray_seconds,
         "grid_s": grid_seconds,
         "grid_updates": grid_updates,
         "eval_s": eval_seconds,
@@ -551,6 +565,7 @@ impl RestoredRun {
             backbone.set_active_levels(active_levels(&config, levels, step.saturating_sub(1)));
         }
         backbone.config.background = config.model.background;
+        backbone.config.normals = if config.model.normals == "central" { NormalScheme::Central } else { NormalScheme::Tetrahedral };
         Ok(RestoredRun { config, scene_data, backbone, params, step })
     }
 

@@ -243,3 +243,30 @@ pub fn geometry_metrics(config: &TrainConfig, mesh: &IsoMesh, gt: &[[f32; 3]]) -
     let pred = eval_metrics::sample_mesh(&v, &mesh.triangles, config.output.chamfer_spacing as f32, 11);
     Ok(eval_metrics::chamfer(&pred, gt, config.output.chamfer_max_dist, config.output.fscore_tau)?)
 }
+
+/// The mesh (normalised frame) seen from `cameras`, shaded by its normals, side by side.
+pub fn mesh_picture(mesh: &IsoMesh, cameras: &[camera_geom::PinholeCamera]) -> RgbImage {
+    use datasets::golden::{mesh_io::TexturedMesh, render::Geometry};
+    let n = mesh.triangles.len();
+    let geometry = Geometry::from_mesh(TexturedMesh {
+        mesh: prob_grid::TriangleMesh::new(mesh.vertices.clone(), mesh.triangles.clone()),
+        uvs: None,
+        triangle_texture: vec![u32::MAX; n],
+        textures: Vec::new(),
+    });
+    let (w, h) = (cameras.iter().map(|c| c.width).sum::<u32>(), cameras.iter().map(|c| c.height).max().unwrap_or(1));
+    let mut img = RgbImage::new(w.max(1), h);
+    let mut x0 = 0;
+    for cam in cameras {
+        let r = datasets::golden::render::render_view(&geometry, cam, false);
+        for y in 0..cam.height {
+            for x in 0..cam.width {
+                let nrm = r.normal[(y * cam.width + x) as usize];
+                let rgb = if r.mask.get(x, y) { nrm.map(|v| v * 0.5 + 0.5) } else { [1.0; 3] };
+                img.set_f32(x0 + x, y, rgb);
+            }
+        }
+        x0 += cam.width;
+    }
+    img
+}

@@ -135,6 +135,8 @@ pub struct ParamLayout {
     pub color: Range<usize>,
     /// The variance v (s = exp(10 v)).
     pub variance: usize,
+    /// The learned background network (empty without one).
+    pub background: Range<usize>,
 }
 
 /// Builds a preset with its parameters initialised: hash tables ±1e-4, SDF MLP geometric
@@ -183,6 +185,7 @@ pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
     let backbone = Pipeline {
         sdf: Chain { a: encoding, b: sdf_mlp },
         color,
+        background: None,
         config: PipelineConfig {
             color_loss: ColorLoss::L1,
             eikonal_weight: 0.1,
@@ -262,7 +265,27 @@ impl Backbone {
         let n_enc = Module::<f32>::n_params(&self.sdf.a);
         let n_sdf = n_enc + Module::<f32>::n_params(&self.sdf.b);
         let n_col = n_sdf + Module::<f32>::n_params(&self.color);
-        ParamLayout { encoding: 0..n_enc, sdf_mlp: n_enc..n_sdf, color: n_sdf..n_col, variance: n_col }
+        let n_bg = self.background.as_ref().map_or(0, Module::<f32>::n_params);
+        ParamLayout { encoding: 0..n_enc, sdf_mlp: n_enc..n_sdf, color: n_sdf..n_col, variance: n_col, background: n_col + 1..n_col + 1 + n_bg }
+    }
+
+    /// Adds a learned background (SH₄(direction) → 1 × 32 ReLU → RGB sigmoid, He init, output
+    /// bias 0: grey) and its parameters at the end of `params`.
+    pub fn add_learned_background(&mut self, params: &mut Vec<f32>, seed: u64) {
+        let net = Mlp::new(MlpConfig {
+            n_inputs: 16,
+            width: 32,
+            hidden_layers: 1,
+            n_outputs: 3,
+            skip: None,
+            hidden_activation: Activation::Relu,
+            output_activation: Activation::Sigmoid,
+        });
+        let mut p = vec![0.0f32; Module::<f32>::n_params(&net)];
+        net.init_default(&mut p, seed);
+        params.truncate(self.layout().variance + 1);
+        params.extend_from_slice(&p);
+        self.background = Some(net);
     }
 
     /// The logistic scale s = exp(10 v) of these parameters.

@@ -38,7 +38,7 @@ pub use render::{RayGradients, RayRender, merge_sorted, render_ray, render_ray_b
 pub use mlp::{Mlp, MlpConfig};
 pub use module::{Activation, Chain, Module, batch_gradients};
 pub use backbone::{Backbone, BackboneError, BackboneField, Checkpoint, InputEncoding, ParamLayout, Preset, SdfNet, adam_step, build};
-pub use optim::{Adam, WarmupCosine};
+pub use optim::{Adam, WarmupCosine, WarmupStep};
 pub use pipeline::{
     ColorLoss, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, interval_weights,
 };

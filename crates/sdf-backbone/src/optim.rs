@@ -78,6 +78,31 @@ impl WarmupCosine {
     }
 }
 
+/// Learning-rate schedule: linear warm-up, then the base rate multiplied by `factor` at each
+/// milestone (step decay).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WarmupStep {
+    /// Base learning rate.
+    pub base: f32,
+    /// Warm-up steps.
+    pub warmup: u64,
+    /// Steps at which the rate is multiplied by `factor`.
+    pub milestones: Vec<u64>,
+    /// Multiplier per milestone (e.g. 0.1).
+    pub factor: f32,
+}
+
+impl WarmupStep {
+    /// The rate at `step`.
+    pub fn at(&self, step: u64) -> f32 {
+        if step < self.warmup {
+            return self.base * (step + 1) as f32 / self.warmup as f32;
+        }
+        let passed = self.milestones.iter().filter(|&&m| step >= m).count() as i32;
+        self.base * self.factor.powi(passed)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -103,6 +128,14 @@ mod tests {
         let mut adam = Adam::new(1);
         adam.update(&mut p, &[123.0], 0.1);
         assert!((p[0] + 0.1).abs() < 1e-6);
+    }
+
+    #[test]
+    fn warmup_then_step_decay() {
+        let s = WarmupStep { base: 1.0, warmup: 10, milestones: vec![50, 80], factor: 0.1 };
+        assert!((s.at(4) - 0.5).abs() < 1e-6);
+        assert_eq!(s.at(49), 1.0);
+        assert!((s.at(50) - 0.1).abs() < 1e-7 && (s.at(99) - 0.01).abs() < 1e-8);
     }
 
     #[test]

@@ -21,6 +21,7 @@
 //! Everything is generic over [`Real`] so that the whole pipeline is gradient-checked in f64.
 
 use crate::encoding::SphericalHarmonics;
+use crate::mlp::Mlp;
 use crate::module::Module;
 use crate::real::Real;
 use crate::render::{render_ray, render_ray_backward};
@@ -118,13 +119,19 @@ pub struct PipelineConfig {
     pub background: [f64; 3],
 }
 
-/// SDF network + colour network + learnt variance, parameters `[sdf | colour | v]`.
+/// SDF network + colour network + learnt variance (+ an optional learned background),
+/// parameters `[sdf | colour | v | background]`.
 #[derive(Debug, Clone)]
 pub struct Pipeline<S, C> {
     /// SDF network: 3 inputs → 1 + F outputs (SDF, features).
     pub sdf: S,
     /// Colour network: 3 + 3 + 16 + F inputs → 3 outputs (sigmoid).
     pub color: C,
+    /// Learned background for unmasked captures: SH₄(direction) (16 inputs) → RGB (sigmoid),
+    /// composited behind the surface instead of `config.background`. A colour per direction
+    /// (an environment at infinity): it cannot show parallax, so a background near the object
+    /// (DTU's table and walls) is still modelled as geometry inside the bound.
+    pub background: Option<Mlp>,
     /// Configuration.
     pub config: PipelineConfig,
 }
@@ -149,7 +156,7 @@ impl<S, C> Pipeline<S, C> {
         S: Module<R>,
         C: Module<R>,
     {
-        self.sdf.n_params() + self.color.n_params() + 1
+        self.sdf.n_params() + self.color.n_params() + 1 + self.background.as_ref().map_or(0, Module::<R>::n_params)
     }
 
     /// Loss of a batch (averaged over rays) and, if `d_params` is given, its gradient added into
@@ -275,13 +282,13 @@ impl<S, C> Pipeline<S, C> {
         let (n_sdf, n_col) = (self.sdf.n_params(), self.color.n_params());
         let (p_sdf, rest) = params.split_at(n_sdf);
         let (p_col, p_var) = rest.split_at(n_col);
-        let var = p_var[0];
+        let (var, p_bg) = (p_var[0], &p_var[1..]);
         let s = (R::of(10.0) * var).exp();
         let f = self.sdf.n_outputs() - 1;
         let h = R::of(self.config.normal_step);
         let probes = self.config.normals.probes();
         let np = probes.len();
-        let background = self.config.background.map(R::of);
+        let fixed_background = self.config.background.map(R::of);
         let mut total = R::ZERO;
         let mut outputs = Vec::with_capacity(rays.len());
         let sh = SphericalHarmonics;
@@ -338,6 +345,16 @@ impl<S, C> Pipeline<S, C> {
             let colors: Vec<[R; 3]> = colors_flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
 
             let r = render_ray(&sdf_values, &ray.depths, &colors, s);
+            let mut bg_ctx = Vec::new();
+            let background = match &self.background {
+                Some(net) => {
+                    let mut out = [R::ZERO; 3];
+                    bg_ctx = vec![R::ZERO; Module::<R>::ctx_per_row(net)];
+                    net.forward(p_bg, &sh_d, &mut out, &mut bg_ctx);
+                    out
+                }
+                None => fixed_background,
+            };
             let composited: [R; 3] = [0, 1, 2].map(|k| r.color[k] + (R::ONE - r.opacity) * background[k]);
             // Losses.
             let mut d_color = [R::ZERO; 3];
@@ -427,6 +444,10 @@ impl<S, C> Pipeline<S, C> {
             let (d_sdf_params, rest) = d_params.split_at_mut(n_sdf);
             let (d_col_params, d_var) = rest.split_at_mut(n_col);
             d_var[0] += g.s * R::of(10.0) * s;
+            if let Some(net) = &self.background {
+                let d_bg = d_color.map(|d| d * (R::ONE - r.opacity) * inv_m);
+                net.backward(p_bg, &sh_d, &bg_ctx, &d_bg, &mut d_var[1..], None);
+            }
             // Colour network backward → ∂L/∂n, ∂L/∂features.
             let d_colors_flat: Vec<R> = g.colors.iter().flatten().copied().collect();
             let mut d_color_in = vec![R::ZERO; n * c_in];

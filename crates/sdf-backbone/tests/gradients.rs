@@ -329,7 +329,7 @@ impl SampleLoss for TestSampleLoss {
 
 /// The whole render + loss pipeline (SDF net with PE, normals and curvature by central and by
 /// tetrahedral differences, colour net on [x, n, SH(d), features], NeuS rendering, L2 colour over a grey
-/// background + eikonal + mask BCE + a loss on the samples, learnt variance) against finite
+/// or a learned background + eikonal + mask BCE + a loss on the samples, learnt variance) against finite
 /// differences in f64.
 #[test]
 fn whole_pipeline_gradients_match_finite_differences() {
@@ -346,6 +346,13 @@ fn whole_pipeline_gradients_match_finite_differences() {
         let pipeline = Pipeline {
             sdf: Chain { a: pe, b: sdf_mlp },
             color,
+            // The learned background on one of the two variants.
+            background: (normals == NormalScheme::Tetrahedral).then(|| {
+                Mlp::new(MlpConfig {
+                    n_inputs: 16, width: 4, hidden_layers: 1, n_outputs: 3, skip: None,
+                    hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Sigmoid,
+                })
+            }),
             config: PipelineConfig {
                 // h = 1e-2: the Laplacian divides by h², and with h = 1e-3 the finite differences
                 // of the check itself lose 5 digits to rounding (measured 2e-4 "error").
@@ -408,6 +415,7 @@ fn both_normal_schemes_recover_a_known_gradient() {
         let pipeline = Pipeline {
             sdf: mlp.clone(),
             color: color.clone(),
+            background: None,
             config: PipelineConfig {
                 color_loss: ColorLoss::L2, eikonal_weight: 0.0, mask_weight: 0.0, normal_step: 1e-2, normals,
                 curvature_weight: 0.0, background: [0.0; 3],
@@ -450,6 +458,7 @@ fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
     let pipeline = Pipeline {
         sdf: Chain { a: pe, b: sdf_mlp },
         color,
+        background: None,
         config: PipelineConfig {
             color_loss: ColorLoss::L1, eikonal_weight: 0.1, mask_weight: 0.0, normal_step: 1e-3, normals: NormalScheme::Tetrahedral,
             curvature_weight: 1e-4, background: [0.2; 3],
@@ -504,6 +513,7 @@ fn curvature_term_is_the_mean_absolute_laplacian() {
         let mut pipeline = Pipeline {
             sdf: Chain { a: pe, b: mlp.clone() },
             color: color.clone(),
+            background: None,
             config: PipelineConfig {
                 color_loss: ColorLoss::L2, eikonal_weight: 0.0, mask_weight: 0.0, normal_step: 1e-3, normals,
                 curvature_weight: 0.0, background: [0.0; 3],

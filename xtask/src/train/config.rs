@@ -53,6 +53,8 @@ pub struct DataConfig {
     pub holdout_every: usize,
     /// Built-in scene only: image width (height = 3/4 of it).
     pub builtin_width: u32,
+    /// Built-in scene only: number of views (DTU-like rig).
+    pub builtin_views: usize,
 }
 
 /// The backbone.
@@ -78,6 +80,9 @@ pub struct ModelConfig {
     pub normals: String,
     /// Colour behind the object (fixed background).
     pub background: [f64; 3],
+    /// A learned, direction-conditioned background instead of the fixed colour (for captures
+    /// without masks).
+    pub learned_background: bool,
 }
 
 /// Rays and samples per iteration.
@@ -109,8 +114,14 @@ pub struct OptimConfig {
     pub lr_grid: f64,
     /// Warm-up iterations.
     pub warmup: u64,
+    /// "cosine" (decay to `final_factor`) or "step" (× `step_factor` at each of `milestones`).
+    pub schedule: String,
     /// Final learning rate as a fraction of the base (cosine decay).
     pub final_factor: f64,
+    /// Step decay: milestones as fractions of the run.
+    pub milestones: Vec<f64>,
+    /// Step decay: multiplier per milestone.
+    pub step_factor: f64,
     /// Clip the gradient's global norm (0: off).
     pub clip_norm: f64,
 }
@@ -210,7 +221,7 @@ impl Default for TrainConfig {
 
 impl Default for DataConfig {
     fn default() -> Self {
-        DataConfig { downscale: 1, masks: true, holdout_every: 8, builtin_width: 200 }
+        DataConfig { downscale: 1, masks: true, holdout_every: 8, builtin_width: 200, builtin_views: 49 }
     }
 }
 
@@ -226,6 +237,7 @@ impl Default for ModelConfig {
             curvature: 0.0,
             normals: "tetrahedral".into(),
             background: [0.0; 3],
+            learned_background: false,
         }
     }
 }
@@ -238,7 +250,16 @@ impl Default for RenderConfig {
 
 impl Default for OptimConfig {
     fn default() -> Self {
-        OptimConfig { lr: 5e-3, lr_grid: 1e-2, warmup: 20, final_factor: 0.1, clip_norm: 0.0 }
+        OptimConfig {
+            lr: 5e-3,
+            lr_grid: 1e-2,
+            warmup: 20,
+            schedule: "cosine".into(),
+            final_factor: 0.1,
+            milestones: vec![0.5, 0.75],
+            step_factor: 0.3,
+            clip_norm: 0.0,
+        }
     }
 }
 
@@ -339,6 +360,7 @@ impl TrainConfig {
         need(self.steps >= 1, "steps", self.steps, "≥ 1")?;
         need(self.data.downscale >= 1, "data.downscale", self.data.downscale, "≥ 1")?;
         need(self.data.builtin_width >= 16, "data.builtin_width", self.data.builtin_width, "≥ 16")?;
+        need(self.data.builtin_views >= 2, "data.builtin_views", self.data.builtin_views, "≥ 2")?;
         sdf_backbone::Preset::from_name(&self.model.preset).map_err(|e| anyhow::anyhow!("model.preset: {e}"))?;
         need(self.model.init_radius > 0.0 && self.model.init_radius < 1.0, "model.init_radius", self.model.init_radius, "in (0, 1)")?;
         need(self.model.initial_levels >= 1, "model.initial_levels", self.model.initial_levels, "≥ 1")?;
@@ -356,6 +378,9 @@ impl TrainConfig {
         need(finite_pos(self.optim.lr), "optim.lr", self.optim.lr, "> 0")?;
         need(self.optim.lr_grid.is_finite() && self.optim.lr_grid >= 0.0, "optim.lr_grid", self.optim.lr_grid, "≥ 0")?;
         need((0.0..=1.0).contains(&self.optim.final_factor), "optim.final_factor", self.optim.final_factor, "in [0, 1]")?;
+        need(["cosine", "step"].contains(&self.optim.schedule.as_str()), "optim.schedule", &self.optim.schedule, "cosine or step")?;
+        need(self.optim.milestones.iter().all(|m| (0.0..=1.0).contains(m)), "optim.milestones", &self.optim.milestones, "fractions in [0, 1]")?;
+        need((0.0..=1.0).contains(&self.optim.step_factor), "optim.step_factor", self.optim.step_factor, "in [0, 1]")?;
         need(self.optim.clip_norm.is_finite() && self.optim.clip_norm >= 0.0, "optim.clip_norm", self.optim.clip_norm, "≥ 0")?;
         need(self.guide.update_every >= 1, "guide.update_every", self.guide.update_every, "≥ 1")?;
         need(self.guide.scene_resolution >= 4, "guide.scene_resolution", self.guide.scene_resolution, "≥ 4")?;

@@ -13,7 +13,7 @@ use datasets::{LoadOptions, Scene, load_scene};
 use prob_grid::{CameraGridConfig, SceneGridConfig, ViewDependency};
 use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
 use rays::{DrawnRay, build_batch, stream_seed};
-use sdf_backbone::{Adam, Backbone, Checkpoint, NoSampleLoss, NormalScheme, Preset, SampleLoss, WarmupCosine, adam_step, build};
+use sdf_backbone::{Adam, Backbone, Checkpoint, NoSampleLoss, NormalScheme, Preset, SampleLoss, WarmupCosine, WarmupStep, adam_step, build};
 use serde_json::json;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -81,6 +81,7 @@ fn load_data(config: &TrainConfig, data: Option<&Path>) -> Result<RunData> {
             let mut spec = GoldenSpec::builtin();
             spec.rig.width = config.data.builtin_width;
             spec.rig.height = config.data.builtin_width * 3 / 4;
+            spec.rig.count = config.data.builtin_views;
             spec.backdrop = false; // black background: the fixed background colour
             let g = golden::generate(&spec).context("rendering the built-in scene")?;
             Ok(RunData { scene: g.scene, builtin_truth: Some(g.surface_points), path: None })
@@ -204,7 +205,10 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
     let use_masks = config.data.masks && scene.views.iter().all(|v| v.mask.is_some());
 
     let preset = Preset::from_name(&config.model.preset)?;
-    let (mut backbone, init_params) = build(preset, config.model.init_radius, config.seed);
+    let (mut backbone, mut init_params) = build(preset, config.model.init_radius, config.seed);
+    if config.model.learned_background {
+        backbone.add_learned_background(&mut init_params, config.seed + 4);
+    }
     backbone.config.eikonal_weight = config.model.eikonal;
     backbone.config.mask_weight = if use_masks { config.model.mask } else { 0.0 };
     backbone.config.background = config.model.background;
@@ -219,7 +223,14 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
         state.grid_params.copy_from_slice(ckpt.tensor("grid_params", n)?);
         state.step = ckpt.metadata.get("step").and_then(|s| s.parse().ok()).context("checkpoint without a step")?;
     }
-    let schedule = WarmupCosine { base: 1.0, warmup: config.optim.warmup, total: config.steps, final_factor: config.optim.final_factor as f32 };
+    let cosine = WarmupCosine { base: 1.0, warmup: config.optim.warmup, total: config.steps, final_factor: config.optim.final_factor as f32 };
+    let stepped = WarmupStep {
+        base: 1.0,
+        warmup: config.optim.warmup,
+        milestones: config.optim.milestones.iter().map(|m| (m * config.steps as f64) as u64).collect(),
+        factor: config.optim.step_factor as f32,
+    };
+    let lr_factor = |step: u64| if config.optim.schedule == "step" { stepped.at(step) } else { cosine.at(step) };
     let guided = config.sampler == SamplerKind::Guided;
     let surface_config = config.surface_losses();
 
@@ -313,7 +324,7 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
         let hook = SurfaceHook { config: surface_config, rays: &batch.surfaces, s: s_now };
         let extra: &dyn SampleLoss = if guided && surface_config.weight > 0.0 { &hook } else { &NoSampleLoss };
         let (loss, outputs) = backbone.loss_parallel(&state.params, &batch.rays, &mut grads, config.render.chunk, extra);
-        let f = schedule.at(step);
+        let f = lr_factor(step);
         let groups = [(layout.encoding.clone(), config.optim.lr_grid as f32 * f), (layout.encoding.end..n, config.optim.lr as f32 * f)];
         let clip = (config.optim.clip_norm > 0.0).then_some(config.optim.clip_norm as f32);
         adam_step(&mut state.adam, &mut state.params, &mut grads, &groups, clip);
@@ -558,6 +569,9 @@ impl RestoredRun {
         let ckpt = Checkpoint::from_bytes(&std::fs::read(checkpoint_path(dir)).with_context(|| format!("no checkpoint in {}", dir.display()))?)?;
         let scene_data = load_data(&config, data_path.as_deref())?;
         let (mut backbone, mut params) = build(Preset::from_name(&config.model.preset)?, config.model.init_radius, config.seed);
+        if config.model.learned_background {
+            backbone.add_learned_background(&mut params, config.seed + 4);
+        }
         let mut adam = Adam::new(params.len());
         ckpt.restore(&mut params, &mut adam)?;
         let step: u64 = ckpt.metadata.get("step").and_then(|s| s.parse().ok()).context("checkpoint without a step")?;

@@ -1,6 +1,6 @@
 //! Times one training step (forward + backward of the whole render + loss pipeline) on random
 //! rays, for a Neuralangelo-style CPU configuration (a profiling aid, not the benchmark of
-//! issue #4): `cargo run --release -p sdf-backbone --example pipeline_timing [rays] [samples]`.
+//! issue #4): `cargo run --release -p sdf-backbone --example pipeline_timing [rays] [samples] [chunk]`.
 use sdf_backbone::*;
 use std::time::Instant;
 
@@ -22,8 +22,8 @@ fn main() {
         })
         .collect();
     let mut grads = vec![0.0f32; n];
-    // One chunk per thread: each chunk has its own gradient buffer (1 M parameters).
-    let chunk = n_rays.div_ceil(rayon::current_num_threads());
+    // Rays per work item (each has its own gradient buffer and goes through each network at once).
+    let chunk = args.get(2).copied().unwrap_or(32);
     let _ = pipeline.loss_parallel(&params, &rays, &mut grads, chunk, &NoSampleLoss);
     let steps = 3;
     let t = Instant::now();
@@ -32,9 +32,9 @@ fn main() {
         let _ = pipeline.loss_parallel(&params, &rays, &mut grads, chunk, &NoSampleLoss);
     }
     let per_step = t.elapsed().as_secs_f64() / steps as f64;
-    let evaluations = n_rays * (7 * n_samples + 1);
+    let evaluations = n_rays * (5 * n_samples + 1);
     println!(
-        "{n_rays} rays × {n_samples} samples ({evaluations} SDF evaluations incl. normals), {n} parameters: {:.3} s per step on {} threads",
+        "{n_rays} rays × {n_samples} samples ({evaluations} SDF evaluations incl. normals), {n} parameters, chunks of {chunk} rays: {:.3} s per step on {} threads",
         per_step,
         rayon::current_num_threads()
     );

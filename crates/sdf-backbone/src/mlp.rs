@@ -2,6 +2,8 @@
 
 use crate::module::{Activation, Module};
 use crate::real::Real;
+use ndarray::linalg::general_mat_mul;
+use ndarray::{ArrayView2, ArrayViewMut2};
 use rand::{SeedableRng, rngs::Xoshiro256PlusPlus};
 use rand_distr::{Distribution, Normal};
 
@@ -113,13 +115,9 @@ impl Mlp {
         let mut out = vec![0.0f32; rows * self.config.n_outputs];
         let mut ctx = vec![0.0f32; rows * per_row];
         Module::<f32>::forward(self, params, inputs, &mut out, &mut ctx);
-        let a_start: usize = self.layers[..self.layers.len() - 1].iter().map(|(i, o, _)| i + o).sum();
-        // The context is tiled by LANES rows: value k of row r sits at tile_base + k·w + lane.
-        let value = |r: usize, k: usize| {
-            let r0 = r / LANES * LANES;
-            let w = LANES.min(rows - r0);
-            ctx[r0 * per_row + k * w + (r - r0)]
-        };
+        // The context is layer-major: the output layer's input A is a rows × n_in block.
+        let a_start = rows * self.layers[..self.layers.len() - 1].iter().map(|(i, o, _)| i + o).sum::<usize>();
+        let value = |r: usize, k: usize| ctx[a_start + r * n_in + k];
         // Normal equations for [w, b]: (AᵀA + λI) θ = Aᵀy, in f64.
         let m = n_in + 1;
         let mut ata = vec![0.0f64; m * m];
@@ -127,7 +125,7 @@ impl Mlp {
         let mut a = vec![0.0f64; m];
         for r in 0..rows {
             for i in 0..n_in {
-                a[i] = value(r, a_start + i) as f64;
+                a[i] = value(r, i) as f64;
             }
             a[n_in] = 1.0;
             for i in 0..m {
@@ -152,7 +150,8 @@ impl Mlp {
         b[0] = theta[n_in] as f32;
     }
 
-    /// Context values per row: each layer's input and pre-activation.
+    /// Context values per row: each layer's input and pre-activation. Layout: layer-major, for
+    /// each layer a rows × n_in block (its input A) then a rows × n_out block (Z = A Wᵀ + b).
     fn ctx_layout(&self) -> usize {
         self.layers.iter().map(|(i, o, _)| i + o).sum()
     }
@@ -175,181 +174,132 @@ impl<R: Real> Module<R> for Mlp {
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
         let n_x = self.config.n_inputs;
         let n_y = self.config.n_outputs;
-        let per_row = self.ctx_layout();
         let rows = input.len() / n_x;
+        if rows == 0 {
+            return;
+        }
         let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
-        let widest = self.layers.iter().map(|(i, o, _)| (*i).max(*o)).max().unwrap_or(0);
-        let (mut a, mut z) = (vec![[R::ZERO; LANES]; widest], vec![[R::ZERO; LANES]; widest]);
-        for r0 in (0..rows).step_by(LANES) {
-            let w = LANES.min(rows - r0);
-            // This tile's context: value k of lane j at k·w + j.
-            let c = &mut ctx[r0 * per_row..(r0 + w) * per_row];
-            let mut at = 0;
-            for (l, &(n_in, n_out, off)) in self.layers.iter().enumerate() {
-                // Layer input a_l (lanes past w stay zero).
-                if l == 0 {
-                    for k in 0..n_x {
-                        a[k] = [R::ZERO; LANES];
-                        for j in 0..w {
-                            a[k][j] = input[(r0 + j) * n_x + k];
+        let mut at = 0;
+        for (l, &(n_in, n_out, off)) in self.layers.iter().enumerate() {
+            let (done, rest) = ctx.split_at_mut(at);
+            let (a, rest) = rest.split_at_mut(rows * n_in);
+            let z = &mut rest[..rows * n_out];
+            // The layer's input A.
+            if l == 0 {
+                a.copy_from_slice(input);
+            } else {
+                let (prev_in, prev_out) = (self.layers[l - 1].0, self.layers[l - 1].1);
+                let z_prev = &done[done.len() - rows * prev_out..];
+                let _ = prev_in;
+                let act = self.config.hidden_activation;
+                if self.config.skip == Some(l) {
+                    for r in 0..rows {
+                        for k in 0..prev_out {
+                            a[r * n_in + k] = act.apply(z_prev[r * prev_out + k]) * inv_sqrt2;
+                        }
+                        for k in 0..n_x {
+                            a[r * n_in + prev_out + k] = input[r * n_x + k] * inv_sqrt2;
                         }
                     }
                 } else {
-                    let prev = self.layers[l - 1].1;
-                    let act = self.config.hidden_activation;
-                    for k in 0..prev {
-                        for j in 0..w {
-                            a[k][j] = act.apply(z[k][j]);
-                        }
+                    for (ai, zi) in a.iter_mut().zip(z_prev) {
+                        *ai = act.apply(*zi);
                     }
-                    if self.config.skip == Some(l) {
-                        for k in 0..prev {
-                            for j in 0..w {
-                                a[k][j] *= inv_sqrt2;
-                            }
-                        }
-                        for k in 0..n_x {
-                            for j in 0..w {
-                                a[prev + k][j] = input[(r0 + j) * n_x + k] * inv_sqrt2;
-                            }
-                        }
-                    }
-                }
-                for k in 0..n_in {
-                    c[(at + k) * w..(at + k) * w + w].copy_from_slice(&a[k][..w]);
-                }
-                at += n_in;
-                // z = W a + b, eight rows at a time (one vector lane per row).
-                let (wt, b) = params[off..off + n_in * n_out + n_out].split_at(n_in * n_out);
-                for o in 0..n_out {
-                    let mut acc = [b[o]; LANES];
-                    for (i, wv) in wt[o * n_in..(o + 1) * n_in].iter().enumerate() {
-                        for j in 0..LANES {
-                            acc[j] += *wv * a[i][j];
-                        }
-                    }
-                    z[o] = acc;
-                    c[(at + o) * w..(at + o) * w + w].copy_from_slice(&acc[..w]);
-                }
-                at += n_out;
-            }
-            for j in 0..w {
-                for k in 0..n_y {
-                    output[(r0 + j) * n_y + k] = self.config.output_activation.apply(z[k][j]);
                 }
             }
+            // Z = A Wᵀ + b: one matrix product per layer for the whole batch.
+            let (wt, bias) = params[off..off + n_in * n_out + n_out].split_at(n_in * n_out);
+            for row in z.chunks_exact_mut(n_out) {
+                row.copy_from_slice(bias);
+            }
+            let av = ArrayView2::from_shape((rows, n_in), &*a).expect("A shape");
+            let wv = ArrayView2::from_shape((n_out, n_in), wt).expect("W shape");
+            let mut zv = ArrayViewMut2::from_shape((rows, n_out), z).expect("Z shape");
+            general_mat_mul(R::ONE, &av, &wv.t(), R::ONE, &mut zv);
+            at += rows * (n_in + n_out);
+        }
+        let z_last = &ctx[at - rows * n_y..at];
+        let act = self.config.output_activation;
+        for (o, z) in output.iter_mut().zip(z_last) {
+            *o = act.apply(*z);
         }
     }
 
-    fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], mut d_input: Option<&mut [R]>) {
+    fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
         let n_x = self.config.n_inputs;
         let n_y = self.config.n_outputs;
-        let per_row = self.ctx_layout();
         let rows = input.len() / n_x;
-        let last = self.layers.len() - 1;
+        if rows == 0 {
+            return;
+        }
         let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
-        let widest = self.layers.iter().map(|(i, o, _)| (*i).max(*o)).max().unwrap_or(0);
-        let (mut dz, mut da) = (vec![[R::ZERO; LANES]; widest], vec![[R::ZERO; LANES]; widest]);
-        let mut a = vec![[R::ZERO; LANES]; widest];
-        // Offsets of a_l and z_l in a tile's context (in values per lane).
+        // Block offsets of each layer's A and Z in the context.
         let mut starts = Vec::with_capacity(self.layers.len());
         let mut at = 0;
         for &(n_in, n_out, _) in &self.layers {
-            starts.push((at, at + n_in));
-            at += n_in + n_out;
+            starts.push((at, at + rows * n_in));
+            at += rows * (n_in + n_out);
         }
-        for r0 in (0..rows).step_by(LANES) {
-            let w = LANES.min(rows - r0);
-            let c = &ctx[r0 * per_row..(r0 + w) * per_row];
-            let lane = |k: usize, j: usize| c[k * w + j];
-            let (_, z_last) = starts[last];
-            for k in 0..n_y {
-                dz[k] = [R::ZERO; LANES];
-                for j in 0..w {
-                    dz[k][j] = d_output[(r0 + j) * n_y + k] * self.config.output_activation.derivative(lane(z_last + k, j));
+        let last = self.layers.len() - 1;
+        let z_last = &ctx[starts[last].1..starts[last].1 + rows * n_y];
+        let out_act = self.config.output_activation;
+        let mut dz: Vec<R> = d_output.iter().zip(z_last).map(|(d, z)| *d * out_act.derivative(*z)).collect();
+        let mut d_input = d_input;
+        let mut d_skip: Vec<R> = Vec::new();
+        for l in (0..self.layers.len()).rev() {
+            let (n_in, n_out, off) = self.layers[l];
+            let a = &ctx[starts[l].0..starts[l].0 + rows * n_in];
+            let (dw, db) = d_params[off..off + n_in * n_out + n_out].split_at_mut(n_in * n_out);
+            let wt = &params[off..off + n_in * n_out];
+            let dzv = ArrayView2::from_shape((rows, n_out), &dz[..]).expect("dZ shape");
+            // dW += dZᵀ A; db += Σ_rows dZ.
+            let av = ArrayView2::from_shape((rows, n_in), a).expect("A shape");
+            let mut dwv = ArrayViewMut2::from_shape((n_out, n_in), dw).expect("dW shape");
+            general_mat_mul(R::ONE, &dzv.t(), &av, R::ONE, &mut dwv);
+            for row in dz.chunks_exact(n_out) {
+                for (b, d) in db.iter_mut().zip(row) {
+                    *b += *d;
                 }
             }
-            let mut dx = vec![[R::ZERO; LANES]; n_x];
-            for l in (0..self.layers.len()).rev() {
-                let (n_in, n_out, off) = self.layers[l];
-                let (a_start, _) = starts[l];
-                for i in 0..n_in {
-                    a[i] = [R::ZERO; LANES];
-                    for j in 0..w {
-                        a[i][j] = lane(a_start + i, j);
+            if l == 0 && d_input.is_none() {
+                break;
+            }
+            // dA = dZ W.
+            let mut da = vec![R::ZERO; rows * n_in];
+            let wv = ArrayView2::from_shape((n_out, n_in), wt).expect("W shape");
+            let mut dav = ArrayViewMut2::from_shape((rows, n_in), &mut da[..]).expect("dA shape");
+            general_mat_mul(R::ONE, &dzv, &wv, R::ZERO, &mut dav);
+            if l == 0 {
+                if let Some(d_in) = d_input.as_deref_mut() {
+                    d_in.copy_from_slice(&da);
+                    for (d, s) in d_in.iter_mut().zip(&d_skip) {
+                        *d += *s;
                     }
                 }
-                let (dw, db) = d_params[off..off + n_in * n_out + n_out].split_at_mut(n_in * n_out);
-                let wt = &params[off..off + n_in * n_out];
-                for i in 0..n_in {
-                    da[i] = [R::ZERO; LANES];
-                }
-                // (Accumulating dW per lane across tiles and summing once was measured slower:
-                // the lane buffers leave L1. The horizontal sum per weight and tile stays.)
-                for o in 0..n_out {
-                    let g = dz[o];
-                    db[o] += lanes_sum(&g);
-                    let row_w = &wt[o * n_in..(o + 1) * n_in];
-                    let row_dw = &mut dw[o * n_in..(o + 1) * n_in];
-                    for i in 0..n_in {
-                        let mut prod = [R::ZERO; LANES];
-                        for j in 0..LANES {
-                            prod[j] = g[j] * a[i][j];
-                            da[i][j] += row_w[i] * g[j];
-                        }
-                        row_dw[i] += lanes_sum(&prod);
-                    }
-                }
-                if l == 0 {
+                break;
+            }
+            let prev_out = self.layers[l - 1].1;
+            if self.config.skip == Some(l) && d_input.is_some() {
+                // The input's share of the skip concatenation, added at layer 0.
+                d_skip = vec![R::ZERO; rows * n_x];
+                for r in 0..rows {
                     for k in 0..n_x {
-                        for j in 0..LANES {
-                            dx[k][j] += da[k][j];
-                        }
-                    }
-                    break;
-                }
-                // Back through the skip concatenation and the previous activation.
-                let prev_len = self.layers[l - 1].1;
-                if self.config.skip == Some(l) {
-                    for k in 0..n_x {
-                        for j in 0..LANES {
-                            dx[k][j] += da[prev_len + k][j] * inv_sqrt2;
-                        }
-                    }
-                    for k in 0..prev_len {
-                        for j in 0..LANES {
-                            da[k][j] *= inv_sqrt2;
-                        }
-                    }
-                }
-                let (_, z_prev) = starts[l - 1];
-                let act = self.config.hidden_activation;
-                for k in 0..prev_len {
-                    dz[k] = [R::ZERO; LANES];
-                    for j in 0..w {
-                        dz[k][j] = da[k][j] * act.derivative(lane(z_prev + k, j));
+                        d_skip[r * n_x + k] = da[r * n_in + prev_out + k] * inv_sqrt2;
                     }
                 }
             }
-            if let Some(d_in) = d_input.as_deref_mut() {
-                for j in 0..w {
-                    for k in 0..n_x {
-                        d_in[(r0 + j) * n_x + k] = dx[k][j];
-                    }
+            let scale = if self.config.skip == Some(l) { inv_sqrt2 } else { R::ONE };
+            let z_prev = &ctx[starts[l - 1].1..starts[l - 1].1 + rows * prev_out];
+            let act = self.config.hidden_activation;
+            dz = vec![R::ZERO; rows * prev_out];
+            for r in 0..rows {
+                for k in 0..prev_out {
+                    dz[r * prev_out + k] = da[r * n_in + k] * scale * act.derivative(z_prev[r * prev_out + k]);
                 }
             }
         }
     }
 }
-
-/// Σ of the lanes, pairwise.
-#[inline]
-fn lanes_sum<R: Real>(v: &[R; LANES]) -> R {
-    ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7]))
-}
-
-/// Rows processed together: one vector lane per row in the layer products.
-const LANES: usize = 8;
 
 /// Solves A x = b for a symmetric positive-definite A (row-major, overwritten by its Cholesky
 /// factor). `None` if A is not positive definite.

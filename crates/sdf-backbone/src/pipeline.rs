@@ -265,7 +265,8 @@ impl<S, C> Pipeline<S, C> {
     }
 
     /// The loss of `rays` (the batch's rays from index `first`) divided by `m` (the whole batch's
-    /// ray count), gradients added.
+    /// ray count), gradients added. All rays of the call go through each network together (one
+    /// matrix product per layer), the per-ray work in between.
     fn accumulate<R: Real>(
         &self,
         params: &[R],
@@ -285,17 +286,30 @@ impl<S, C> Pipeline<S, C> {
         let (var, p_bg) = (p_var[0], &p_var[1..]);
         let s = (R::of(10.0) * var).exp();
         let f = self.sdf.n_outputs() - 1;
+        let n_out = 1 + f;
         let h = R::of(self.config.normal_step);
         let probes = self.config.normals.probes();
         let np = probes.len();
         let fixed_background = self.config.background.map(R::of);
-        let mut total = R::ZERO;
-        let mut outputs = Vec::with_capacity(rays.len());
         let sh = SphericalHarmonics;
-        for (ray_index, ray) in rays.iter().enumerate() {
+        let c_in = 22 + f;
+
+        // Row layout: ray r owns SDF rows [sdf_at[r], sdf_at[r] + (np + 1) n_r + 1) (n_r + 1
+        // samples, then np probes per sample i < n_r) and colour rows [col_at[r], col_at[r] + n_r).
+        let mut sdf_at = Vec::with_capacity(rays.len() + 1);
+        let mut col_at = Vec::with_capacity(rays.len() + 1);
+        let (mut sdf_rows, mut col_rows) = (0, 0);
+        for ray in rays {
             let n = ray.depths.len() - 1;
-            // Points: n + 1 samples, then np probes per sample (i < n).
-            let mut points = Vec::with_capacity(3 * ((np + 1) * n + 1));
+            sdf_at.push(sdf_rows);
+            col_at.push(col_rows);
+            sdf_rows += (np + 1) * n + 1;
+            col_rows += n;
+        }
+        let mut points = Vec::with_capacity(3 * sdf_rows);
+        for ray in rays {
+            let n = ray.depths.len() - 1;
+            let base = points.len();
             for &t in &ray.depths {
                 for k in 0..3 {
                     points.push(ray.origin[k] + t * ray.direction[k]);
@@ -304,58 +318,78 @@ impl<S, C> Pipeline<S, C> {
             for i in 0..n {
                 for (offset, _) in probes {
                     for k in 0..3 {
-                        points.push(points[3 * i + k] + R::of(offset[k]) * h);
+                        points.push(points[base + 3 * i + k] + R::of(offset[k]) * h);
                     }
                 }
             }
-            let rows = points.len() / 3;
-            let n_out = 1 + f;
-            let mut sdf_out = vec![R::ZERO; rows * n_out];
-            let mut sdf_ctx = vec![R::ZERO; rows * self.sdf.ctx_per_row()];
-            self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
-            let sdf_values: Vec<R> = (0..=n).map(|i| sdf_out[i * n_out]).collect();
-            let probe = |i: usize, j: usize| sdf_out[(n + 1 + np * i + j) * n_out];
-            let normals: Vec<[R; 3]> = (0..n)
-                .map(|i| {
-                    let mut g = [R::ZERO; 3];
-                    for (j, (offset, w)) in probes.iter().enumerate() {
-                        for k in 0..3 {
-                            g[k] += R::of(offset[k] * w) * probe(i, j);
-                        }
-                    }
-                    g.map(|v| v / h)
-                })
-                .collect();
+        }
+        let mut sdf_out = vec![R::ZERO; sdf_rows * n_out];
+        let mut sdf_ctx = vec![R::ZERO; sdf_rows * self.sdf.ctx_per_row()];
+        self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
 
-            // Colour network inputs [x, n, SH(d), features].
+        // Normals and colour-network inputs [x, n, SH(d), features] of every interval.
+        let mut normals: Vec<[R; 3]> = Vec::with_capacity(col_rows);
+        let mut sh_all: Vec<[R; 16]> = Vec::with_capacity(rays.len());
+        let mut color_in = vec![R::ZERO; col_rows * c_in];
+        for (r, ray) in rays.iter().enumerate() {
+            let n = ray.depths.len() - 1;
+            let (b, c0) = (sdf_at[r], col_at[r]);
             let mut sh_d = [R::ZERO; 16];
             sh.forward(&[], &ray.direction, &mut sh_d, &mut []);
-            let c_in = 22 + f;
-            let mut color_in = vec![R::ZERO; n * c_in];
+            sh_all.push(sh_d);
             for i in 0..n {
-                let row = &mut color_in[i * c_in..(i + 1) * c_in];
-                row[..3].copy_from_slice(&points[3 * i..3 * i + 3]);
-                row[3..6].copy_from_slice(&normals[i]);
-                row[6..22].copy_from_slice(&sh_d);
-                row[22..].copy_from_slice(&sdf_out[i * n_out + 1..(i + 1) * n_out]);
-            }
-            let mut colors_flat = vec![R::ZERO; n * 3];
-            let mut color_ctx = vec![R::ZERO; n * self.color.ctx_per_row()];
-            self.color.forward(p_col, &color_in, &mut colors_flat, &mut color_ctx);
-            let colors: Vec<[R; 3]> = colors_flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-
-            let r = render_ray(&sdf_values, &ray.depths, &colors, s);
-            let mut bg_ctx = Vec::new();
-            let background = match &self.background {
-                Some(net) => {
-                    let mut out = [R::ZERO; 3];
-                    bg_ctx = vec![R::ZERO; Module::<R>::ctx_per_row(net)];
-                    net.forward(p_bg, &sh_d, &mut out, &mut bg_ctx);
-                    out
+                let mut g = [R::ZERO; 3];
+                for (j, (offset, w)) in probes.iter().enumerate() {
+                    let v = sdf_out[(b + n + 1 + np * i + j) * n_out];
+                    for k in 0..3 {
+                        g[k] += R::of(offset[k] * w) * v;
+                    }
                 }
+                let nrm = g.map(|v| v / h);
+                normals.push(nrm);
+                let row = &mut color_in[(c0 + i) * c_in..(c0 + i + 1) * c_in];
+                row[..3].copy_from_slice(&points[3 * (b + i)..3 * (b + i) + 3]);
+                row[3..6].copy_from_slice(&nrm);
+                row[6..22].copy_from_slice(&sh_d);
+                row[22..].copy_from_slice(&sdf_out[(b + i) * n_out + 1..(b + i + 1) * n_out]);
+            }
+        }
+        let mut colors_flat = vec![R::ZERO; col_rows * 3];
+        let mut color_ctx = vec![R::ZERO; col_rows * self.color.ctx_per_row()];
+        self.color.forward(p_col, &color_in, &mut colors_flat, &mut color_ctx);
+        // Learned background of every ray.
+        let mut bg_out = vec![R::ZERO; 3 * rays.len()];
+        let mut bg_ctx = Vec::new();
+        let sh_flat: Vec<R> = sh_all.iter().flatten().copied().collect();
+        if let Some(net) = &self.background {
+            bg_ctx = vec![R::ZERO; rays.len() * Module::<R>::ctx_per_row(net)];
+            net.forward(p_bg, &sh_flat, &mut bg_out, &mut bg_ctx);
+        }
+
+        let mut total = R::ZERO;
+        let mut outputs = Vec::with_capacity(rays.len());
+        let backward = d_params.is_some();
+        let inv_m = R::ONE / m;
+        // Per-row gradients gathered for one backward pass per network.
+        let mut d_colors_flat = if backward { vec![R::ZERO; col_rows * 3] } else { Vec::new() };
+        let mut d_sdf_direct = if backward { vec![R::ZERO; sdf_rows] } else { Vec::new() };
+        let mut d_normals_all = if backward { vec![[R::ZERO; 3]; col_rows] } else { Vec::new() };
+        let mut d_laplacian_all = if backward { vec![R::ZERO; col_rows] } else { Vec::new() };
+        let mut d_bg_all = if backward { vec![R::ZERO; 3 * rays.len()] } else { Vec::new() };
+        let mut d_var = R::ZERO;
+        for (r, ray) in rays.iter().enumerate() {
+            let n = ray.depths.len() - 1;
+            let (b, c0) = (sdf_at[r], col_at[r]);
+            let sdf_values: Vec<R> = (0..=n).map(|i| sdf_out[(b + i) * n_out]).collect();
+            let probe = |i: usize, j: usize| sdf_out[(b + n + 1 + np * i + j) * n_out];
+            let colors: Vec<[R; 3]> = colors_flat[3 * c0..3 * (c0 + n)].chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+            let nrms = &normals[c0..c0 + n];
+            let r_out = render_ray(&sdf_values, &ray.depths, &colors, s);
+            let background = match &self.background {
+                Some(_) => [bg_out[3 * r], bg_out[3 * r + 1], bg_out[3 * r + 2]],
                 None => fixed_background,
             };
-            let composited: [R; 3] = [0, 1, 2].map(|k| r.color[k] + (R::ONE - r.opacity) * background[k]);
+            let composited: [R; 3] = [0, 1, 2].map(|k| r_out.color[k] + (R::ONE - r_out.opacity) * background[k]);
             // Losses.
             let mut d_color = [R::ZERO; 3];
             let mut loss = R::ZERO;
@@ -373,11 +407,10 @@ impl<S, C> Pipeline<S, C> {
                 }
             }
             let mut d_opacity = -(d_color[0] * background[0] + d_color[1] * background[1] + d_color[2] * background[2]);
-            // Curvature: mean |ΔS| over the samples; ∂/∂ΔS kept per sample for the backward pass.
+            // Curvature: mean |ΔS| over the samples.
             let curv_w = R::of(self.config.curvature_weight) / R::of(n as f64);
             let c_probe: f64 = probes.iter().map(|(o, _)| o[0] * o[0]).sum();
             let lap_den = h * h * R::of(c_probe * 0.5);
-            let mut d_laplacian = vec![R::ZERO; n];
             if self.config.curvature_weight > 0.0 {
                 for i in 0..n {
                     let mut lap = -R::of(np as f64) * sdf_values[i];
@@ -386,93 +419,110 @@ impl<S, C> Pipeline<S, C> {
                     }
                     lap = lap / lap_den;
                     loss += curv_w * lap.abs();
-                    d_laplacian[i] = if lap > R::ZERO { curv_w / lap_den } else if lap < R::ZERO { -curv_w / lap_den } else { R::ZERO };
+                    if backward {
+                        d_laplacian_all[c0 + i] =
+                            if lap > R::ZERO { curv_w / lap_den } else if lap < R::ZERO { -curv_w / lap_den } else { R::ZERO } * inv_m;
+                    }
                 }
             }
             let eik_w = R::of(self.config.eikonal_weight) / R::of(n as f64);
-            let mut d_normals = vec![[R::ZERO; 3]; n];
             for i in 0..n {
-                let len = (normals[i][0] * normals[i][0] + normals[i][1] * normals[i][1] + normals[i][2] * normals[i][2]).sqrt();
+                let nv = nrms[i];
+                let len = (nv[0] * nv[0] + nv[1] * nv[1] + nv[2] * nv[2]).sqrt();
                 let e = len - R::ONE;
                 loss += eik_w * e * e;
-                if len > R::ZERO {
+                if backward && len > R::ZERO {
                     for k in 0..3 {
-                        d_normals[i][k] = eik_w * (e + e) * normals[i][k] / len;
+                        d_normals_all[c0 + i][k] = eik_w * (e + e) * nv[k] / len * inv_m;
                     }
                 }
             }
             if let Some(mask) = ray.mask {
                 // BCE with the opacity clamped away from 0 and 1 (NeuS clips to [1e-3, 1 − 1e-3]).
                 let eps = R::of(1e-3);
-                let o = r.opacity.max(eps).min(R::ONE - eps);
+                let o = r_out.opacity.max(eps).min(R::ONE - eps);
                 let w = R::of(self.config.mask_weight);
                 loss += -w * (mask * o.ln() + (R::ONE - mask) * (R::ONE - o).ln());
-                if r.opacity > eps && r.opacity < R::ONE - eps {
+                if r_out.opacity > eps && r_out.opacity < R::ONE - eps {
                     d_opacity += -w * (mask / o - (R::ONE - mask) / (R::ONE - o));
                 }
             }
             // The caller's loss on the samples (f64).
             let t64: Vec<f64> = ray.depths.iter().map(|v| v.to_f64()).collect();
             let sdf64: Vec<f64> = sdf_values.iter().map(|v| v.to_f64()).collect();
-            let w64: Vec<f64> = r.weights.iter().map(|v| v.to_f64()).collect();
+            let w64: Vec<f64> = r_out.weights.iter().map(|v| v.to_f64()).collect();
             let mut d_sdf_extra = vec![0.0f64; n + 1];
             let mut d_w_extra = vec![0.0f64; n];
-            loss += R::of(extra.ray_loss(first + ray_index, &t64, &sdf64, &w64, &mut d_sdf_extra, &mut d_w_extra));
+            loss += R::of(extra.ray_loss(first + r, &t64, &sdf64, &w64, &mut d_sdf_extra, &mut d_w_extra));
             total += loss / m;
             let mut normal = [R::ZERO; 3];
             for i in 0..n {
                 for k in 0..3 {
-                    normal[k] += r.weights[i] * normals[i][k];
+                    normal[k] += r_out.weights[i] * nrms[i][k];
                 }
             }
-            outputs.push(RayOutput { color: composited, opacity: r.opacity, depth: r.depth, normal });
-
-            let Some(d_params) = d_params.as_deref_mut() else { continue };
-            let inv_m = R::ONE / m;
+            outputs.push(RayOutput { color: composited, opacity: r_out.opacity, depth: r_out.depth, normal });
+            if !backward {
+                continue;
+            }
             let d_w: Vec<R> = d_w_extra.iter().map(|&v| R::of(v) * inv_m).collect();
             let g = render_ray_backward(
                 &sdf_values,
                 &ray.depths,
                 &colors,
                 s,
-                &r,
+                &r_out,
                 d_color.map(|d| d * inv_m),
                 R::ZERO,
                 d_opacity * inv_m,
                 Some(&d_w),
             );
-            let (d_sdf_params, rest) = d_params.split_at_mut(n_sdf);
-            let (d_col_params, d_var) = rest.split_at_mut(n_col);
-            d_var[0] += g.s * R::of(10.0) * s;
-            if let Some(net) = &self.background {
-                let d_bg = d_color.map(|d| d * (R::ONE - r.opacity) * inv_m);
-                net.backward(p_bg, &sh_d, &bg_ctx, &d_bg, &mut d_var[1..], None);
+            d_var += g.s * R::of(10.0) * s;
+            for k in 0..3 {
+                d_bg_all[3 * r + k] = d_color[k] * (R::ONE - r_out.opacity) * inv_m;
             }
-            // Colour network backward → ∂L/∂n, ∂L/∂features.
-            let d_colors_flat: Vec<R> = g.colors.iter().flatten().copied().collect();
-            let mut d_color_in = vec![R::ZERO; n * c_in];
-            self.color.backward(p_col, &color_in, &color_ctx, &d_colors_flat, d_col_params, Some(&mut d_color_in));
-            // ∂L/∂(SDF outputs) at every point.
-            let mut d_sdf_out = vec![R::ZERO; rows * n_out];
+            for (i, c) in g.colors.iter().enumerate() {
+                d_colors_flat[3 * (c0 + i)..3 * (c0 + i) + 3].copy_from_slice(c);
+            }
             for i in 0..=n {
-                d_sdf_out[i * n_out] = g.sdf[i] + R::of(d_sdf_extra[i]) * inv_m;
+                d_sdf_direct[b + i] = g.sdf[i] + R::of(d_sdf_extra[i]) * inv_m;
+            }
+        }
+        let Some(d_params) = d_params else { return (total, outputs) };
+        let (d_sdf_params, rest) = d_params.split_at_mut(n_sdf);
+        let (d_col_params, d_rest) = rest.split_at_mut(n_col);
+        d_rest[0] += d_var;
+        if let Some(net) = &self.background {
+            net.backward(p_bg, &sh_flat, &bg_ctx, &d_bg_all, &mut d_rest[1..], None);
+        }
+        // Colour network backward → ∂L/∂n, ∂L/∂features.
+        let mut d_color_in = vec![R::ZERO; col_rows * c_in];
+        self.color.backward(p_col, &color_in, &color_ctx, &d_colors_flat, d_col_params, Some(&mut d_color_in));
+        // ∂L/∂(SDF outputs) at every point.
+        let mut d_sdf_out = vec![R::ZERO; sdf_rows * n_out];
+        for (r, ray) in rays.iter().enumerate() {
+            let n = ray.depths.len() - 1;
+            let (b, c0) = (sdf_at[r], col_at[r]);
+            for i in 0..=n {
+                d_sdf_out[(b + i) * n_out] = d_sdf_direct[b + i];
             }
             for i in 0..n {
-                let row = &d_color_in[i * c_in..(i + 1) * c_in];
+                let row = &d_color_in[(c0 + i) * c_in..(c0 + i + 1) * c_in];
                 for j in 0..f {
-                    d_sdf_out[i * n_out + 1 + j] += row[22 + j];
+                    d_sdf_out[(b + i) * n_out + 1 + j] += row[22 + j];
                 }
+                let d_lap = d_laplacian_all[c0 + i];
                 for (j, (offset, w)) in probes.iter().enumerate() {
                     let mut d = R::ZERO;
                     for k in 0..3 {
-                        d += (row[3 + k] + d_normals[i][k] * inv_m) * R::of(offset[k] * w);
+                        d += (row[3 + k] + d_normals_all[c0 + i][k]) * R::of(offset[k] * w);
                     }
-                    d_sdf_out[(n + 1 + np * i + j) * n_out] += d / h + d_laplacian[i] * inv_m;
+                    d_sdf_out[(b + n + 1 + np * i + j) * n_out] += d / h + d_lap;
                 }
-                d_sdf_out[i * n_out] -= R::of(np as f64) * d_laplacian[i] * inv_m;
+                d_sdf_out[(b + i) * n_out] -= R::of(np as f64) * d_lap;
             }
-            self.sdf.backward(p_sdf, &points, &sdf_ctx, &d_sdf_out, d_sdf_params, None);
         }
+        self.sdf.backward(p_sdf, &points, &sdf_ctx, &d_sdf_out, d_sdf_params, None);
         (total, outputs)
     }
 }

@@ -19,6 +19,7 @@ pub trait Real:
     + AddAssign
     + SubAssign
     + MulAssign
+    + ndarray::LinalgScalar
     + 'static
 {
     /// 0.

@@ -178,6 +178,8 @@ pub struct OutputConfig {
     pub validate_downscale: u32,
     /// Held-out views rendered for the final PSNR (spread over the held-out set).
     pub eval_views: usize,
+    /// Training views rendered for the final training-view PSNR (the render-fit figure).
+    pub eval_train_views: usize,
     /// Mesh + Chamfer and PSNR of one held-out view every n iterations, logged (0: only at the
     /// end; not counted in the iteration time).
     pub metrics_every: u64,
@@ -244,7 +246,7 @@ impl Default for ModelConfig {
 
 impl Default for RenderConfig {
     fn default() -> Self {
-        RenderConfig { rays: 256, coarse: 32, fine: 32, upsample_rounds: 2, upsample_s: 64.0, chunk: 32 }
+        RenderConfig { rays: 512, coarse: 32, fine: 32, upsample_rounds: 2, upsample_s: 64.0, chunk: 32 }
     }
 }
 
@@ -296,6 +298,7 @@ impl Default for OutputConfig {
             validate_every: 100,
             validate_downscale: 2,
             eval_views: 3,
+            eval_train_views: 2,
             metrics_every: 0,
             checkpoint_every: 100,
             log_every: 10,

@@ -480,6 +480,12 @@ fn finish(
     let psnr_whole = mean(&psnrs.iter().map(|p| p.0).collect::<Vec<_>>());
     let masked: Vec<f64> = psnrs.iter().filter_map(|p| p.1).collect();
     let psnr_masked = (!masked.is_empty()).then(|| mean(&masked));
+    // Training views (the render-fit figure).
+    let every = train_views.len().div_ceil(config.output.eval_train_views.max(1));
+    let fit_views: Vec<usize> = if config.output.eval_train_views == 0 { Vec::new() } else { train_views.iter().copied().step_by(every.max(1)).collect() };
+    let fit: Vec<(f64, Option<f64>)> =
+        fit_views.iter().map(|&v| outputs::render_view(config, backbone, params, &scene.views[v], config.output.validate_downscale).psnr()).collect();
+    let psnr_train = (!fit.is_empty()).then(|| mean(&fit.iter().map(|p| p.0).collect::<Vec<_>>()));
     let eval_seconds = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
@@ -505,6 +511,8 @@ fn finish(
         "psnr_masked": psnr_masked,
         "ssim": mean(&ssims),
         "psnr_views": eval_views,
+        "psnr_train": psnr_train,
+        "psnr_train_views": fit_views,
         "psnr_per_view": psnrs.iter().map(|p| json!({"whole": p.0, "masked": p.1})).collect::<Vec<_>>(),
         "chamfer": geometry.map(|g| g.chamfer),
         "chamfer_world": geometry.map(|g| g.chamfer * world_scale),
@@ -532,9 +540,10 @@ fn finish(
         mesh.triangles.len()
     );
     eprintln!(
-        "PSNR {psnr_whole:.2} dB{} on {} view(s); {}",
+        "PSNR {psnr_whole:.2} dB{} on {} held-out view(s){}; {}",
         psnr_masked.map_or(String::new(), |m| format!(" (masked {m:.2} dB)")),
         eval_views.len(),
+        psnr_train.map_or(String::new(), |p| format!(", {p:.2} dB on {} training view(s)", fit_views.len())),
         match geometry {
             Some(g) => format!("Chamfer {:.4} ({:.4} in world units), F-score {:.3} at τ = {}", g.chamfer, g.chamfer * world_scale, g.f_score, g.tau),
             None if gt.is_none() => "no ground truth for Chamfer".into(),

@@ -272,7 +272,7 @@ impl<S, C> Pipeline<S, C> {
         params: &[R],
         rays: &[RayInput<R>],
         first: usize,
-        mut d_params: Option<&mut [R]>,
+        d_params: Option<&mut [R]>,
         m: R,
         extra: &dyn SampleLoss,
     ) -> (R, Vec<RayOutput<R>>)

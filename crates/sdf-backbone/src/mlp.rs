@@ -150,8 +150,9 @@ impl Mlp {
         b[0] = theta[n_in] as f32;
     }
 
-    /// Context values per row: each layer's input and pre-activation. Layout: layer-major, for
-    /// each layer a rows × n_in block (its input A) then a rows × n_out block (Z = A Wᵀ + b).
+    /// Context values per row: each layer's input and activation slope. Layout: layer-major, for
+    /// each layer a rows × n_in block (its input A) then a rows × n_out block that holds
+    /// Z = A Wᵀ + b during the forward pass and act'(Z) after it (for the backward pass).
     fn ctx_layout(&self) -> usize {
         self.layers.iter().map(|(i, o, _)| i + o).sum()
     }
@@ -188,22 +189,27 @@ impl<R: Real> Module<R> for Mlp {
             if l == 0 {
                 a.copy_from_slice(input);
             } else {
-                let (prev_in, prev_out) = (self.layers[l - 1].0, self.layers[l - 1].1);
-                let z_prev = &done[done.len() - rows * prev_out..];
-                let _ = prev_in;
+                // A from the previous Z; the previous Z's slot then keeps act'(Z) for backward.
+                let prev_out = self.layers[l - 1].1;
+                let start = done.len() - rows * prev_out;
+                let z_prev = &mut done[start..];
                 let act = self.config.hidden_activation;
                 if self.config.skip == Some(l) {
                     for r in 0..rows {
                         for k in 0..prev_out {
-                            a[r * n_in + k] = act.apply(z_prev[r * prev_out + k]) * inv_sqrt2;
+                            let (y, d) = act.apply_with_derivative(z_prev[r * prev_out + k]);
+                            a[r * n_in + k] = y * inv_sqrt2;
+                            z_prev[r * prev_out + k] = d;
                         }
                         for k in 0..n_x {
                             a[r * n_in + prev_out + k] = input[r * n_x + k] * inv_sqrt2;
                         }
                     }
                 } else {
-                    for (ai, zi) in a.iter_mut().zip(z_prev) {
-                        *ai = act.apply(*zi);
+                    for (ai, zi) in a.iter_mut().zip(z_prev.iter_mut()) {
+                        let (y, d) = act.apply_with_derivative(*zi);
+                        *ai = y;
+                        *zi = d;
                     }
                 }
             }
@@ -218,10 +224,12 @@ impl<R: Real> Module<R> for Mlp {
             general_mat_mul(R::ONE, &av, &wv.t(), R::ONE, &mut zv);
             at += rows * (n_in + n_out);
         }
-        let z_last = &ctx[at - rows * n_y..at];
+        let z_last = &mut ctx[at - rows * n_y..at];
         let act = self.config.output_activation;
-        for (o, z) in output.iter_mut().zip(z_last) {
-            *o = act.apply(*z);
+        for (o, z) in output.iter_mut().zip(z_last.iter_mut()) {
+            let (y, d) = act.apply_with_derivative(*z);
+            *o = y;
+            *z = d;
         }
     }
 
@@ -241,9 +249,9 @@ impl<R: Real> Module<R> for Mlp {
             at += rows * (n_in + n_out);
         }
         let last = self.layers.len() - 1;
-        let z_last = &ctx[starts[last].1..starts[last].1 + rows * n_y];
-        let out_act = self.config.output_activation;
-        let mut dz: Vec<R> = d_output.iter().zip(z_last).map(|(d, z)| *d * out_act.derivative(*z)).collect();
+        // The Z slots hold act'(Z) after the forward pass.
+        let d_last = &ctx[starts[last].1..starts[last].1 + rows * n_y];
+        let mut dz: Vec<R> = d_output.iter().zip(d_last).map(|(d, g)| *d * *g).collect();
         let mut d_input = d_input;
         let mut d_skip: Vec<R> = Vec::new();
         for l in (0..self.layers.len()).rev() {
@@ -289,12 +297,11 @@ impl<R: Real> Module<R> for Mlp {
                 }
             }
             let scale = if self.config.skip == Some(l) { inv_sqrt2 } else { R::ONE };
-            let z_prev = &ctx[starts[l - 1].1..starts[l - 1].1 + rows * prev_out];
-            let act = self.config.hidden_activation;
+            let d_prev = &ctx[starts[l - 1].1..starts[l - 1].1 + rows * prev_out];
             dz = vec![R::ZERO; rows * prev_out];
             for r in 0..rows {
                 for k in 0..prev_out {
-                    dz[r * prev_out + k] = da[r * n_in + k] * scale * act.derivative(z_prev[r * prev_out + k]);
+                    dz[r * prev_out + k] = da[r * n_in + k] * scale * d_prev[r * prev_out + k];
                 }
             }
         }

@@ -54,6 +54,28 @@ impl Activation {
         }
     }
 
+    /// (y(z), dy/dz) together, sharing the exponential (softplus and sigmoid).
+    #[inline]
+    pub fn apply_with_derivative<R: Real>(self, z: R) -> (R, R) {
+        match self {
+            Activation::Softplus { beta } => {
+                let b = R::of(beta);
+                let bz = b * z;
+                if bz > R::of(20.0) {
+                    (z, R::ONE)
+                } else {
+                    let e = bz.exp();
+                    (e.ln_1p() / b, e / (R::ONE + e))
+                }
+            }
+            Activation::Sigmoid => {
+                let s = sigmoid(z);
+                (s, s * (R::ONE - s))
+            }
+            other => (other.apply(z), other.derivative(z)),
+        }
+    }
+
     /// dy/dz at z.
     #[inline]
     pub fn derivative<R: Real>(self, z: R) -> R {

@@ -246,7 +246,7 @@ impl Default for ModelConfig {
 
 impl Default for RenderConfig {
     fn default() -> Self {
-        RenderConfig { rays: 512, coarse: 32, fine: 32, upsample_rounds: 2, upsample_s: 64.0, chunk: 32 }
+        RenderConfig { rays: 256, coarse: 32, fine: 32, upsample_rounds: 2, upsample_s: 64.0, chunk: 32 }
     }
 }
 

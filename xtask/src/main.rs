@@ -13,6 +13,7 @@ use std::path::PathBuf;
 
 mod bench;
 mod bench_backbone;
+mod bench_overhead;
 mod compare;
 mod draw;
 mod eval;
@@ -118,6 +119,19 @@ enum Command {
 
 #[derive(Subcommand)]
 enum BenchKind {
+    /// The guided sampler's cost per iteration against uniform sampling, side by side on a
+    /// trained model (iterations alternate).
+    Overhead {
+        /// A run folder (its model, data and configuration).
+        #[arg(long)]
+        run: PathBuf,
+        /// Pairs of iterations.
+        #[arg(long, default_value_t = 20)]
+        iterations: u64,
+        /// One JSON object on stdout.
+        #[arg(long)]
+        json: bool,
+    },
     /// Backbone presets: training-step time (512 rays × 128 samples), FLOP per sample, MLP rate
     /// against the measured f32 matrix-product rate, peak memory.
     Backbone {
@@ -150,6 +164,7 @@ fn main() -> Result<()> {
         Command::Compare(args) => compare::run(&args),
         Command::Bench { which: BenchKind::Sampler { data, json, quick } } => bench::sampler(data.as_deref(), json, quick),
         Command::Bench { which: BenchKind::Backbone { json, quick } } => bench_backbone::run(json, quick),
+        Command::Bench { which: BenchKind::Overhead { run, iterations, json } } => bench_overhead::run(&run, iterations, json),
         Command::Cameras { data, ply } => cameras(&data, &ply),
         Command::Inspect { data } => inspect(&data),
         Command::Golden { shape, mesh, rig, out, views, width, height, seed, mesh_z_up, no_backdrop, thumbnail } => {

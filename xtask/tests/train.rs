@@ -49,6 +49,15 @@ fn resumed_run_ends_with_the_same_mesh_as_an_uninterrupted_run() {
     let (ma, mb) = (std::fs::read(a.join("mesh.ply")).unwrap(), std::fs::read(b.join("mesh.ply")).unwrap());
     assert!(ma.len() > 200, "the mesh is empty");
     assert!(ma == mb, "resumed mesh differs from the uninterrupted one");
+    // Evaluation: the mesh against itself (Chamfer ≈ 0, F-score 1), and the run's held-out views.
+    let mesh = a.join("mesh.ply");
+    let e = xtask(&["eval", "--mesh", mesh.to_str().unwrap(), "--gt-mesh", mesh.to_str().unwrap(), "--json"]);
+    assert!(e.status.success(), "{}", String::from_utf8_lossy(&e.stderr));
+    let m: serde_json::Value = serde_json::from_slice(&e.stdout).unwrap();
+    assert!(m["chamfer"].as_f64().unwrap() < 0.01 * m["max_dist"].as_f64().unwrap() && m["f_score"].as_f64().unwrap() > 0.99, "{m}");
+    let r = xtask(&["eval", "--run", a.to_str().unwrap(), "--downscale", "4", "--json"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    assert!(a.join("eval.json").exists());
     // The logged losses of the last iterations are identical too.
     let last = |p: &Path| std::fs::read_to_string(p.join("log.jsonl")).unwrap().lines().last().unwrap().split("\"elapsed_s\"").next().unwrap().to_string();
     assert_eq!(last(&a), last(&b));

@@ -97,6 +97,15 @@ fn load_data(config: &TrainConfig, data: Option<&Path>) -> Result<RunData> {
     }
 }
 
+/// Training and held-out views: every `holdout_every`-th view is held out (a single view is
+/// always trained on).
+fn split_views(config: &TrainConfig, scene: &Scene) -> (Vec<usize>, Vec<usize>) {
+    let every = config.data.holdout_every;
+    let n = scene.views.len();
+    let held = |i: usize| every > 0 && i % every == every - 1 && n > 1;
+    ((0..n).filter(|&i| !held(i)).collect(), (0..n).filter(|&i| held(i)).collect())
+}
+
 /// The surface losses as the backbone's per-ray hook.
 struct SurfaceHook<'a> {
     config: SurfaceLossConfig,
@@ -107,6 +116,64 @@ struct SurfaceHook<'a> {
 impl SampleLoss for SurfaceHook<'_> {
     fn ray_loss(&self, ray: usize, t: &[f64], sdf: &[f64], w: &[f64], d_sdf: &mut [f64], d_w: &mut [f64]) -> f64 {
         surface_losses::ray_loss(&self.config, &self.rays[ray], self.s, t, sdf, w, d_sdf, d_w).0
+    }
+}
+
+/// Everything one iteration needs besides the parameters.
+pub struct StepInputs<'a> {
+    /// The configuration.
+    pub config: &'a TrainConfig,
+    /// The backbone.
+    pub backbone: &'a Backbone,
+    /// The scene.
+    pub scene: &'a Scene,
+    /// Indices of the training views.
+    pub train_views: &'a [usize],
+    /// Their cameras.
+    pub train_cameras: &'a [camera_geom::PinholeCamera],
+    /// Whether the mask loss is used.
+    pub use_masks: bool,
+}
+
+impl StepInputs<'_> {
+    /// Draws the rays of iteration `step` (guided from `sampler`, else uniform), builds their
+    /// depths and adds the batch loss's gradient into `grads`. Returns the loss, the per-ray
+    /// outputs, the batch, and the seconds spent drawing and building rays.
+    pub fn gradient(&self, params: &[f32], step: u64, sampler: Option<&ViewSampler>, grads: &mut [f32]) -> (f32, Vec<sdf_backbone::RayOutput<f32>>, rays::Batch, f64) {
+        let t = Instant::now();
+        let config = self.config;
+        let s_now = self.backbone.scale(params);
+        let progress = step as f64 / config.steps as f64;
+        let drawn: Vec<DrawnRay> = match sampler {
+            Some(sampler) => sampler
+                .sample_batch(config.render.rays, progress, config.seed, step)
+                .iter()
+                .map(|r| DrawnRay { view: r.camera as usize, col: r.pixel[0], row: r.pixel[1], depth: Some((r.depth, r.depth_from_grid)) })
+                .collect(),
+            None => {
+                let mut rng = Xoshiro256PlusPlus::seed_from_u64(stream_seed(config.seed ^ 0x756e_6966, step, 0));
+                (0..config.render.rays)
+                    .map(|_| {
+                        let view = rng.random_range(0..self.train_views.len());
+                        let cam = &self.train_cameras[view];
+                        DrawnRay { view, col: rng.random_range(0..cam.width), row: rng.random_range(0..cam.height), depth: None }
+                    })
+                    .collect()
+            }
+        };
+        let cams: Vec<&camera_geom::PinholeCamera> = self.train_cameras.iter().collect();
+        let target = |v: usize, c: u32, r: u32| {
+            let view = &self.scene.views[self.train_views[v]];
+            let m = if self.use_masks { view.mask.as_ref().map(|m| if m.get(c, r) { 1.0 } else { 0.0 }) } else { None };
+            (view.image.get_f32(c, r), m)
+        };
+        let batch = build_batch(config, self.backbone, params, &cams, target, &drawn, step, s_now);
+        let rays_time = t.elapsed().as_secs_f64();
+        let surface_config = config.surface_losses();
+        let hook = SurfaceHook { config: surface_config, rays: &batch.surfaces, s: s_now };
+        let extra: &dyn SampleLoss = if sampler.is_some() && surface_config.weight > 0.0 { &hook } else { &NoSampleLoss };
+        let (loss, outputs) = self.backbone.loss_parallel(params, &batch.rays, grads, config.render.chunk, extra);
+        (loss, outputs, batch, rays_time)
     }
 }
 
@@ -133,7 +200,7 @@ fn save_checkpoint(out: &Path, state: &State, config: &TrainConfig) -> Result<()
 }
 
 /// Grids and sampler from the parameters of the last update.
-fn guide(config: &TrainConfig, backbone: &Backbone, grid_params: &[f32], cameras: &[camera_geom::PinholeCamera]) -> Result<(ViewSampler, f64)> {
+pub(crate) fn guide(config: &TrainConfig, backbone: &Backbone, grid_params: &[f32], cameras: &[camera_geom::PinholeCamera]) -> Result<(ViewSampler, f64)> {
     let s = if config.guide.fixed_s > 0.0 { config.guide.fixed_s } else { backbone.scale(grid_params) };
     let scene_cfg = SceneGridConfig { resolution: config.guide.scene_resolution, partition: config.guide.partition, ..Default::default() };
     let cam_cfg = CameraGridConfig {
@@ -198,9 +265,7 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
         write_atomic(&out.join("data.json"), serde_json::to_string_pretty(&data_json)?.as_bytes())?;
     }
     let scene = &data.scene;
-    let holdout = |i: usize| config.data.holdout_every > 0 && i % config.data.holdout_every == config.data.holdout_every - 1;
-    let train_views: Vec<usize> = (0..scene.views.len()).filter(|&i| !holdout(i) || scene.views.len() == 1).collect();
-    let test_views: Vec<usize> = (0..scene.views.len()).filter(|&i| holdout(i)).collect();
+    let (train_views, test_views) = split_views(&config, scene);
     let train_cameras: Vec<camera_geom::PinholeCamera> = train_views.iter().map(|&i| scene.views[i].camera).collect();
     let use_masks = config.data.masks && scene.views.iter().all(|v| v.mask.is_some());
 
@@ -232,7 +297,6 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
     };
     let lr_factor = |step: u64| if config.optim.schedule == "step" { stepped.at(step) } else { cosine.at(step) };
     let guided = config.sampler == SamplerKind::Guided;
-    let surface_config = config.surface_losses();
 
     let interrupted = Arc::new(AtomicBool::new(false));
     {
@@ -294,36 +358,10 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
         }
         let t_step = Instant::now();
         let s_now = backbone.scale(&state.params);
-        let progress_fraction = step as f64 / config.steps as f64;
-        let drawn: Vec<DrawnRay> = match &sampler {
-            Some(sampler) => sampler
-                .sample_batch(config.render.rays, progress_fraction, config.seed, step)
-                .iter()
-                .map(|r| DrawnRay { view: r.camera as usize, col: r.pixel[0], row: r.pixel[1], depth: Some((r.depth, r.depth_from_grid)) })
-                .collect(),
-            None => {
-                let mut rng = Xoshiro256PlusPlus::seed_from_u64(stream_seed(config.seed ^ 0x756e_6966, step, 0));
-                (0..config.render.rays)
-                    .map(|_| {
-                        let view = rng.random_range(0..train_views.len());
-                        let cam = &train_cameras[view];
-                        DrawnRay { view, col: rng.random_range(0..cam.width), row: rng.random_range(0..cam.height), depth: None }
-                    })
-                    .collect()
-            }
-        };
-        let cams: Vec<&camera_geom::PinholeCamera> = train_cameras.iter().collect();
-        let target = |v: usize, c: u32, r: u32| {
-            let view = &scene.views[train_views[v]];
-            let m = if use_masks { view.mask.as_ref().map(|m| if m.get(c, r) { 1.0 } else { 0.0 }) } else { None };
-            (view.image.get_f32(c, r), m)
-        };
-        let batch = build_batch(&config, &backbone, &state.params, &cams, target, &drawn, step, s_now);
-        ray_seconds += t_step.elapsed().as_secs_f64();
         grads.fill(0.0);
-        let hook = SurfaceHook { config: surface_config, rays: &batch.surfaces, s: s_now };
-        let extra: &dyn SampleLoss = if guided && surface_config.weight > 0.0 { &hook } else { &NoSampleLoss };
-        let (loss, outputs) = backbone.loss_parallel(&state.params, &batch.rays, &mut grads, config.render.chunk, extra);
+        let inputs = StepInputs { config: &config, backbone: &backbone, scene, train_views: &train_views, train_cameras: &train_cameras, use_masks };
+        let (loss, outputs, batch, rays_time) = inputs.gradient(&state.params, step, sampler.as_ref(), &mut grads);
+        ray_seconds += rays_time;
         let f = lr_factor(step);
         let groups = [(layout.encoding.clone(), config.optim.lr_grid as f32 * f), (layout.encoding.end..n, config.optim.lr as f32 * f)];
         let clip = (config.optim.clip_norm > 0.0).then_some(config.optim.clip_norm as f32);
@@ -597,11 +635,18 @@ impl RestoredRun {
         &self.scene_data.scene
     }
 
+    /// Indices of the training views and their cameras, and whether masks are used.
+    pub fn training_views(&self) -> (Vec<usize>, Vec<camera_geom::PinholeCamera>, bool) {
+        let scene = self.scene();
+        let (views, _) = split_views(&self.config, scene);
+        let cameras = views.iter().map(|&i| scene.views[i].camera).collect();
+        let use_masks = self.config.data.masks && scene.views.iter().all(|v| v.mask.is_some());
+        (views, cameras, use_masks)
+    }
+
     /// Indices of the held-out views (all views when none are held out).
     pub fn held_out_views(&self) -> Vec<usize> {
-        let every = self.config.data.holdout_every;
-        let n = self.scene().views.len();
-        let held: Vec<usize> = (0..n).filter(|&i| every > 0 && i % every == every - 1).collect();
-        if held.is_empty() { (0..n).collect() } else { held }
+        let (train, held) = split_views(&self.config, self.scene());
+        if held.is_empty() { train } else { held }
     }
 }

@@ -178,3 +178,17 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dilation_grows_a_pixel_into_a_square() {
+        let mut m = datasets::images::Mask::new(9, 7);
+        m.set(4, 3, true);
+        let d = dilate(&m, 2);
+        assert_eq!(d.count(), 25);
+        assert!(d.get(2, 1) && d.get(6, 5) && !d.get(1, 3) && !d.get(4, 6));
+    }
+}

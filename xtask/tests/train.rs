@@ -21,6 +21,8 @@ const TINY: &[&str] = &[
     "guide.scene_resolution=16",
     "guide.camera_uv=8",
     "guide.camera_depth=16",
+    "output.mesh_formats=[\"ply\", \"obj\", \"glb\"]",
+    "output.vertex_colors=true",
 ];
 
 fn xtask(args: &[&str]) -> Output {
@@ -47,6 +49,10 @@ fn resumed_run_ends_with_the_same_mesh_as_an_uninterrupted_run() {
     let resumed = xtask(&["train", "--resume", b.to_str().unwrap()]);
     assert!(resumed.status.success(), "{}", String::from_utf8_lossy(&resumed.stderr));
     let (ma, mb) = (std::fs::read(a.join("mesh.ply")).unwrap(), std::fs::read(b.join("mesh.ply")).unwrap());
+    // All three formats, with vertex colours in the PLY.
+    assert!(String::from_utf8_lossy(&ma[..300.min(ma.len())]).contains("property uchar red"));
+    assert!(std::fs::read_to_string(a.join("mesh.obj")).unwrap().lines().any(|l| l.starts_with("f ")));
+    assert_eq!(&std::fs::read(a.join("mesh.glb")).unwrap()[..4], b"glTF");
     assert!(ma.len() > 200, "the mesh is empty");
     assert!(ma == mb, "resumed mesh differs from the uninterrupted one");
     // Evaluation: the mesh against itself (Chamfer ≈ 0, F-score 1), and the run's held-out views.

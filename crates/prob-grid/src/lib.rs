@@ -6,7 +6,8 @@
 //!               partitioned by F                   view dependency along λ
 //! ```
 //! The result is consumed by `view-sampler`, which builds the marginal and conditional CDFs and
-//! draws (camera, pixel, λ̃) samples.
+//! draws (camera, pixel, λ̃) samples. The crate also extracts meshes from any field
+//! ([`marching_cubes`]: block-wise, shared vertices, blocks skipped by the Lipschitz bound).
 //!
 //! # Choices (NOTES.md) and what they cost
 //! - **Cell density** ([`CellDensity`]): the paper's φ_s at the cell centre aliases when the

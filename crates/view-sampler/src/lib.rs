@@ -112,8 +112,9 @@ pub struct ViewSampler {
     config: SamplerConfig,
 }
 
-/// A stream seed from (seed, step, chunk) by SplitMix64 finalisation.
-fn stream_seed(seed: u64, step: u64, chunk: u64) -> u64 {
+/// A stream seed from (seed, step, chunk) by SplitMix64 finalisation (one RNG stream per work
+/// item; also used by the trainer for its per-ray streams).
+pub fn stream_seed(seed: u64, step: u64, chunk: u64) -> u64 {
     let mut z = seed ^ step.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ chunk.wrapping_mul(0xD1B5_4A32_D192_ED03);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);

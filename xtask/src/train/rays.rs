@@ -22,12 +22,10 @@ pub struct DrawnRay {
     pub depth: Option<(f32, bool)>,
 }
 
-/// A stream seed from (seed, step, item) by SplitMix64 finalisation.
+/// A stream seed from (seed, step, item): the sampler's SplitMix64 finalisation, on a seed
+/// offset so that the trainer's streams differ from the sampler's.
 pub fn stream_seed(seed: u64, step: u64, item: u64) -> u64 {
-    let mut z = seed ^ step.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ item.wrapping_mul(0xD1B5_4A32_D192_ED03) ^ 0x7261_7973;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
+    view_sampler::stream_seed(seed ^ 0x7261_7973, step, item)
 }
 
 /// NeuS's near/far: the sphere of radius 1 around the origin, measured from the closest

@@ -106,6 +106,36 @@ fn split_views(config: &TrainConfig, scene: &Scene) -> (Vec<usize>, Vec<usize>) 
     ((0..n).filter(|&i| !held(i)).collect(), (0..n).filter(|&i| held(i)).collect())
 }
 
+/// Whether the mask loss applies: masks asked for and present on every view.
+fn uses_masks(config: &TrainConfig, scene: &Scene) -> bool {
+    config.data.masks && scene.views.iter().all(|v| v.mask.is_some())
+}
+
+/// The configured backbone with its initial parameters (preset, learned background, loss
+/// weights, background colour, normal scheme).
+fn backbone_for(config: &TrainConfig, use_masks: bool) -> Result<(Backbone, Vec<f32>)> {
+    let (mut backbone, mut params) = build(Preset::from_name(&config.model.preset)?, config.model.init_radius, config.seed);
+    if config.model.learned_background {
+        backbone.add_learned_background(&mut params, config.seed + 4);
+    }
+    backbone.config.eikonal_weight = config.model.eikonal;
+    backbone.config.mask_weight = if use_masks { config.model.mask } else { 0.0 };
+    backbone.config.background = config.model.background;
+    backbone.config.normals = if config.model.normals == "central" { NormalScheme::Central } else { NormalScheme::Tetrahedral };
+    Ok((backbone, params))
+}
+
+/// A run folder's configuration (with `overrides`), data path and checkpoint.
+fn read_run_folder(dir: &Path, overrides: &[String]) -> Result<(TrainConfig, Option<PathBuf>, Checkpoint)> {
+    let config = TrainConfig::load(Some(&dir.join("config.toml")), overrides)?;
+    let data: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(dir.join("data.json")).with_context(|| format!("{} is not a run folder (no data.json)", dir.display()))?,
+    )?;
+    let data_path = data["path"].as_str().map(PathBuf::from);
+    let ckpt = Checkpoint::from_bytes(&std::fs::read(checkpoint_path(dir)).with_context(|| format!("no checkpoint in {}", dir.display()))?)?;
+    Ok((config, data_path, ckpt))
+}
+
 /// The surface losses as the backbone's per-ray hook.
 struct SurfaceHook<'a> {
     config: SurfaceLossConfig,
@@ -237,11 +267,7 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
     let out = args.resume.clone().unwrap_or_else(|| args.out.clone());
     // Configuration: fresh, or the run folder's own when resuming.
     let (config, data_path, resumed) = if let Some(dir) = &args.resume {
-        let path = dir.join("config.toml");
-        let config = TrainConfig::load(Some(&path), &args.overrides)?;
-        let data: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("data.json")).with_context(|| format!("{} is not a run folder (no data.json)", dir.display()))?)?;
-        let data_path = data["path"].as_str().map(PathBuf::from);
-        let ckpt = Checkpoint::from_bytes(&std::fs::read(checkpoint_path(dir)).with_context(|| format!("no checkpoint in {}", dir.display()))?)?;
+        let (config, data_path, ckpt) = read_run_folder(dir, &args.overrides)?;
         (config, data_path, Some(ckpt))
     } else {
         let mut overrides = args.overrides.clone();
@@ -267,17 +293,8 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
     let scene = &data.scene;
     let (train_views, test_views) = split_views(&config, scene);
     let train_cameras: Vec<camera_geom::PinholeCamera> = train_views.iter().map(|&i| scene.views[i].camera).collect();
-    let use_masks = config.data.masks && scene.views.iter().all(|v| v.mask.is_some());
-
-    let preset = Preset::from_name(&config.model.preset)?;
-    let (mut backbone, mut init_params) = build(preset, config.model.init_radius, config.seed);
-    if config.model.learned_background {
-        backbone.add_learned_background(&mut init_params, config.seed + 4);
-    }
-    backbone.config.eikonal_weight = config.model.eikonal;
-    backbone.config.mask_weight = if use_masks { config.model.mask } else { 0.0 };
-    backbone.config.background = config.model.background;
-    backbone.config.normals = if config.model.normals == "central" { NormalScheme::Central } else { NormalScheme::Tetrahedral };
+    let use_masks = uses_masks(&config, scene);
+    let (mut backbone, init_params) = backbone_for(&config, use_masks)?;
     let layout = backbone.layout();
     let n = init_params.len();
     let mut adam = Adam::new(n);
@@ -608,25 +625,15 @@ pub struct RestoredRun {
 impl RestoredRun {
     /// Loads `dir` (config.toml, data.json, checkpoint.safetensors).
     pub fn load(dir: &Path) -> Result<RestoredRun> {
-        let config = TrainConfig::load(Some(&dir.join("config.toml")), &[])?;
-        let data: serde_json::Value = serde_json::from_slice(
-            &std::fs::read(dir.join("data.json")).with_context(|| format!("{} is not a run folder (no data.json)", dir.display()))?,
-        )?;
-        let data_path = data["path"].as_str().map(PathBuf::from);
-        let ckpt = Checkpoint::from_bytes(&std::fs::read(checkpoint_path(dir)).with_context(|| format!("no checkpoint in {}", dir.display()))?)?;
+        let (config, data_path, ckpt) = read_run_folder(dir, &[])?;
         let scene_data = load_data(&config, data_path.as_deref())?;
-        let (mut backbone, mut params) = build(Preset::from_name(&config.model.preset)?, config.model.init_radius, config.seed);
-        if config.model.learned_background {
-            backbone.add_learned_background(&mut params, config.seed + 4);
-        }
+        let (mut backbone, mut params) = backbone_for(&config, uses_masks(&config, &scene_data.scene))?;
         let mut adam = Adam::new(params.len());
         ckpt.restore(&mut params, &mut adam)?;
         let step: u64 = ckpt.metadata.get("step").and_then(|s| s.parse().ok()).context("checkpoint without a step")?;
         if let Some(levels) = backbone.levels() {
             backbone.set_active_levels(active_levels(&config, levels, step.saturating_sub(1)));
         }
-        backbone.config.background = config.model.background;
-        backbone.config.normals = if config.model.normals == "central" { NormalScheme::Central } else { NormalScheme::Tetrahedral };
         Ok(RestoredRun { config, scene_data, backbone, params, step })
     }
 
@@ -640,7 +647,7 @@ impl RestoredRun {
         let scene = self.scene();
         let (views, _) = split_views(&self.config, scene);
         let cameras = views.iter().map(|&i| scene.views[i].camera).collect();
-        let use_masks = self.config.data.masks && scene.views.iter().all(|v| v.mask.is_some());
+        let use_masks = uses_masks(&self.config, scene);
         (views, cameras, use_masks)
     }
 

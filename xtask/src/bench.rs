@@ -100,14 +100,20 @@ pub fn sampler(data: Option<&Path>, json: bool, quick: bool) -> Result<()> {
                 let (total, t) = &runs[runs.len() / 2];
                 let mode_name = if mode == Evaluation::Dense { "dense" } else { "sparse" };
                 if json {
-                    emit(true, serde_json::json!({
-                        "figure": "update", "rig": rig_name, "F": f, "s": s, "mode": mode_name,
-                        "scene_resolution": 128, "camera_grid": [64, 64, 128], "cameras": cameras.len(),
-                        "total_s": total, "field_s": t.eval, "project_s": t.project, "cdf_s": t.cdf,
-                        "field_queries": t.queries, "subcells_per_camera": t.subcells, "threads": threads, "runs": runs.len(),
-                    }));
+                    emit(
+                        true,
+                        serde_json::json!({
+                            "figure": "update", "rig": rig_name, "F": f, "s": s, "mode": mode_name,
+                            "scene_resolution": 128, "camera_grid": [64, 64, 128], "cameras": cameras.len(),
+                            "total_s": total, "field_s": t.eval, "project_s": t.project, "cdf_s": t.cdf,
+                            "field_queries": t.queries, "subcells_per_camera": t.subcells, "threads": threads, "runs": runs.len(),
+                        }),
+                    );
                 } else {
-                    println!("| {f} | {s} | {mode_name} | {total:.3} | {:.3} | {:.3} | {:.3} | {} | {} |", t.eval, t.project, t.cdf, t.queries, t.subcells);
+                    println!(
+                        "| {f} | {s} | {mode_name} | {total:.3} | {:.3} | {:.3} | {:.3} | {} | {} |",
+                        t.eval, t.project, t.cdf, t.queries, t.subcells
+                    );
                 }
             }
         }
@@ -123,23 +129,32 @@ pub fn sampler(data: Option<&Path>, json: bool, quick: bool) -> Result<()> {
     let guided = rays.iter().filter(|r| r.guided).count();
     let rate = n as f64 / secs;
     if json {
-        emit(true, serde_json::json!({"figure": "draws", "rays": n, "guided": guided, "seconds": secs, "samples_per_second": rate, "threads": threads}));
+        emit(
+            true,
+            serde_json::json!({"figure": "draws", "rays": n, "guided": guided, "seconds": secs, "samples_per_second": rate, "threads": threads}),
+        );
     } else {
-        println!("\nDraws (all guided, linear interpolation, F = 2, s = 200): {n} rays in {secs:.3} s = {:.1} M samples/s on {threads} threads", rate / 1e6);
+        println!(
+            "\nDraws (all guided, linear interpolation, F = 2, s = 200): {n} rays in {secs:.3} s = {:.1} M samples/s on {threads} threads",
+            rate / 1e6
+        );
     }
 
     // Accuracy against an F = 8, 256³ reference, on 4 of the cameras.
     let subset = &cameras[..4.min(cameras.len())];
     let s = 200.0;
     if !json {
-        println!("\n## Accuracy vs cost (s = {s}, 4 cameras): total variation of the camera pdfs against an F = 8, 256³ reference on the same camera grid\n");
+        println!(
+            "\n## Accuracy vs cost (s = {s}, 4 cameras): total variation of the camera pdfs against an F = 8, 256³ reference on the same camera grid\n"
+        );
         println!("| scene grid | F | camera grid | TV (3D pdf) | TV (pixel marginal) | update ms per camera |");
         println!("|---|---|---|---|---|---|");
     }
     let camera_grids: &[(usize, usize)] = if quick { &[(64, 128)] } else { &[(32, 64), (64, 128), (128, 256)] };
     for &(ruv, rl) in camera_grids {
         let cams = CameraGridConfig { ru: ruv, rv: ruv, rl, ..Default::default() };
-        let reference_scene = SceneGridConfig { resolution: if quick { 128 } else { 256 }, partition: if quick { 4 } else { 8 }, ..Default::default() };
+        let reference_scene =
+            SceneGridConfig { resolution: if quick { 128 } else { 256 }, partition: if quick { 4 } else { 8 }, ..Default::default() };
         let reference_grids: Vec<_> = {
             let active = evaluate(&sphere, s, &reference_scene)?;
             subset.par_iter().map(|c| reproject(&active, c, &cams)).collect()
@@ -156,13 +171,18 @@ pub fn sampler(data: Option<&Path>, json: bool, quick: bool) -> Result<()> {
             let grids: Vec<_> = subset.iter().map(|c| reproject(&active, c, &cams)).collect();
             let ms = t.elapsed().as_secs_f64() * 1e3 / subset.len() as f64;
             let tv: f64 = grids.iter().zip(&reference_grids).map(|(a, b)| total_variation(&a.values, &b.values)).sum::<f64>() / subset.len() as f64;
-            let tv_pixel: f64 = grids.iter().zip(&reference_grids).map(|(a, b)| total_variation(&a.pixel_marginal(), &b.pixel_marginal())).sum::<f64>() / subset.len() as f64;
+            let tv_pixel: f64 =
+                grids.iter().zip(&reference_grids).map(|(a, b)| total_variation(&a.pixel_marginal(), &b.pixel_marginal())).sum::<f64>()
+                    / subset.len() as f64;
             if json {
-                emit(true, serde_json::json!({
-                    "figure": "accuracy", "s": s, "scene_resolution": res, "F": f, "camera_grid": [ruv, ruv, rl],
-                    "tv_3d": tv, "tv_pixel": tv_pixel, "ms_per_camera": ms,
-                    "reference": {"scene_resolution": reference_scene.resolution, "F": reference_scene.partition},
-                }));
+                emit(
+                    true,
+                    serde_json::json!({
+                        "figure": "accuracy", "s": s, "scene_resolution": res, "F": f, "camera_grid": [ruv, ruv, rl],
+                        "tv_3d": tv, "tv_pixel": tv_pixel, "ms_per_camera": ms,
+                        "reference": {"scene_resolution": reference_scene.resolution, "F": reference_scene.partition},
+                    }),
+                );
             } else {
                 println!("| {res}³ | {f} | {ruv}×{ruv}×{rl} | {tv:.4} | {tv_pixel:.4} | {ms:.1} |");
             }

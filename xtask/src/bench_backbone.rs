@@ -77,10 +77,12 @@ fn time_mlp(mlp: &sdf_backbone::Mlp, params: &[f32], rows: usize) -> f64 {
     let n_in = Module::<f32>::n_inputs(mlp);
     let x: Vec<f32> = (0..rows * n_in).map(|i| ((i * 7919) % 1000) as f32 / 1000.0 - 0.5).collect();
     let mut grads = vec![0.0f32; params.len()];
-    let run = |g: &mut [f32]| batch_gradients(mlp, params, &x, 1024, g, |_, _, dy| {
-        dy.fill(1e-3);
-        0.0
-    });
+    let run = |g: &mut [f32]| {
+        batch_gradients(mlp, params, &x, 1024, g, |_, _, dy| {
+            dy.fill(1e-3);
+            0.0
+        })
+    };
     run(&mut grads);
     let t = Instant::now();
     run(&mut grads);
@@ -138,7 +140,8 @@ pub fn run(json: bool, quick: bool) -> Result<()> {
             // Forward 2·MACs, backward 4·MACs (input and weight gradients) per row.
             let flop_per_sample = 6.0 * ((probes + 1) as f64 * sdf_macs + color_macs);
             let sdf_rows = n_rays * ((probes + 1) * n_samples + 1);
-            let t_mlp = time_mlp(sdf_mlp, &params[layout.sdf_mlp.clone()], sdf_rows) + time_mlp(&backbone.color, &params[layout.color.clone()], n_rays * n_samples);
+            let t_mlp = time_mlp(sdf_mlp, &params[layout.sdf_mlp.clone()], sdf_rows)
+                + time_mlp(&backbone.color, &params[layout.color.clone()], n_rays * n_samples);
             let mlp_gflops = flop_per_sample * samples / t_mlp / 1e9;
             let step_gflops = flop_per_sample * samples / step / 1e9;
             let name = format!("{normals:?}").to_lowercase();

@@ -12,7 +12,14 @@ use std::time::Instant;
 pub fn run(run_dir: &Path, iterations: u64, json_out: bool) -> Result<()> {
     let run = RestoredRun::load(run_dir)?;
     let (train_views, train_cameras, use_masks) = run.training_views();
-    let inputs = StepInputs { config: &run.config, backbone: &run.backbone, scene: run.scene(), train_views: &train_views, train_cameras: &train_cameras, use_masks };
+    let inputs = StepInputs {
+        config: &run.config,
+        backbone: &run.backbone,
+        scene: run.scene(),
+        train_views: &train_views,
+        train_cameras: &train_cameras,
+        use_masks,
+    };
     // Grid updates: the mean of three.
     let mut update_seconds = 0.0;
     let mut sampler = None;

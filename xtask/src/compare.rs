@@ -87,9 +87,8 @@ pub fn run(args: &CompareArgs) -> Result<()> {
 
     // Chamfer (top) and PSNR (bottom) against iterations: uniform blue, guided red.
     let (blue, red) = ([0.15, 0.35, 0.85], [0.85, 0.15, 0.15]);
-    let curve = |s: &RunSummary, key: &str| -> Vec<(f64, f64)> {
-        s.history.iter().filter_map(|h| Some((h["step"].as_f64()?, h[key].as_f64()?))).collect()
-    };
+    let curve =
+        |s: &RunSummary, key: &str| -> Vec<(f64, f64)> { s.history.iter().filter_map(|h| Some((h["step"].as_f64()?, h[key].as_f64()?))).collect() };
     let (w, h) = (480u32, 240u32);
     let mut img = RgbImage::new(w, 2 * h);
     for (row, key) in ["chamfer", "psnr"].iter().enumerate() {

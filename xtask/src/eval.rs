@@ -114,7 +114,14 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         }
         pred = eval_metrics::cull(&pred, |p| {
             let x = normalized_from_world.transform_point3(glam::DVec3::from_array(p.map(f64::from)));
-            masks.iter().filter(|(cam, m)| cam.pixel_space_from_world(x).z > 0.0 && cam.nearest_pixel(cam.pixel_space_from_world(x).truncate()).is_some_and(|(c, r)| m.get(c, r))).count() >= 2
+            masks
+                .iter()
+                .filter(|(cam, m)| {
+                    cam.pixel_space_from_world(x).z > 0.0
+                        && cam.nearest_pixel(cam.pixel_space_from_world(x).truncate()).is_some_and(|(c, r)| m.get(c, r))
+                })
+                .count()
+                >= 2
         });
     }
     let m = eval_metrics::chamfer(&pred, &gt, max_dist, tau)?;
@@ -174,7 +181,14 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     if args.json {
         println!("{result}");
     } else {
-        println!("mean over {} held-out views: PSNR {:.2} dB, masked {:?}, SSIM {:?} (written to {})", views.len(), mean("psnr").unwrap_or(f64::NAN), mean("psnr_masked"), mean("ssim"), dir.join("eval.json").display());
+        println!(
+            "mean over {} held-out views: PSNR {:.2} dB, masked {:?}, SSIM {:?} (written to {})",
+            views.len(),
+            mean("psnr").unwrap_or(f64::NAN),
+            mean("psnr_masked"),
+            mean("ssim"),
+            dir.join("eval.json").display()
+        );
     }
     Ok(())
 }

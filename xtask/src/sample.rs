@@ -87,8 +87,7 @@ pub fn run(args: &SampleArgs) -> Result<()> {
 
     // Statistics over every view.
     let (mut in_mask, mut with_mask, mut depth_errors) = (0usize, 0usize, Vec::new());
-    let depths: Vec<Option<Vec<f32>>> =
-        scene.views.iter().map(|v| depth_map(&args.data, &v.name, v.camera.width, v.camera.height)).collect();
+    let depths: Vec<Option<Vec<f32>>> = scene.views.iter().map(|v| depth_map(&args.data, &v.name, v.camera.width, v.camera.height)).collect();
     for r in &rays {
         let view = &scene.views[r.camera as usize];
         if let Some(mask) = &view.mask {

@@ -65,7 +65,8 @@ fn resumed_run_ends_with_the_same_mesh_as_an_uninterrupted_run() {
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     assert!(a.join("eval.json").exists());
     // The logged losses of the last iterations are identical too.
-    let last = |p: &Path| std::fs::read_to_string(p.join("log.jsonl")).unwrap().lines().last().unwrap().split("\"elapsed_s\"").next().unwrap().to_string();
+    let last =
+        |p: &Path| std::fs::read_to_string(p.join("log.jsonl")).unwrap().lines().last().unwrap().split("\"elapsed_s\"").next().unwrap().to_string();
     assert_eq!(last(&a), last(&b));
 }
 
@@ -106,10 +107,22 @@ fn render_fit_reaches_28_db_on_the_training_views() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("fit");
     let o = xtask(&[
-        "train", "--out", out.to_str().unwrap(), "--json",
-        "steps=400", "render.rays=256", "data.builtin_width=64", "data.builtin_views=12", "data.holdout_every=0",
-        "output.validate_every=0", "output.checkpoint_every=0", "output.mesh_resolution=32", "output.validate_downscale=1",
-        "output.eval_views=2", "output.eval_train_views=4", "output.log_every=50",
+        "train",
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+        "steps=400",
+        "render.rays=256",
+        "data.builtin_width=64",
+        "data.builtin_views=12",
+        "data.holdout_every=0",
+        "output.validate_every=0",
+        "output.checkpoint_every=0",
+        "output.mesh_resolution=32",
+        "output.validate_downscale=1",
+        "output.eval_views=2",
+        "output.eval_train_views=4",
+        "output.log_every=50",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let summary: serde_json::Value = serde_json::from_slice(o.stdout.split(|&b| b == b'\n').find(|l| l.starts_with(b"{")).unwrap()).unwrap();

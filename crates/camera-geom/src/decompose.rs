@@ -1,7 +1,7 @@
 //! `P = K[R|t]` ↔ (K, R, t), with the conventions NeuS gets from OpenCV.
 
-use crate::{CameraError, Intrinsics, Rigid3};
 use crate::rigid::orthonormalize_rows;
+use crate::{CameraError, Intrinsics, Rigid3};
 use glam::{DMat3, DVec3};
 
 /// Decomposes a 3×4 projection matrix (row-major) into intrinsics and `camera_from_world`.
@@ -18,11 +18,7 @@ pub fn decompose_projection(p: &[[f64; 4]; 3]) -> Result<(Intrinsics, Rigid3), C
     if !p.iter().flatten().all(|v| v.is_finite()) {
         return Err(CameraError::NonFinite { what: "projection matrix" });
     }
-    let mut m = [
-        DVec3::new(p[0][0], p[0][1], p[0][2]),
-        DVec3::new(p[1][0], p[1][1], p[1][2]),
-        DVec3::new(p[2][0], p[2][1], p[2][2]),
-    ];
+    let mut m = [DVec3::new(p[0][0], p[0][1], p[0][2]), DVec3::new(p[1][0], p[1][1], p[1][2]), DVec3::new(p[2][0], p[2][1], p[2][2])];
     let mut p4 = DVec3::new(p[0][3], p[1][3], p[2][3]);
     let det = m[0].dot(m[1].cross(m[2]));
     let scale = m[0].length() * m[1].length() * m[2].length();
@@ -46,13 +42,7 @@ pub fn decompose_projection(p: &[[f64; 4]; 3]) -> Result<(Intrinsics, Rigid3), C
     let r1 = w1 / k11;
     // Rows r1, r2, r3 → glam column-major matrix.
     let rotation = orthonormalize_rows(&DMat3::from_cols(r1, r2, r3).transpose());
-    let intrinsics = Intrinsics {
-        fx: k11 / k33,
-        fy: k22 / k33,
-        cx: k13 / k33,
-        cy: k23 / k33,
-        skew: k12 / k33,
-    };
+    let intrinsics = Intrinsics { fx: k11 / k33, fy: k22 / k33, cx: k13 / k33, cy: k23 / k33, skew: k12 / k33 };
     // p4 = k33·K·t  ⇒  t = K⁻¹ p4 / k33.
     let k = intrinsics.matrix();
     let translation = k.inverse() * (p4 / k33);

@@ -113,11 +113,7 @@ pub struct Intrinsics {
 impl Intrinsics {
     /// `K` as a matrix (glam is column-major: `K.row(0) = (fx, skew, cx)`).
     pub fn matrix(&self) -> DMat3 {
-        DMat3::from_cols(
-            DVec3::new(self.fx, 0.0, 0.0),
-            DVec3::new(self.skew, self.fy, 0.0),
-            DVec3::new(self.cx, self.cy, 1.0),
-        )
+        DMat3::from_cols(DVec3::new(self.fx, 0.0, 0.0), DVec3::new(self.skew, self.fy, 0.0), DVec3::new(self.cx, self.cy, 1.0))
     }
 
     /// Normalised image coordinates (x̂/ẑ, ŷ/ẑ) → pixel coordinates.
@@ -144,13 +140,7 @@ impl Intrinsics {
             PixelCenters::Integer => (n - 1.0) / 2.0,
             PixelCenters::HalfInteger => 0.0,
         };
-        Intrinsics {
-            fx: self.fx / n,
-            fy: self.fy / n,
-            skew: self.skew / n,
-            cx: (self.cx - shift) / n,
-            cy: (self.cy - shift) / n,
-        }
+        Intrinsics { fx: self.fx / n, fy: self.fy / n, skew: self.skew / n, cx: (self.cx - shift) / n, cy: (self.cy - shift) / n }
     }
 }
 
@@ -236,13 +226,7 @@ impl PinholeCamera {
     /// Builds a camera after checking that every value is finite, the focal lengths positive,
     /// the image non-empty and the rotation proper (within [`ROTATION_TOLERANCE`]; the rotation
     /// is then re-orthonormalised so round trips are exact to f64 precision).
-    pub fn new(
-        intrinsics: Intrinsics,
-        width: u32,
-        height: u32,
-        camera_from_world: Rigid3,
-        pixel_centers: PixelCenters,
-    ) -> Result<Self, CameraError> {
+    pub fn new(intrinsics: Intrinsics, width: u32, height: u32, camera_from_world: Rigid3, pixel_centers: PixelCenters) -> Result<Self, CameraError> {
         let k = intrinsics;
         if ![k.fx, k.fy, k.cx, k.cy, k.skew].iter().all(|v| v.is_finite()) {
             return Err(CameraError::NonFinite { what: "intrinsics" });
@@ -324,21 +308,14 @@ impl PinholeCamera {
         // avoids a libm call on this hot path of the sampler.
         let o = self.pixel_centers.offset() - 0.5;
         let (c, r) = (pixel.x - o, pixel.y - o);
-        if c >= 0.0 && r >= 0.0 && c < self.width as f64 && r < self.height as f64 {
-            Some((c as u32, r as u32))
-        } else {
-            None
-        }
+        if c >= 0.0 && r >= 0.0 && c < self.width as f64 && r < self.height as f64 { Some((c as u32, r as u32)) } else { None }
     }
 
     /// Ray from the camera centre through continuous pixel coordinates `pixel`.
     pub fn ray_through_pixel(&self, pixel: DVec2) -> Ray {
         let n = self.intrinsics.normalized_from_pixel(pixel);
         let dir_cam = DVec3::new(n.x, n.y, 1.0).normalize();
-        Ray {
-            origin: self.center_in_world(),
-            direction: self.camera_from_world.rotation.transpose() * dir_cam,
-        }
+        Ray { origin: self.center_in_world(), direction: self.camera_from_world.rotation.transpose() * dir_cam }
     }
 
     /// Ray through the centre of pixel (column, row), by the camera's [`PixelCenters`].
@@ -353,13 +330,7 @@ impl PinholeCamera {
 
     /// The forward interval `[near, far]` of a camera ray inside a sphere (NeuS's near/far),
     /// `near ≥ min_distance` so that a camera inside the sphere still gets a positive start.
-    pub fn near_far_in_sphere(
-        &self,
-        ray: &Ray,
-        center: DVec3,
-        radius: f64,
-        min_distance: f64,
-    ) -> Option<(f64, f64)> {
+    pub fn near_far_in_sphere(&self, ray: &Ray, center: DVec3, radius: f64, min_distance: f64) -> Option<(f64, f64)> {
         let (t0, t1) = ray_sphere(ray, center, radius)?;
         if t1 <= min_distance {
             return None;
@@ -372,13 +343,7 @@ impl PinholeCamera {
     /// u, v span the image from corner to corner (pixel edges, not centres). `min_depth` (> 0)
     /// is the smallest depth returned, so that a camera inside or touching the sphere still gets
     /// a valid, positive range.
-    pub fn image_space_bounds(
-        &self,
-        center: DVec3,
-        radius: f64,
-        mode: DepthBounds,
-        min_depth: f64,
-    ) -> ImageSpaceBounds {
+    pub fn image_space_bounds(&self, center: DVec3, radius: f64, mode: DepthBounds, min_depth: f64) -> ImageSpaceBounds {
         let o = self.pixel_centers.offset() - 0.5;
         let u = [o, self.width as f64 + o];
         let v = [o, self.height as f64 + o];

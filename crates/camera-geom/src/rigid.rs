@@ -36,10 +36,7 @@ impl Rigid3 {
 
     /// `self ∘ other` (apply `other` first).
     pub fn compose(&self, other: &Rigid3) -> Rigid3 {
-        Rigid3 {
-            rotation: self.rotation * other.rotation,
-            translation: self.rotation * other.translation + self.translation,
-        }
+        Rigid3 { rotation: self.rotation * other.rotation, translation: self.rotation * other.translation + self.translation }
     }
 
     /// Checks finiteness and that the rotation is proper within `tolerance`

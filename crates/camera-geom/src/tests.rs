@@ -9,18 +9,20 @@ fn arb_rotation() -> impl Strategy<Value = DMat3> {
 }
 
 fn arb_intrinsics() -> impl Strategy<Value = Intrinsics> {
-    (50.0f64..5000.0, 0.5f64..2.0, -200.0f64..2000.0, -200.0f64..2000.0, -20.0f64..20.0).prop_map(
-        |(fx, aspect, cx, cy, skew)| Intrinsics { fx, fy: fx * aspect, cx, cy, skew },
-    )
+    (50.0f64..5000.0, 0.5f64..2.0, -200.0f64..2000.0, -200.0f64..2000.0, -20.0f64..20.0).prop_map(|(fx, aspect, cx, cy, skew)| Intrinsics {
+        fx,
+        fy: fx * aspect,
+        cx,
+        cy,
+        skew,
+    })
 }
 
 fn arb_camera() -> impl Strategy<Value = PinholeCamera> {
-    (arb_intrinsics(), arb_rotation(), -5.0f64..5.0, -5.0f64..5.0, -5.0f64..5.0).prop_map(
-        |(k, r, tx, ty, tz)| {
-            let camera_from_world = Rigid3 { rotation: r, translation: DVec3::new(tx, ty, tz) };
-            PinholeCamera::new(k, 1600, 1200, camera_from_world, PixelCenters::Integer).unwrap()
-        },
-    )
+    (arb_intrinsics(), arb_rotation(), -5.0f64..5.0, -5.0f64..5.0, -5.0f64..5.0).prop_map(|(k, r, tx, ty, tz)| {
+        let camera_from_world = Rigid3 { rotation: r, translation: DVec3::new(tx, ty, tz) };
+        PinholeCamera::new(k, 1600, 1200, camera_from_world, PixelCenters::Integer).unwrap()
+    })
 }
 
 fn rel_err(a: DVec3, b: DVec3) -> f64 {

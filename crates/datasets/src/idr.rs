@@ -19,23 +19,16 @@ pub(crate) fn camera_file(dir: &Path) -> Option<PathBuf> {
 }
 
 fn is_image(path: &Path) -> bool {
-    matches!(
-        path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref(),
-        Some("png" | "jpg" | "jpeg")
-    )
+    matches!(path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref(), Some("png" | "jpg" | "jpeg"))
 }
 
 /// The image files of `dir` assigned to cameras 0..n: by number when every stem is a number
 /// (`000.png`), otherwise in sorted order.
 pub(crate) fn numbered_files(dir: &Path, n: usize, what: &'static str) -> Result<Vec<PathBuf>> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map_err(io_err(dir))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && is_image(p))
-        .collect();
+    let mut files: Vec<PathBuf> =
+        std::fs::read_dir(dir).map_err(io_err(dir))?.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_file() && is_image(p)).collect();
     files.sort();
-    let numbers: Option<Vec<usize>> =
-        files.iter().map(|p| p.file_stem().and_then(|s| s.to_str()).and_then(|s| s.parse().ok())).collect();
+    let numbers: Option<Vec<usize>> = files.iter().map(|p| p.file_stem().and_then(|s| s.to_str()).and_then(|s| s.parse().ok())).collect();
     if let Some(numbers) = numbers {
         let mut by_index = vec![None; n];
         for (file, k) in files.iter().zip(numbers) {
@@ -96,16 +89,15 @@ pub(crate) fn read_cameras(dir: &Path, options: &LoadOptions) -> Result<SceneCam
     let npz_path = camera_file(dir).ok_or_else(|| DatasetError::UnknownLayout { dir: dir.to_path_buf() })?;
     let mut npz = Npz::open(&npz_path)?;
     let keys = npz.keys();
-    let n = keys
-        .iter()
-        .filter(|k| k.strip_prefix("world_mat_").is_some_and(|s| s.parse::<usize>().is_ok()))
-        .count();
+    let n = keys.iter().filter(|k| k.strip_prefix("world_mat_").is_some_and(|s| s.parse::<usize>().is_ok())).count();
     if n == 0 {
         return Err(DatasetError::MissingKey { path: npz_path, key: "world_mat_0".into() });
     }
-    let image_dir = ["image", "images"].iter().map(|d| dir.join(d)).find(|p| p.is_dir()).ok_or_else(|| {
-        DatasetError::MissingKey { path: dir.to_path_buf(), key: "image/ (or images/) folder".into() }
-    })?;
+    let image_dir = ["image", "images"]
+        .iter()
+        .map(|d| dir.join(d))
+        .find(|p| p.is_dir())
+        .ok_or_else(|| DatasetError::MissingKey { path: dir.to_path_buf(), key: "image/ (or images/) folder".into() })?;
     let images = numbered_files(&image_dir, n, "images")?;
     let mask_dir = dir.join("mask");
     let masks = if mask_dir.is_dir() { Some(numbered_files(&mask_dir, n, "masks")?) } else { None };
@@ -116,8 +108,8 @@ pub(crate) fn read_cameras(dir: &Path, options: &LoadOptions) -> Result<SceneCam
     let mut missing_scale = false;
     for i in 0..n {
         let world_key = format!("world_mat_{i}");
-        let world_mat = matrix4(&mut npz, &npz_path, &world_key)?
-            .ok_or_else(|| DatasetError::MissingKey { path: npz_path.clone(), key: world_key.clone() })?;
+        let world_mat =
+            matrix4(&mut npz, &npz_path, &world_key)?.ok_or_else(|| DatasetError::MissingKey { path: npz_path.clone(), key: world_key.clone() })?;
         let scale_mat = match matrix4(&mut npz, &npz_path, &format!("scale_mat_{i}"))? {
             Some(m) => m,
             None => {
@@ -134,8 +126,8 @@ pub(crate) fn read_cameras(dir: &Path, options: &LoadOptions) -> Result<SceneCam
         let p4 = world_mat * scale_mat;
         let p = [0, 1, 2].map(|r| [0, 1, 2, 3].map(|c| p4.col(c)[r]));
         let entry = || format!("{world_key} · scale_mat_{i}");
-        let (intrinsics, camera_from_world) = decompose_projection(&p)
-            .map_err(|source| DatasetError::Camera { path: npz_path.clone(), entry: entry(), source })?;
+        let (intrinsics, camera_from_world) =
+            decompose_projection(&p).map_err(|source| DatasetError::Camera { path: npz_path.clone(), entry: entry(), source })?;
         let (w, h) = image_size(&images[i])?;
         match size0 {
             None => size0 = Some((w, h)),

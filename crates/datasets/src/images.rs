@@ -133,11 +133,7 @@ pub(crate) struct Decoded {
 
 fn decode(path: &Path) -> Result<image::DynamicImage> {
     let bytes = std::fs::read(path).map_err(io_err(path))?;
-    image::load_from_memory(&bytes).map_err(|e| DatasetError::Corrupt {
-        path: path.to_path_buf(),
-        kind: "image",
-        message: e.to_string(),
-    })
+    image::load_from_memory(&bytes).map_err(|e| DatasetError::Corrupt { path: path.to_path_buf(), kind: "image", message: e.to_string() })
 }
 
 /// Area-averages `channels`-channel u8 rows by an integer factor (remainder dropped).

@@ -139,8 +139,12 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PlyData, String> {
         let w: Vec<&str> = line.split_whitespace().collect();
         match w.as_slice() {
             ["format", f, ..] => format = f,
-            ["element", name, count] => elements.push((name.to_string(), count.parse().map_err(|_| format!("bad element count {count:?}"))?, Vec::new())),
-            ["property", "list", c, t, name] => elements.last_mut().ok_or("property before element")?.2.push((name.to_string(), t.to_string(), Some(c.to_string()))),
+            ["element", name, count] => {
+                elements.push((name.to_string(), count.parse().map_err(|_| format!("bad element count {count:?}"))?, Vec::new()))
+            }
+            ["property", "list", c, t, name] => {
+                elements.last_mut().ok_or("property before element")?.2.push((name.to_string(), t.to_string(), Some(c.to_string())))
+            }
             ["property", t, name] => elements.last_mut().ok_or("property before element")?.2.push((name.to_string(), t.to_string(), None)),
             _ => {}
         }
@@ -152,7 +156,8 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PlyData, String> {
     };
     let mut out = PlyData::default();
     let body = &bytes[end..];
-    let mut tokens = if ascii { std::str::from_utf8(body).map_err(|_| "ASCII body is not text")?.split_whitespace().collect::<Vec<_>>() } else { Vec::new() };
+    let mut tokens =
+        if ascii { std::str::from_utf8(body).map_err(|_| "ASCII body is not text")?.split_whitespace().collect::<Vec<_>>() } else { Vec::new() };
     tokens.reverse();
     let mut pos = 0usize;
     let mut next = |t: &str| -> std::result::Result<f64, String> {

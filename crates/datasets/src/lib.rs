@@ -21,8 +21,8 @@
 mod error;
 pub mod golden;
 mod idr;
-pub mod io;
 pub mod images;
+pub mod io;
 mod load;
 pub mod npy;
 mod scene;

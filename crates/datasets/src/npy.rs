@@ -30,9 +30,7 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
         2 | 3 if bytes.len() >= 12 => (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12),
         v => return Err(corrupt(path, format!("unsupported NPY version {v}"))),
     };
-    let header = bytes
-        .get(start..start + header_len)
-        .ok_or_else(|| corrupt(path, "truncated header"))?;
+    let header = bytes.get(start..start + header_len).ok_or_else(|| corrupt(path, "truncated header"))?;
     let header = std::str::from_utf8(header).map_err(|_| corrupt(path, "header is not text"))?;
     let field = |key: &str| -> Result<&str> {
         let at = header.find(&format!("'{key}'")).ok_or_else(|| corrupt(path, format!("header lacks '{key}'")))?;

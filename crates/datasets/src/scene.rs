@@ -87,10 +87,7 @@ impl Scene {
 
     /// Resident bytes of the pixel data (images and masks).
     pub fn pixel_bytes(&self) -> usize {
-        self.views
-            .iter()
-            .map(|v| v.image.data.len() + v.mask.as_ref().map_or(0, |m| (m.width as usize * m.height as usize).div_ceil(8)))
-            .sum()
+        self.views.iter().map(|v| v.image.data.len() + v.mask.as_ref().map_or(0, |m| (m.width as usize * m.height as usize).div_ceil(8))).sum()
     }
 }
 

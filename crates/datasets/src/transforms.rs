@@ -65,23 +65,23 @@ fn resolve_image(dir: &Path, file_path: &str) -> Option<PathBuf> {
     if p.extension().is_some() && p.is_file() {
         return Some(p);
     }
-    ["png", "jpg", "jpeg", "PNG", "JPG"].iter().map(|e| {
-        let mut s = p.clone().into_os_string();
-        s.push(".");
-        s.push(e);
-        PathBuf::from(s)
-    }).find(|p| p.is_file())
+    ["png", "jpg", "jpeg", "PNG", "JPG"]
+        .iter()
+        .map(|e| {
+            let mut s = p.clone().into_os_string();
+            s.push(".");
+            s.push(e);
+            PathBuf::from(s)
+        })
+        .find(|p| p.is_file())
 }
 
 /// Reads the cameras of a transforms JSON (image headers only).
 pub(crate) fn read_cameras(json_path: &Path, format: Format, options: &LoadOptions) -> Result<SceneCameras> {
     let dir = json_path.parent().unwrap_or(Path::new("."));
     let text = std::fs::read_to_string(json_path).map_err(io_err(json_path))?;
-    let t: Transforms = serde_json::from_str(&text).map_err(|e| DatasetError::Corrupt {
-        path: json_path.to_path_buf(),
-        kind: "JSON",
-        message: e.to_string(),
-    })?;
+    let t: Transforms =
+        serde_json::from_str(&text).map_err(|e| DatasetError::Corrupt { path: json_path.to_path_buf(), kind: "JSON", message: e.to_string() })?;
     let invalid = |entry: String, message: String| DatasetError::InvalidValue { path: json_path.to_path_buf(), entry, message };
 
     let (center, radius) = match (options.bound_sphere, format) {
@@ -125,8 +125,8 @@ pub(crate) fn read_cameras(json_path: &Path, format: Format, options: &LoadOptio
                 message: format!("{entry}: sk_y ≠ 0 makes K not upper-triangular"),
             });
         }
-        let image_path = resolve_image(dir, &frame.file_path)
-            .ok_or_else(|| DatasetError::MissingImage { dir: dir.join(&frame.file_path), camera: i })?;
+        let image_path =
+            resolve_image(dir, &frame.file_path).ok_or_else(|| DatasetError::MissingImage { dir: dir.join(&frame.file_path), camera: i })?;
         let (w_file, h_file) = image_size(&image_path)?;
         let w = f.w.unwrap_or(w_file as f64);
         let h = f.h.unwrap_or(h_file as f64);
@@ -158,11 +158,8 @@ pub(crate) fn read_cameras(json_path: &Path, format: Format, options: &LoadOptio
             return Err(invalid(format!("{entry}.transform_matrix"), "non-finite value".into()));
         }
         // OpenGL camera-to-world → OpenCV: flip the camera's y and z axes.
-        let world_rotation_gl = DMat3::from_cols(
-            DVec3::new(m[0][0], m[1][0], m[2][0]),
-            DVec3::new(m[0][1], m[1][1], m[2][1]),
-            DVec3::new(m[0][2], m[1][2], m[2][2]),
-        );
+        let world_rotation_gl =
+            DMat3::from_cols(DVec3::new(m[0][0], m[1][0], m[2][0]), DVec3::new(m[0][1], m[1][1], m[2][1]), DVec3::new(m[0][2], m[1][2], m[2][2]));
         let world_rotation_cv = world_rotation_gl * DMat3::from_diagonal(DVec3::new(1.0, -1.0, -1.0));
         let center_in_normalized = (DVec3::new(m[0][3], m[1][3], m[2][3]) - center) / radius;
         let rotation = world_rotation_cv.transpose();
@@ -191,9 +188,5 @@ pub(crate) fn read_cameras(json_path: &Path, format: Format, options: &LoadOptio
         json_path.display(),
         options.downscale
     );
-    Ok(SceneCameras {
-        records,
-        world_from_normalized,
-        source: SceneSource { format, path: Some(dir.to_path_buf()), description },
-    })
+    Ok(SceneCameras { records, world_from_normalized, source: SceneSource { format, path: Some(dir.to_path_buf()), description } })
 }

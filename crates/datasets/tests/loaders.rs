@@ -151,9 +151,8 @@ fn write_as_transforms(g: &GoldenScene, dir: &Path, file: &str, extra: serde_jso
         let r = world_from_camera.rotation;
         let t = world_from_camera.translation * 1.5; // NeRF-synthetic default bound radius 1.5
         // OpenCV → OpenGL: negate the camera's y and z axes.
-        let m: Vec<Vec<f64>> = (0..4)
-            .map(|i| if i < 3 { vec![r.col(0)[i], -r.col(1)[i], -r.col(2)[i], t[i]] } else { vec![0.0, 0.0, 0.0, 1.0] })
-            .collect();
+        let m: Vec<Vec<f64>> =
+            (0..4).map(|i| if i < 3 { vec![r.col(0)[i], -r.col(1)[i], -r.col(2)[i], t[i]] } else { vec![0.0, 0.0, 0.0, 1.0] }).collect();
         frames.push(serde_json::json!({"file_path": format!("./train/r_{i}"), "transform_matrix": m}));
     }
     let k = g.scene.views[0].camera.intrinsics;
@@ -203,13 +202,17 @@ fn instant_ngp_uses_sphere_bound_and_per_frame_overrides() {
     write_as_transforms(&g, dir.path(), "transforms.json", serde_json::json!({"sphere_center": [0, 0, 0], "sphere_radius": 1.5}));
     let a = read_cameras(dir.path(), &LoadOptions::default()).unwrap();
     for (a, b) in a.records.iter().zip(&g.scene.views) {
-        assert_same_camera(&a.camera, &{
-            let mut c = b.camera;
-            c.pixel_centers = PixelCenters::HalfInteger;
-            c.intrinsics.cx += 0.5;
-            c.intrinsics.cy += 0.5;
-            c
-        }, 1e-9);
+        assert_same_camera(
+            &a.camera,
+            &{
+                let mut c = b.camera;
+                c.pixel_centers = PixelCenters::HalfInteger;
+                c.intrinsics.cx += 0.5;
+                c.intrinsics.cy += 0.5;
+                c
+            },
+            1e-9,
+        );
     }
     // A per-frame focal length overrides the file's.
     let path = dir.path().join("transforms.json");
@@ -348,7 +351,11 @@ fn other_npz_keys_are_ignored() {
 #[test]
 fn nan_in_world_mat_is_rejected() {
     let (dir, _) = written_composite();
-    rewrite_npz(dir.path(), |i, w| if i == 1 { w[5] = f64::NAN });
+    rewrite_npz(dir.path(), |i, w| {
+        if i == 1 {
+            w[5] = f64::NAN
+        }
+    });
     let err = load_scene(dir.path(), &LoadOptions::default()).unwrap_err();
     assert!(err.to_string().contains("world_mat_1") && err.to_string().contains("non-finite"), "{err}");
     assert_names(err, &dir.path().join("cameras_sphere.npz"));
@@ -357,7 +364,11 @@ fn nan_in_world_mat_is_rejected() {
 #[test]
 fn infinite_world_mat_is_rejected() {
     let (dir, _) = written_composite();
-    rewrite_npz(dir.path(), |i, w| if i == 3 { w[3] = f64::INFINITY });
+    rewrite_npz(dir.path(), |i, w| {
+        if i == 3 {
+            w[3] = f64::INFINITY
+        }
+    });
     let err = load_scene(dir.path(), &LoadOptions::default()).unwrap_err();
     assert!(err.to_string().contains("world_mat_3"), "{err}");
     assert_names(err, &dir.path().join("cameras_sphere.npz"));
@@ -367,7 +378,13 @@ fn infinite_world_mat_is_rejected() {
 fn singular_projection_is_rejected() {
     let (dir, _) = written_composite();
     // Second row = first row: rank-deficient M.
-    rewrite_npz(dir.path(), |i, w| if i == 2 { for c in 0..4 { w[4 + c] = w[c]; } });
+    rewrite_npz(dir.path(), |i, w| {
+        if i == 2 {
+            for c in 0..4 {
+                w[4 + c] = w[c];
+            }
+        }
+    });
     let err = load_scene(dir.path(), &LoadOptions::default()).unwrap_err();
     assert!(matches!(err, DatasetError::Camera { source: camera_geom::CameraError::SingularProjection { .. }, .. }), "{err}");
     assert_names(err, &dir.path().join("cameras_sphere.npz"));
@@ -463,8 +480,7 @@ fn shared_data(name: &str) -> Option<PathBuf> {
 fn dtu_scan24_matches_opencv_decomposition() {
     let Some(dir) = shared_data("dtu_scan24") else { return };
     let cams = read_cameras(&dir, &LoadOptions::default()).unwrap();
-    let fixture: serde_json::Value =
-        serde_json::from_str(include_str!("fixtures/dtu_scan24_opencv.json")).unwrap();
+    let fixture: serde_json::Value = serde_json::from_str(include_str!("fixtures/dtu_scan24_opencv.json")).unwrap();
     let reference = fixture["cameras"].as_array().unwrap();
     assert_eq!(cams.records.len(), 49);
     assert_eq!(reference.len(), 49);

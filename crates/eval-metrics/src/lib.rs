@@ -282,8 +282,7 @@ mod tests {
         let (w, h) = (32, 24);
         let img: Vec<[f32; 3]> = (0..w * h).map(|i| [((i % w) as f32 / w as f32), ((i / w) as f32 / h as f32), 0.5]).collect();
         assert!((ssim(&img, &img, w, h).unwrap() - 1.0).abs() < 1e-9);
-        let noisy: Vec<[f32; 3]> =
-            img.iter().enumerate().map(|(i, p)| p.map(|v| v + if (i * 7919) % 3 == 0 { 0.1 } else { -0.05 })).collect();
+        let noisy: Vec<[f32; 3]> = img.iter().enumerate().map(|(i, p)| p.map(|v| v + if (i * 7919) % 3 == 0 { 0.1 } else { -0.05 })).collect();
         let s = ssim(&noisy, &img, w, h).unwrap();
         assert!(s < 0.9 && s > 0.0, "ssim {s}");
     }

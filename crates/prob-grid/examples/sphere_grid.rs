@@ -8,8 +8,8 @@ use prob_grid::{CameraGridConfig, SceneGridConfig, Shape, ViewDependency, update
 
 fn main() {
     let k = Intrinsics { fx: 300.0, fy: 300.0, cx: 99.5, cy: 74.5, skew: 0.0 };
-    let camera = PinholeCamera::look_at(DVec3::new(0.0, -2.4, 1.6), DVec3::ZERO, DVec3::Z, k, 200, 150, PixelCenters::Integer)
-        .expect("a valid camera");
+    let camera =
+        PinholeCamera::look_at(DVec3::new(0.0, -2.4, 1.6), DVec3::ZERO, DVec3::Z, k, 200, 150, PixelCenters::Integer).expect("a valid camera");
     let torus = Shape::Torus { center: DVec3::ZERO, major_radius: 0.5, minor_radius: 0.15 };
     let scene = SceneGridConfig::default(); // 128³ over [−1, 1]³, F = 2, sparse
     for view_dependency in [ViewDependency::Off, ViewDependency::Opaque] {

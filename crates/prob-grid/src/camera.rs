@@ -239,7 +239,12 @@ pub fn reproject(active: &ActiveCells, camera: &PinholeCamera, config: &CameraGr
                 let fv = (sfy * y * inv_z - sv0) * sdv;
                 let fl = (z - sl0) * sdl;
                 // NaN fails every comparison; z ≤ 0 (behind the camera) gives fl < 0.
-                let ok = fu.simd_ge(zero) & fu.simd_lt(sru) & fv.simd_ge(zero) & fv.simd_lt(srv) & fl.simd_ge(zero) & fl.simd_lt(srl)
+                let ok = fu.simd_ge(zero)
+                    & fu.simd_lt(sru)
+                    & fv.simd_ge(zero)
+                    & fv.simd_lt(srv)
+                    & fl.simd_ge(zero)
+                    & fl.simd_lt(srl)
                     & valid.simd_gt(zero);
                 // Indices in f32 are exact (cells < 2²⁴); truncation is floor for the lanes kept.
                 let index = ok.bitselect((fu.trunc() * mrv + fv.trunc()) * mrl + fl.trunc(), sentinel).fast_trunc_int().to_array();

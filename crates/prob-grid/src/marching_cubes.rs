@@ -83,18 +83,20 @@ pub fn marching_cubes(field: &dyn SdfField, config: &MarchingCubesConfig) -> Res
     let point = |v: UVec3| config.min + v.as_vec3() * cell;
 
     // Block centres → which blocks can hold the surface.
-    let blocks: Vec<UVec3> = (0..blocks_per_axis)
-        .flat_map(|z| (0..blocks_per_axis).flat_map(move |y| (0..blocks_per_axis).map(move |x| UVec3::new(x, y, z))))
-        .collect();
+    let blocks: Vec<UVec3> =
+        (0..blocks_per_axis).flat_map(|z| (0..blocks_per_axis).flat_map(move |y| (0..blocks_per_axis).map(move |x| UVec3::new(x, y, z)))).collect();
     let block_range = |b: UVec3| {
         let lo = b * config.block;
         let hi = (lo + UVec3::splat(config.block)).min(UVec3::splat(res));
         (lo, hi)
     };
-    let centres: Vec<Vec3> = blocks.iter().map(|&b| {
-        let (lo, hi) = block_range(b);
-        0.5 * (point(lo) + point(hi))
-    }).collect();
+    let centres: Vec<Vec3> = blocks
+        .iter()
+        .map(|&b| {
+            let (lo, hi) = block_range(b);
+            0.5 * (point(lo) + point(hi))
+        })
+        .collect();
     let mut centre_values = vec![0.0f32; centres.len()];
     centre_values.par_chunks_mut(4096).zip(centres.par_chunks(4096)).for_each(|(o, p)| field.sdf_batch(p, o));
     let near: Vec<UVec3> = blocks

@@ -43,16 +43,9 @@ impl TriangleMesh {
     pub fn new(positions: Vec<Vec3>, triangles: Vec<[u32; 3]>) -> TriangleMesh {
         let n = positions.len() as u32;
         assert!(triangles.iter().flatten().all(|&i| i < n), "triangle index out of range");
-        let centroids: Vec<Vec3> = triangles
-            .iter()
-            .map(|t| (positions[t[0] as usize] + positions[t[1] as usize] + positions[t[2] as usize]) / 3.0)
-            .collect();
-        let mut mesh = TriangleMesh {
-            positions,
-            triangles,
-            nodes: Vec::new(),
-            order: (0..centroids.len() as u32).collect(),
-        };
+        let centroids: Vec<Vec3> =
+            triangles.iter().map(|t| (positions[t[0] as usize] + positions[t[1] as usize] + positions[t[2] as usize]) / 3.0).collect();
+        let mut mesh = TriangleMesh { positions, triangles, nodes: Vec::new(), order: (0..centroids.len() as u32).collect() };
         if !mesh.triangles.is_empty() {
             mesh.nodes.push(Node { min: Vec3::ZERO, max: Vec3::ZERO, start: 0, count: 0 });
             mesh.build(0, 0, centroids.len(), &centroids);
@@ -83,11 +76,15 @@ impl TriangleMesh {
             return;
         }
         let extent = cmax - cmin;
-        let axis = if extent.x >= extent.y && extent.x >= extent.z { 0 } else if extent.y >= extent.z { 1 } else { 2 };
+        let axis = if extent.x >= extent.y && extent.x >= extent.z {
+            0
+        } else if extent.y >= extent.z {
+            1
+        } else {
+            2
+        };
         let mid = (start + end) / 2;
-        self.order[start..end].select_nth_unstable_by(mid - start, |&a, &b| {
-            centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
-        });
+        self.order[start..end].select_nth_unstable_by(mid - start, |&a, &b| centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis]));
         let left = self.nodes.len();
         self.nodes.push(Node { min, max, start: 0, count: 0 });
         self.nodes.push(Node { min, max, start: 0, count: 0 });
@@ -210,11 +207,8 @@ impl TriangleMesh {
     /// Whether `p` is inside a closed mesh, by the parity of crossings along three fixed
     /// irrational directions (majority vote, robust to a ray grazing an edge).
     pub fn contains(&self, p: Vec3) -> bool {
-        const DIRECTIONS: [Vec3; 3] = [
-            Vec3::new(0.5773503, 0.5773503, 0.5773503),
-            Vec3::new(-0.4082483, 0.8164966, -0.4082483),
-            Vec3::new(0.6, -0.1, -0.79),
-        ];
+        const DIRECTIONS: [Vec3; 3] =
+            [Vec3::new(0.5773503, 0.5773503, 0.5773503), Vec3::new(-0.4082483, 0.8164966, -0.4082483), Vec3::new(0.6, -0.1, -0.79)];
         let mut inside_votes = 0;
         for d in DIRECTIONS {
             let d = d.normalize();
@@ -314,9 +308,7 @@ mod tests {
 
     /// A unit cube [-0.5, 0.5]³ with outward (counter-clockwise) faces.
     pub(crate) fn cube() -> TriangleMesh {
-        let p: Vec<Vec3> = (0..8)
-            .map(|i| Vec3::new((i & 1) as f32 - 0.5, ((i >> 1) & 1) as f32 - 0.5, ((i >> 2) & 1) as f32 - 0.5))
-            .collect();
+        let p: Vec<Vec3> = (0..8).map(|i| Vec3::new((i & 1) as f32 - 0.5, ((i >> 1) & 1) as f32 - 0.5, ((i >> 2) & 1) as f32 - 0.5)).collect();
         let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
         let tris = quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect();
         TriangleMesh::new(p, tris)
@@ -339,9 +331,8 @@ mod tests {
         use crate::field::{SdfField, Shape};
         let sdf = MeshSdf { mesh: cube() };
         let b = Shape::Box { center: glam::DVec3::ZERO, half_extents: glam::DVec3::splat(0.5) };
-        let points: Vec<Vec3> = (0..500)
-            .map(|i| Vec3::new((i as f32 * 0.618).fract(), (i as f32 * 0.377).fract(), (i as f32 * 0.913).fract()) * 2.0 - 1.0)
-            .collect();
+        let points: Vec<Vec3> =
+            (0..500).map(|i| Vec3::new((i as f32 * 0.618).fract(), (i as f32 * 0.377).fract(), (i as f32 * 0.913).fract()) * 2.0 - 1.0).collect();
         let mut out = vec![0.0; points.len()];
         sdf.sdf_batch(&points, &mut out);
         for (p, d) in points.iter().zip(&out) {

@@ -198,10 +198,7 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
             loop {
                 // A block's true extent may be clipped by the grid's end.
                 let extent = |o: UVec3| (o + UVec3::splat(size)).min(UVec3::splat(r)) - o;
-                let centers: Vec<Vec3> = blocks
-                    .par_iter()
-                    .map(|o| config.bound_min + (o.as_vec3() + extent(*o).as_vec3() * 0.5) * cell)
-                    .collect();
+                let centers: Vec<Vec3> = blocks.par_iter().map(|o| config.bound_min + (o.as_vec3() + extent(*o).as_vec3() * 0.5) * cell).collect();
                 let values = query(field, &centers);
                 queries += blocks.len();
                 if size == 1 {
@@ -236,9 +233,8 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
 
     let f = config.partition;
     let subcell = cell / f as f32;
-    let offsets: Vec<Vec3> = (0..f * f * f)
-        .map(|n| (UVec3::new(n % f, (n / f) % f, n / (f * f)).as_vec3() + 0.5) * subcell - Vec3::splat(0.5 * cell))
-        .collect();
+    let offsets: Vec<Vec3> =
+        (0..f * f * f).map(|n| (UVec3::new(n % f, (n / f) % f, n / (f * f)).as_vec3() + 0.5) * subcell - Vec3::splat(0.5 * cell)).collect();
     let cell_volume = (cell as f64).powi(3);
     let nan_values = values.iter().filter(|v| v.is_nan()).count();
 
@@ -261,12 +257,7 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
         SubcellMass::Reevaluate => {
             // Parents that may hold mass at sub-cell level: |S| within reach of a sub-cell.
             let reach = negligible_distance(config.cell_density, s, threshold, subcell) + 0.87 * cell * field.lipschitz_bound();
-            let parents: Vec<Vec3> = cells
-                .iter()
-                .zip(&values)
-                .filter(|(_, v)| !(v.abs() > reach))
-                .map(|(c, _)| config.cell_center(*c))
-                .collect();
+            let parents: Vec<Vec3> = cells.iter().zip(&values).filter(|(_, v)| !(v.abs() > reach)).map(|(c, _)| config.cell_center(*c)).collect();
             out.cells = parents.len();
             let points: Vec<Vec3> = parents.iter().flat_map(|c| offsets.iter().map(move |o| *c + *o)).collect();
             let sub_values = query(field, &points);

@@ -127,8 +127,8 @@ fn assert_finite(g: &ProbabilityGrids, what: &str) {
 fn extremes_never_give_nan_inf_or_panic() {
     let cams = [
         camera_at(DVec3::new(0.0, -3.0, 0.0)),
-        camera_at(DVec3::new(0.0, -0.55, 0.0)), // 0.05 from the surface
-        camera_at(DVec3::new(0.0, -0.2, 0.1)),  // inside the sphere and the bound
+        camera_at(DVec3::new(0.0, -0.55, 0.0)),                            // 0.05 from the surface
+        camera_at(DVec3::new(0.0, -0.2, 0.1)),                             // inside the sphere and the bound
         camera_at(DVec3::new(0.0, 0.0, 0.0) + DVec3::new(1e-3, 0.0, 0.0)), // at the centre
     ];
     let small = CameraGridConfig { ru: 16, rv: 16, rl: 32, ..Default::default() };

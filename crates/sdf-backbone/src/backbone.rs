@@ -145,7 +145,9 @@ pub struct ParamLayout {
 /// [`Backbone::set_active_levels`]).
 pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
     let (encoding, width, layers, features, color_width, color_layers) = match preset {
-        Preset::NeuralangeloCpu => (InputEncoding::HashGrid(WithInput { encoding: HashGrid::new(HashGridConfig::neuralangelo_cpu()) }), 64, 2, 15, 64, 2),
+        Preset::NeuralangeloCpu => {
+            (InputEncoding::HashGrid(WithInput { encoding: HashGrid::new(HashGridConfig::neuralangelo_cpu()) }), 64, 2, 15, 64, 2)
+        }
         Preset::NeusCpu => (InputEncoding::Positional(PositionalEncoding { frequencies: 6 }), 64, 4, 15, 64, 2),
         Preset::Neuralangelo => (
             InputEncoding::HashGrid(WithInput {

@@ -32,14 +32,12 @@ pub mod pipeline;
 pub mod real;
 pub mod render;
 
+pub use backbone::{Backbone, BackboneError, BackboneField, Checkpoint, InputEncoding, ParamLayout, Preset, SdfNet, adam_step, build};
 pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};
 pub use hashgrid::{HashGrid, HashGridConfig};
-pub use render::{RayGradients, RayRender, merge_sorted, render_ray, render_ray_backward, sample_intervals};
 pub use mlp::{Mlp, MlpConfig};
 pub use module::{Activation, Chain, Module, batch_gradients};
-pub use backbone::{Backbone, BackboneError, BackboneField, Checkpoint, InputEncoding, ParamLayout, Preset, SdfNet, adam_step, build};
 pub use optim::{Adam, WarmupCosine, WarmupStep};
-pub use pipeline::{
-    ColorLoss, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, interval_weights,
-};
+pub use pipeline::{ColorLoss, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, interval_weights};
 pub use real::Real;
+pub use render::{RayGradients, RayRender, merge_sorted, render_ray, render_ray_backward, sample_intervals};

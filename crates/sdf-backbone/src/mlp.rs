@@ -344,4 +344,3 @@ fn cholesky_solve(a: &mut [f64], b: &[f64], n: usize) -> Option<Vec<f64>> {
     }
     Some(y)
 }
-

@@ -82,7 +82,11 @@ impl Activation {
         match self {
             Activation::Identity => R::ONE,
             Activation::Relu => {
-                if z > R::ZERO { R::ONE } else { R::ZERO }
+                if z > R::ZERO {
+                    R::ONE
+                } else {
+                    R::ZERO
+                }
             }
             Activation::Softplus { beta } => {
                 let bz = R::of(beta) * z;

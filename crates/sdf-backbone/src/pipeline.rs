@@ -55,8 +55,7 @@ impl NormalScheme {
             ([0.0, 0.0, 1.0], 0.5),
             ([0.0, 0.0, -1.0], 0.5),
         ];
-        const T: [([f64; 3], f64); 4] =
-            [([1.0, -1.0, -1.0], 0.25), ([-1.0, -1.0, 1.0], 0.25), ([-1.0, 1.0, -1.0], 0.25), ([1.0, 1.0, 1.0], 0.25)];
+        const T: [([f64; 3], f64); 4] = [([1.0, -1.0, -1.0], 0.25), ([-1.0, -1.0, 1.0], 0.25), ([-1.0, 1.0, -1.0], 0.25), ([1.0, 1.0, 1.0], 0.25)];
         match self {
             NormalScheme::Central => &C,
             NormalScheme::Tetrahedral => &T,
@@ -249,8 +248,7 @@ impl<S, C> Pipeline<S, C> {
                 let k = n_fine / rounds + usize::from(round < n_fine % rounds);
                 let s = (base_s * f64::from(1u32 << round.min(30))) as f32;
                 for ray in rays.iter_mut() {
-                    let points: Vec<f32> =
-                        ray.depths.iter().flat_map(|&t| [0, 1, 2].map(|j| ray.origin[j] + t * ray.direction[j])).collect();
+                    let points: Vec<f32> = ray.depths.iter().flat_map(|&t| [0, 1, 2].map(|j| ray.origin[j] + t * ray.direction[j])).collect();
                     let rows = ray.depths.len();
                     let mut y = vec![0.0; rows * n_out];
                     let mut ctx = vec![0.0; rows * net.ctx_per_row()];
@@ -398,7 +396,13 @@ impl<S, C> Pipeline<S, C> {
                 match self.config.color_loss {
                     ColorLoss::L1 => {
                         loss += e.abs();
-                        d_color[k] = if e > R::ZERO { R::ONE } else if e < R::ZERO { -R::ONE } else { R::ZERO };
+                        d_color[k] = if e > R::ZERO {
+                            R::ONE
+                        } else if e < R::ZERO {
+                            -R::ONE
+                        } else {
+                            R::ZERO
+                        };
                     }
                     ColorLoss::L2 => {
                         loss += e * e;
@@ -420,8 +424,13 @@ impl<S, C> Pipeline<S, C> {
                     lap = lap / lap_den;
                     loss += curv_w * lap.abs();
                     if backward {
-                        d_laplacian_all[c0 + i] =
-                            if lap > R::ZERO { curv_w / lap_den } else if lap < R::ZERO { -curv_w / lap_den } else { R::ZERO } * inv_m;
+                        d_laplacian_all[c0 + i] = if lap > R::ZERO {
+                            curv_w / lap_den
+                        } else if lap < R::ZERO {
+                            -curv_w / lap_den
+                        } else {
+                            R::ZERO
+                        } * inv_m;
                     }
                 }
             }
@@ -466,17 +475,8 @@ impl<S, C> Pipeline<S, C> {
                 continue;
             }
             let d_w: Vec<R> = d_w_extra.iter().map(|&v| R::of(v) * inv_m).collect();
-            let g = render_ray_backward(
-                &sdf_values,
-                &ray.depths,
-                &colors,
-                s,
-                &r_out,
-                d_color.map(|d| d * inv_m),
-                R::ZERO,
-                d_opacity * inv_m,
-                Some(&d_w),
-            );
+            let g =
+                render_ray_backward(&sdf_values, &ray.depths, &colors, s, &r_out, d_color.map(|d| d * inv_m), R::ZERO, d_opacity * inv_m, Some(&d_w));
             d_var += g.s * R::of(10.0) * s;
             for k in 0..3 {
                 d_bg_all[3 * r + k] = d_color[k] * (R::ONE - r_out.opacity) * inv_m;

@@ -26,8 +26,13 @@ fn samples(rng: &mut Xoshiro256PlusPlus, n: usize) -> Vec<f32> {
 fn hash_grid_mlp_learns_a_torus_sdf() {
     let grid = HashGrid::new(HashGridConfig { levels: 8, features: 2, log2_table: 14, base_resolution: 8, finest_resolution: 128 });
     let mlp = Mlp::new(MlpConfig {
-        n_inputs: 3 + 16, width: 32, hidden_layers: 2, n_outputs: 1, skip: None,
-        hidden_activation: Activation::Softplus { beta: 100.0 }, output_activation: Activation::Identity,
+        n_inputs: 3 + 16,
+        width: 32,
+        hidden_layers: 2,
+        n_outputs: 1,
+        skip: None,
+        hidden_activation: Activation::Softplus { beta: 100.0 },
+        output_activation: Activation::Identity,
     });
     // Raw coordinates alongside the grid features, as NeuS-style networks do.
     let input = WithInput { encoding: grid };

@@ -56,7 +56,15 @@ fn mlp_gradients_match_finite_differences_for_every_activation() {
         (Activation::Sigmoid, Activation::Softplus { beta: 2.0 }),
     ] {
         for skip in [None, Some(2)] {
-            let mlp = Mlp::new(MlpConfig { n_inputs: 3, width: 7, hidden_layers: 3, n_outputs: 4, skip, hidden_activation: hidden, output_activation: output });
+            let mlp = Mlp::new(MlpConfig {
+                n_inputs: 3,
+                width: 7,
+                hidden_layers: 3,
+                n_outputs: 4,
+                skip,
+                hidden_activation: hidden,
+                output_activation: output,
+            });
             let params = random_params(Module::<f64>::n_params(&mlp), 0.6, 1);
             let err = grad_check(&mlp, &params, 5, 2);
             assert!(err <= 1e-5, "{hidden:?}/{output:?} skip {skip:?}: relative error {err:e}");
@@ -67,8 +75,13 @@ fn mlp_gradients_match_finite_differences_for_every_activation() {
 #[test]
 fn softplus_beta_100_gradient_matches_where_smooth() {
     let mlp = Mlp::new(MlpConfig {
-        n_inputs: 3, width: 6, hidden_layers: 2, n_outputs: 2, skip: None,
-        hidden_activation: Activation::Softplus { beta: 100.0 }, output_activation: Activation::Identity,
+        n_inputs: 3,
+        width: 6,
+        hidden_layers: 2,
+        n_outputs: 2,
+        skip: None,
+        hidden_activation: Activation::Softplus { beta: 100.0 },
+        output_activation: Activation::Identity,
     });
     let params = random_params(Module::<f64>::n_params(&mlp), 0.5, 3);
     let err = grad_check(&mlp, &params, 4, 4);
@@ -80,8 +93,13 @@ fn positional_encoding_and_chain_gradients_match() {
     let pe = PositionalEncoding { frequencies: 4 };
     assert!(grad_check(&pe, &[], 6, 5) <= 1e-6);
     let mlp = Mlp::new(MlpConfig {
-        n_inputs: Module::<f64>::n_outputs(&pe), width: 8, hidden_layers: 3, n_outputs: 3, skip: Some(2),
-        hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Identity,
+        n_inputs: Module::<f64>::n_outputs(&pe),
+        width: 8,
+        hidden_layers: 3,
+        n_outputs: 3,
+        skip: Some(2),
+        hidden_activation: Activation::Softplus { beta: 10.0 },
+        output_activation: Activation::Identity,
     });
     let net = Chain { a: pe, b: mlp };
     let params = random_params(Module::<f64>::n_params(&net), 0.4, 6);
@@ -98,8 +116,13 @@ fn positional_encoding_and_chain_gradients_match() {
 fn geometric_init_approximates_a_sphere_sdf_on_average() {
     let pe = PositionalEncoding { frequencies: 6 };
     let mlp = Mlp::new(MlpConfig {
-        n_inputs: Module::<f32>::n_outputs(&pe), width: 256, hidden_layers: 8, n_outputs: 33, skip: Some(4),
-        hidden_activation: Activation::Softplus { beta: 100.0 }, output_activation: Activation::Identity,
+        n_inputs: Module::<f32>::n_outputs(&pe),
+        width: 256,
+        hidden_layers: 8,
+        n_outputs: 33,
+        skip: Some(4),
+        hidden_activation: Activation::Softplus { beta: 100.0 },
+        output_activation: Activation::Identity,
     });
     let mut params = vec![0.0f32; Module::<f32>::n_params(&mlp)];
     let radius = 0.5;
@@ -151,8 +174,13 @@ fn hash_grid_gradients_match_finite_differences_dense_and_hashed_levels() {
     assert!(err <= 1e-5, "relative error {err:e}");
     // Through an MLP, as in Neuralangelo's SDF network.
     let mlp = Mlp::new(MlpConfig {
-        n_inputs: 8, width: 8, hidden_layers: 2, n_outputs: 2, skip: None,
-        hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Identity,
+        n_inputs: 8,
+        width: 8,
+        hidden_layers: 2,
+        n_outputs: 2,
+        skip: None,
+        hidden_activation: Activation::Softplus { beta: 10.0 },
+        output_activation: Activation::Identity,
     });
     let net = Chain { a: grid, b: mlp };
     let params = random_params(Module::<f64>::n_params(&net), 0.5, 13);
@@ -259,7 +287,9 @@ fn rendering_is_stable_at_the_extremes() {
             let r = render_ray(sdf, t, &colors, s);
             let g = render_ray_backward(sdf, t, &colors, s, &r, [1.0; 3], 1.0, 1.0, None);
             let finite = r.weights.iter().chain(&r.alphas).chain(&g.sdf).all(|v| v.is_finite())
-                && r.color.iter().all(|v| v.is_finite()) && r.depth.is_finite() && g.s.is_finite();
+                && r.color.iter().all(|v| v.is_finite())
+                && r.depth.is_finite()
+                && g.s.is_finite();
             assert!(finite, "{name}, s {s}: non-finite output");
             assert!(r.opacity >= -1e-12 && r.opacity <= 1.0 + 1e-12, "{name}, s {s}: opacity {}", r.opacity);
         }
@@ -336,12 +366,22 @@ fn whole_pipeline_gradients_match_finite_differences() {
     for normals in [NormalScheme::Central, NormalScheme::Tetrahedral] {
         let pe = PositionalEncoding { frequencies: 2 };
         let sdf_mlp = Mlp::new(MlpConfig {
-            n_inputs: 15, width: 8, hidden_layers: 2, n_outputs: 1 + 4, skip: None,
-            hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Identity,
+            n_inputs: 15,
+            width: 8,
+            hidden_layers: 2,
+            n_outputs: 1 + 4,
+            skip: None,
+            hidden_activation: Activation::Softplus { beta: 10.0 },
+            output_activation: Activation::Identity,
         });
         let color = Mlp::new(MlpConfig {
-            n_inputs: 22 + 4, width: 8, hidden_layers: 1, n_outputs: 3, skip: None,
-            hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Sigmoid,
+            n_inputs: 22 + 4,
+            width: 8,
+            hidden_layers: 1,
+            n_outputs: 3,
+            skip: None,
+            hidden_activation: Activation::Softplus { beta: 10.0 },
+            output_activation: Activation::Sigmoid,
         });
         let pipeline = Pipeline {
             sdf: Chain { a: pe, b: sdf_mlp },
@@ -349,15 +389,25 @@ fn whole_pipeline_gradients_match_finite_differences() {
             // The learned background on one of the two variants.
             background: (normals == NormalScheme::Tetrahedral).then(|| {
                 Mlp::new(MlpConfig {
-                    n_inputs: 16, width: 4, hidden_layers: 1, n_outputs: 3, skip: None,
-                    hidden_activation: Activation::Softplus { beta: 10.0 }, output_activation: Activation::Sigmoid,
+                    n_inputs: 16,
+                    width: 4,
+                    hidden_layers: 1,
+                    n_outputs: 3,
+                    skip: None,
+                    hidden_activation: Activation::Softplus { beta: 10.0 },
+                    output_activation: Activation::Sigmoid,
                 })
             }),
             config: PipelineConfig {
                 // h = 1e-2: the Laplacian divides by h², and with h = 1e-3 the finite differences
                 // of the check itself lose 5 digits to rounding (measured 2e-4 "error").
-                color_loss: ColorLoss::L2, eikonal_weight: 0.1, mask_weight: 0.1, normal_step: 1e-2, normals,
-                curvature_weight: 1e-3, background: [0.3, 0.5, 0.1],
+                color_loss: ColorLoss::L2,
+                eikonal_weight: 0.1,
+                mask_weight: 0.1,
+                normal_step: 1e-2,
+                normals,
+                curvature_weight: 1e-3,
+                background: [0.3, 0.5, 0.1],
             },
         };
         let n = pipeline.n_params::<f64>();
@@ -386,8 +436,7 @@ fn whole_pipeline_gradients_match_finite_differences() {
             let (mut p, mut m) = (params.clone(), params.clone());
             p[i] += h;
             m[i] -= h;
-            let numeric =
-                (pipeline.loss(&p, &rays, None, &TestSampleLoss).0 - pipeline.loss(&m, &rays, None, &TestSampleLoss).0) / (2.0 * h);
+            let numeric = (pipeline.loss(&p, &rays, None, &TestSampleLoss).0 - pipeline.loss(&m, &rays, None, &TestSampleLoss).0) / (2.0 * h);
             let rel = (grads[i] - numeric).abs() / grads[i].abs().max(numeric.abs()).max(1e-4);
             if rel > 1e-5 {
                 eprintln!("{normals:?} param {i}/{n}: analytic {:e} numeric {numeric:e}", grads[i]);
@@ -404,12 +453,22 @@ fn both_normal_schemes_recover_a_known_gradient() {
     // S(x) = |x| − 0.5 via PE-free identity network is not available; use a one-layer MLP whose
     // SDF output is linear, S(x) = a·x + b: every scheme must return a exactly (up to rounding).
     let mlp = Mlp::new(MlpConfig {
-        n_inputs: 3, width: 4, hidden_layers: 0, n_outputs: 1, skip: None,
-        hidden_activation: Activation::Identity, output_activation: Activation::Identity,
+        n_inputs: 3,
+        width: 4,
+        hidden_layers: 0,
+        n_outputs: 1,
+        skip: None,
+        hidden_activation: Activation::Identity,
+        output_activation: Activation::Identity,
     });
     let color = Mlp::new(MlpConfig {
-        n_inputs: 22, width: 4, hidden_layers: 0, n_outputs: 3, skip: None,
-        hidden_activation: Activation::Identity, output_activation: Activation::Sigmoid,
+        n_inputs: 22,
+        width: 4,
+        hidden_layers: 0,
+        n_outputs: 3,
+        skip: None,
+        hidden_activation: Activation::Identity,
+        output_activation: Activation::Sigmoid,
     });
     for normals in [NormalScheme::Central, NormalScheme::Tetrahedral] {
         let pipeline = Pipeline {
@@ -417,8 +476,13 @@ fn both_normal_schemes_recover_a_known_gradient() {
             color: color.clone(),
             background: None,
             config: PipelineConfig {
-                color_loss: ColorLoss::L2, eikonal_weight: 0.0, mask_weight: 0.0, normal_step: 1e-2, normals,
-                curvature_weight: 0.0, background: [0.0; 3],
+                color_loss: ColorLoss::L2,
+                eikonal_weight: 0.0,
+                mask_weight: 0.0,
+                normal_step: 1e-2,
+                normals,
+                curvature_weight: 0.0,
+                background: [0.0; 3],
             },
         };
         let n = pipeline.n_params::<f64>();
@@ -448,20 +512,35 @@ fn with_input_gradients_match() {
 fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
     let pe = PositionalEncoding { frequencies: 2 };
     let sdf_mlp = Mlp::new(MlpConfig {
-        n_inputs: 15, width: 8, hidden_layers: 2, n_outputs: 1 + 4, skip: None,
-        hidden_activation: Activation::Softplus { beta: 100.0 }, output_activation: Activation::Identity,
+        n_inputs: 15,
+        width: 8,
+        hidden_layers: 2,
+        n_outputs: 1 + 4,
+        skip: None,
+        hidden_activation: Activation::Softplus { beta: 100.0 },
+        output_activation: Activation::Identity,
     });
     let color = Mlp::new(MlpConfig {
-        n_inputs: 26, width: 8, hidden_layers: 1, n_outputs: 3, skip: None,
-        hidden_activation: Activation::Relu, output_activation: Activation::Sigmoid,
+        n_inputs: 26,
+        width: 8,
+        hidden_layers: 1,
+        n_outputs: 3,
+        skip: None,
+        hidden_activation: Activation::Relu,
+        output_activation: Activation::Sigmoid,
     });
     let pipeline = Pipeline {
         sdf: Chain { a: pe, b: sdf_mlp },
         color,
         background: None,
         config: PipelineConfig {
-            color_loss: ColorLoss::L1, eikonal_weight: 0.1, mask_weight: 0.0, normal_step: 1e-3, normals: NormalScheme::Tetrahedral,
-            curvature_weight: 1e-4, background: [0.2; 3],
+            color_loss: ColorLoss::L1,
+            eikonal_weight: 0.1,
+            mask_weight: 0.0,
+            normal_step: 1e-3,
+            normals: NormalScheme::Tetrahedral,
+            curvature_weight: 1e-4,
+            background: [0.2; 3],
         },
     };
     let n = pipeline.n_params::<f64>();
@@ -500,12 +579,22 @@ fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
 fn curvature_term_is_the_mean_absolute_laplacian() {
     let pe = PositionalEncoding { frequencies: 1 };
     let mlp = Mlp::new(MlpConfig {
-        n_inputs: 9, width: 4, hidden_layers: 0, n_outputs: 1, skip: None,
-        hidden_activation: Activation::Identity, output_activation: Activation::Identity,
+        n_inputs: 9,
+        width: 4,
+        hidden_layers: 0,
+        n_outputs: 1,
+        skip: None,
+        hidden_activation: Activation::Identity,
+        output_activation: Activation::Identity,
     });
     let color = Mlp::new(MlpConfig {
-        n_inputs: 22, width: 4, hidden_layers: 0, n_outputs: 3, skip: None,
-        hidden_activation: Activation::Identity, output_activation: Activation::Sigmoid,
+        n_inputs: 22,
+        width: 4,
+        hidden_layers: 0,
+        n_outputs: 3,
+        skip: None,
+        hidden_activation: Activation::Identity,
+        output_activation: Activation::Sigmoid,
     });
     let ray = RayInput { origin: [-1.0, 0.2, 0.1], direction: [1.0, 0.0, 0.0], depths: vec![0.3, 0.7, 1.1, 1.6, 1.9], target: [0.1; 3], mask: None };
     let expected: f64 = (0..4).map(|i| (ray.origin[0] + ray.depths[i]).sin().abs()).sum::<f64>() / 4.0;
@@ -515,8 +604,13 @@ fn curvature_term_is_the_mean_absolute_laplacian() {
             color: color.clone(),
             background: None,
             config: PipelineConfig {
-                color_loss: ColorLoss::L2, eikonal_weight: 0.0, mask_weight: 0.0, normal_step: 1e-3, normals,
-                curvature_weight: 0.0, background: [0.0; 3],
+                color_loss: ColorLoss::L2,
+                eikonal_weight: 0.0,
+                mask_weight: 0.0,
+                normal_step: 1e-3,
+                normals,
+                curvature_weight: 0.0,
+                background: [0.0; 3],
             },
         };
         let n = pipeline.n_params::<f64>();
@@ -538,17 +632,20 @@ fn pipeline_is_finite_at_the_extremes() {
     let (mut backbone, mut params) = build(Preset::NeuralangeloCpu, 0.5, 9);
     backbone.config.curvature_weight = 5e-4;
     let n = params.len();
-    let ray = |origin: [f32; 3], direction: [f32; 3], depths: Vec<f32>, mask: f32| RayInput { origin, direction, depths, target: [0.0; 3], mask: Some(mask) };
+    let ray = |origin: [f32; 3], direction: [f32; 3], depths: Vec<f32>, mask: f32| RayInput {
+        origin,
+        direction,
+        depths,
+        target: [0.0; 3],
+        mask: Some(mask),
+    };
     let line = |a: f32, b: f32, k: usize| (0..=k).map(|i| a + (b - a) * i as f32 / k as f32).collect::<Vec<f32>>();
     let cases: Vec<(&str, Vec<RayInput<f32>>)> = vec![
         ("through the centre", vec![ray([0.0, -3.0, 0.0], [0.0, 1.0, 0.0], line(2.0, 4.0, 32), 1.0)]),
         ("grazing the unit sphere", vec![ray([0.999, -3.0, 0.0], [0.0, 1.0, 0.0], line(2.9, 3.1, 32), 0.0)]),
         ("missing the unit sphere", vec![ray([1.5, -3.0, 0.0], [0.0, 1.0, 0.0], line(2.0, 4.0, 32), 0.0)]),
         ("zero-length intervals", vec![ray([0.0, -3.0, 0.0], [0.0, 1.0, 0.0], vec![2.0, 2.0, 2.5, 2.5, 2.5, 3.0, 3.0], 1.0)]),
-        (
-            "all background",
-            (0..8).map(|i| ray([1.2 + 0.1 * i as f32, -3.0, 0.0], [0.0, 1.0, 0.0], line(2.0, 4.0, 16), 0.0)).collect(),
-        ),
+        ("all background", (0..8).map(|i| ray([1.2 + 0.1 * i as f32, -3.0, 0.0], [0.0, 1.0, 0.0], line(2.0, 4.0, 16), 0.0)).collect()),
     ];
     for log10_s in [1.0f32, 3.0, 6.0] {
         params[n - 1] = log10_s * std::f32::consts::LN_10 / 10.0; // s = exp(10 v)
@@ -556,7 +653,10 @@ fn pipeline_is_finite_at_the_extremes() {
             let mut grads = vec![0.0f32; n];
             let (loss, out) = backbone.loss_parallel(&params, rays, &mut grads, 4, &NoSampleLoss);
             assert!(loss.is_finite(), "s = 1e{log10_s}, {name}: loss {loss}");
-            assert!(out.iter().all(|o| o.color.iter().chain(&o.normal).all(|v| v.is_finite()) && o.opacity.is_finite() && o.depth.is_finite()), "s = 1e{log10_s}, {name}: outputs");
+            assert!(
+                out.iter().all(|o| o.color.iter().chain(&o.normal).all(|v| v.is_finite()) && o.opacity.is_finite() && o.depth.is_finite()),
+                "s = 1e{log10_s}, {name}: outputs"
+            );
             assert!(grads.iter().all(|g| g.is_finite()), "s = 1e{log10_s}, {name}: gradients");
         }
     }

@@ -133,7 +133,13 @@ pub fn ray_loss(
         let mid_t = 0.5 * (t[i] + t[i + 1]);
         let mid_s = 0.5 * (sdf[i] + sdf[i + 1]);
         let w = weights[i];
-        let sign = if mid_s > 0.0 { 1.0 } else if mid_s < 0.0 { -1.0 } else { 0.0 };
+        let sign = if mid_s > 0.0 {
+            1.0
+        } else if mid_s < 0.0 {
+            -1.0
+        } else {
+            0.0
+        };
         // ∂/∂S̄ and ∂/∂w of this interval's weighted term.
         let (d_mid, d_w) = if ray.background {
             let e = (-config.beta * mid_s.abs()).exp();

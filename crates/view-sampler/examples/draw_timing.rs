@@ -10,7 +10,8 @@ fn main() {
     let cams: Vec<PinholeCamera> = (0..49)
         .map(|i| {
             let a = i as f64 * 0.1;
-            PinholeCamera::look_at(DVec3::new(2.5 * a.cos(), 2.5 * a.sin(), 1.3), DVec3::ZERO, DVec3::Z, k, 1600, 1200, PixelCenters::Integer).unwrap()
+            PinholeCamera::look_at(DVec3::new(2.5 * a.cos(), 2.5 * a.sin(), 1.3), DVec3::ZERO, DVec3::Z, k, 1600, 1200, PixelCenters::Integer)
+                .unwrap()
         })
         .collect();
     let sphere = Shape::Sphere { center: DVec3::ZERO, radius: 0.5 };

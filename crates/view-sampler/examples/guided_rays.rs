@@ -33,6 +33,10 @@ fn main() {
     let d = &sampler.cameras()[r.camera as usize];
     println!(
         "first guided ray: camera {}, pixel {:?}, λ̃ = {:.4}, pdf(pixel) = {:.3e}/px², pdf(λ̃ | pixel) = {:.3}",
-        r.camera, r.pixel, r.depth, d.pdf_pixel(r.pixel_coords), d.pdf_depth(r.pixel_coords, r.depth as f64)
+        r.camera,
+        r.pixel,
+        r.depth,
+        d.pdf_pixel(r.pixel_coords),
+        d.pdf_depth(r.pixel_coords, r.depth as f64)
     );
 }

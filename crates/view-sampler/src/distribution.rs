@@ -51,7 +51,6 @@ impl ImageSpaceSample {
     }
 }
 
-
 /// Bins per guide entry of the λ columns (two-level search: guide, then one block).
 const BLOCK: usize = 16;
 
@@ -251,20 +250,7 @@ impl CameraDistribution {
                 v_guide[iu * v_blocks + b] = v_cdf[iu * rv + ((b + 1) * BLOCK).min(rv) - 1];
             }
         }
-        CameraDistribution {
-            camera,
-            bounds,
-            ru,
-            rv,
-            rl,
-            lambda_cdf: values,
-            lambda_guide,
-            v_cdf,
-            v_guide,
-            u_cdf,
-            interpolation,
-            uniform_fallback,
-        }
+        CameraDistribution { camera, bounds, ru, rv, rl, lambda_cdf: values, lambda_guide, v_cdf, v_guide, u_cdf, interpolation, uniform_fallback }
     }
 
     /// The camera.
@@ -311,11 +297,7 @@ impl CameraDistribution {
             Interpolation::Linear => bracket(pixel_u, self.bounds.u[0], du, self.ru),
         };
         let count = if j0 == j1 { 1 } else { 2 };
-        Mixture {
-            parts: [(col(j0), 1.0 - t), (col(j1), t), (&[], 0.0), (&[], 0.0)],
-            count,
-            guide: Some([guide(j0), guide(j1), &[], &[]]),
-        }
+        Mixture { parts: [(col(j0), 1.0 - t), (col(j1), t), (&[], 0.0), (&[], 0.0)], count, guide: Some([guide(j0), guide(j1), &[], &[]]) }
     }
 
     fn lambda_mixture(&self, pixel: DVec2) -> Mixture<'_> {

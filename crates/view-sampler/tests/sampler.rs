@@ -4,7 +4,7 @@
 use camera_geom::{DepthBounds, ImageSpaceBounds, Intrinsics, PinholeCamera, PixelCenters};
 use datasets::golden::{self, GeometrySource, GoldenScene, GoldenSpec, rig::Rig};
 use glam::{DVec2, DVec3, Vec3};
-use prob_grid::{ViewDependency, CameraGrid, CameraGridConfig, MeshSdf, SceneGridConfig, SdfField, Shape, TriangleMesh, update};
+use prob_grid::{CameraGrid, CameraGridConfig, MeshSdf, SceneGridConfig, SdfField, Shape, TriangleMesh, ViewDependency, update};
 use proptest::prelude::*;
 use view_sampler::{CameraDistribution, Interpolation, SamplerConfig, UniformSchedule, ViewSampler};
 
@@ -102,8 +102,8 @@ fn histogram_matches_pdf_by_chi_square() {
         };
         for _ in 0..n {
             let s = d.sample([uniform(), uniform(), uniform()]);
-            let idx = (cell(s.pixel.x, b.u[0], size[0], ru) * rv + cell(s.pixel.y, b.v[0], size[1], rv)) * rl
-                + cell(s.depth, b.depth[0], size[2], rl);
+            let idx =
+                (cell(s.pixel.x, b.u[0], size[0], ru) * rv + cell(s.pixel.y, b.v[0], size[1], rv)) * rl + cell(s.depth, b.depth[0], size[2], rl);
             counts[idx] += 1;
         }
         // Expected probabilities: midpoint rule with 32 points per axis in each cell.
@@ -163,10 +163,10 @@ fn uniform_rays_on_an_empty_column_get_uniform_depths() {
     values[0] = 1.0; // only column (0, 0) has mass
     let d = CameraDistribution::new(grid_from(values, 2, 2, 4), Interpolation::Nearest);
     assert!(d.sample_depth(DVec2::new(150.0, 100.0), 0.5).is_none());
-    let sampler = ViewSampler::new(vec![grid_from(vec![0.0; 16].into_iter().enumerate().map(|(i, _)| if i == 0 { 1.0 } else { 0.0 }).collect(), 2, 2, 4)], SamplerConfig {
-        schedule: UniformSchedule { fractions: vec![1.0] },
-        ..Default::default()
-    });
+    let sampler = ViewSampler::new(
+        vec![grid_from(vec![0.0; 16].into_iter().enumerate().map(|(i, _)| if i == 0 { 1.0 } else { 0.0 }).collect(), 2, 2, 4)],
+        SamplerConfig { schedule: UniformSchedule { fractions: vec![1.0] }, ..Default::default() },
+    );
     let rays = sampler.sample_batch(500, 0.0, 3, 0);
     assert!(rays.iter().all(|r| !r.guided && r.depth >= 2.0 && r.depth <= 4.0 && r.pdf_depth > 0.0));
 }
@@ -182,9 +182,7 @@ fn batches_do_not_depend_on_thread_count_and_follow_the_schedule() {
     )
     .unwrap();
     let sampler = ViewSampler::new(grids.cameras, SamplerConfig::default());
-    let run = |threads| {
-        rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| sampler.sample_batch(5000, 0.6, 42, 17))
-    };
+    let run = |threads| rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| sampler.sample_batch(5000, 0.6, 42, 17));
     let (a, b) = (run(1), run(2));
     assert_eq!(a, b);
     // Progress 0.6 → third quarter → 60 % uniform.

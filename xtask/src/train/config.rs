@@ -375,7 +375,12 @@ impl TrainConfig {
         need(self.model.background.iter().all(|c| (0.0..=1.0).contains(c)), "model.background", self.model.background, "each in [0, 1]")?;
         need(self.render.rays >= 1, "render.rays", self.render.rays, "≥ 1")?;
         need(self.render.coarse >= 2, "render.coarse", self.render.coarse, "≥ 2")?;
-        need(self.render.upsample_rounds >= 1 || self.render.fine == 0, "render.upsample_rounds", self.render.upsample_rounds, "≥ 1 when render.fine > 0")?;
+        need(
+            self.render.upsample_rounds >= 1 || self.render.fine == 0,
+            "render.upsample_rounds",
+            self.render.upsample_rounds,
+            "≥ 1 when render.fine > 0",
+        )?;
         need(finite_pos(self.render.upsample_s), "render.upsample_s", self.render.upsample_s, "> 0")?;
         need(self.render.chunk >= 1, "render.chunk", self.render.chunk, "≥ 1")?;
         need(finite_pos(self.optim.lr), "optim.lr", self.optim.lr, "> 0")?;
@@ -409,7 +414,12 @@ impl TrainConfig {
             self.guide.extra_points,
             "≤ render.fine (the extra points replace up-sampled ones)",
         )?;
-        need(["gaussian", "uniform", "log"].contains(&self.guide.extra.as_str()), "guide.extra", &self.guide.extra, "gaussian, uniform (RU) or log (Log)")?;
+        need(
+            ["gaussian", "uniform", "log"].contains(&self.guide.extra.as_str()),
+            "guide.extra",
+            &self.guide.extra,
+            "gaussian, uniform (RU) or log (Log)",
+        )?;
         self.surface_losses().validate().map_err(|e| anyhow::anyhow!("surface.{e}"))?;
         need(self.output.validate_downscale >= 1, "output.validate_downscale", self.output.validate_downscale, "≥ 1")?;
         need(self.output.log_every >= 1, "output.log_every", self.output.log_every, "≥ 1")?;

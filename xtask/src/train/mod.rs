@@ -87,7 +87,8 @@ fn load_data(config: &TrainConfig, data: Option<&Path>) -> Result<RunData> {
             Ok(RunData { scene: g.scene, builtin_truth: Some(g.surface_points), path: None })
         }
         Some(dir) => {
-            let options = LoadOptions { downscale: config.data.downscale, background: config.model.background.map(|c| c as f32), ..Default::default() };
+            let options =
+                LoadOptions { downscale: config.data.downscale, background: config.model.background.map(|c| c as f32), ..Default::default() };
             let scene = load_scene(dir, &options).with_context(|| format!("cannot load the data folder {}", dir.display()))?;
             if scene.views.is_empty() {
                 bail!("the data folder {} has no views", dir.display());
@@ -169,7 +170,13 @@ impl StepInputs<'_> {
     /// Draws the rays of iteration `step` (guided from `sampler`, else uniform), builds their
     /// depths and adds the batch loss's gradient into `grads`. Returns the loss, the per-ray
     /// outputs, the batch, and the seconds spent drawing and building rays.
-    pub fn gradient(&self, params: &[f32], step: u64, sampler: Option<&ViewSampler>, grads: &mut [f32]) -> (f32, Vec<sdf_backbone::RayOutput<f32>>, rays::Batch, f64) {
+    pub fn gradient(
+        &self,
+        params: &[f32],
+        step: u64,
+        sampler: Option<&ViewSampler>,
+        grads: &mut [f32],
+    ) -> (f32, Vec<sdf_backbone::RayOutput<f32>>, rays::Batch, f64) {
         let t = Instant::now();
         let config = self.config;
         let s_now = self.backbone.scale(params);
@@ -230,7 +237,12 @@ fn save_checkpoint(out: &Path, state: &State, config: &TrainConfig) -> Result<()
 }
 
 /// Grids and sampler from the parameters of the last update.
-pub(crate) fn guide(config: &TrainConfig, backbone: &Backbone, grid_params: &[f32], cameras: &[camera_geom::PinholeCamera]) -> Result<(ViewSampler, f64)> {
+pub(crate) fn guide(
+    config: &TrainConfig,
+    backbone: &Backbone,
+    grid_params: &[f32],
+    cameras: &[camera_geom::PinholeCamera],
+) -> Result<(ViewSampler, f64)> {
     let s = if config.guide.fixed_s > 0.0 { config.guide.fixed_s } else { backbone.scale(grid_params) };
     let scene_cfg = SceneGridConfig { resolution: config.guide.scene_resolution, partition: config.guide.partition, ..Default::default() };
     let cam_cfg = CameraGridConfig {
@@ -334,9 +346,7 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
     let mut log = std::fs::OpenOptions::new().create(true).append(true).open(out.join("log.jsonl")).context("opening log.jsonl")?;
     let progress = if std::io::IsTerminal::is_terminal(&std::io::stderr()) {
         let bar = indicatif::ProgressBar::new(config.steps);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} {percent}% {per_sec} ETA {eta} {msg}").expect("template"),
-        );
+        bar.set_style(indicatif::ProgressStyle::with_template("{bar:30} {pos}/{len} {percent}% {per_sec} ETA {eta} {msg}").expect("template"));
         bar.set_position(state.step);
         Some(bar)
     } else {
@@ -390,8 +400,9 @@ pub fn run(args: &TrainArgs) -> Result<RunSummary> {
             bail!("the loss became {loss} at step {step}; checkpoint written to {}", checkpoint_path(&out).display());
         }
 
-        let mse = batch.rays.iter().zip(&outputs).map(|(r, o)| (0..3).map(|k| f64::from(o.color[k] - r.target[k]).powi(2)).sum::<f64>() / 3.0).sum::<f64>()
-            / outputs.len() as f64;
+        let mse =
+            batch.rays.iter().zip(&outputs).map(|(r, o)| (0..3).map(|k| f64::from(o.color[k] - r.target[k]).powi(2)).sum::<f64>() / 3.0).sum::<f64>()
+                / outputs.len() as f64;
         let psnr = -10.0 * mse.log10();
         if state.step.is_multiple_of(config.output.log_every) || state.step == config.steps {
             let elapsed = start.elapsed().as_secs_f64();
@@ -470,7 +481,15 @@ struct Timing {
 }
 
 /// Chamfer of the current mesh and PSNR of the first held-out view.
-fn interim_metrics(config: &TrainConfig, backbone: &Backbone, params: &[f32], data: &RunData, test_views: &[usize], step: u64, time: f64) -> Result<serde_json::Value> {
+fn interim_metrics(
+    config: &TrainConfig,
+    backbone: &Backbone,
+    params: &[f32],
+    data: &RunData,
+    test_views: &[usize],
+    step: u64,
+    time: f64,
+) -> Result<serde_json::Value> {
     let scene = &data.scene;
     let view = test_views.first().copied().unwrap_or(0);
     let (psnr, masked) = outputs::render_view(config, backbone, params, &scene.views[view], config.output.validate_downscale).psnr();
@@ -480,7 +499,9 @@ fn interim_metrics(config: &TrainConfig, backbone: &Backbone, params: &[f32], da
         Some(gt) if !mesh.triangles.is_empty() => Some(outputs::geometry_metrics(config, &mesh, &gt)?),
         _ => None,
     };
-    Ok(json!({"eval": true, "step": step, "psnr": psnr, "psnr_masked": masked, "chamfer": geometry.map(|g| g.chamfer), "f_score": geometry.map(|g| g.f_score), "time_s": time}))
+    Ok(
+        json!({"eval": true, "step": step, "psnr": psnr, "psnr_masked": masked, "chamfer": geometry.map(|g| g.chamfer), "f_score": geometry.map(|g| g.f_score), "time_s": time}),
+    )
 }
 
 /// The validation panel of the first held-out view (or view 0) and the guided pdf heat map.
@@ -528,7 +549,8 @@ fn finish(
     let every = candidates.len().div_ceil(config.output.eval_views.max(1));
     let eval_views: Vec<usize> = candidates.iter().copied().step_by(every.max(1)).collect();
     let t = Instant::now();
-    let renders: Vec<outputs::ViewRender> = eval_views.iter().map(|&v| outputs::render_view(config, backbone, params, &scene.views[v], config.output.validate_downscale)).collect();
+    let renders: Vec<outputs::ViewRender> =
+        eval_views.iter().map(|&v| outputs::render_view(config, backbone, params, &scene.views[v], config.output.validate_downscale)).collect();
     let psnrs: Vec<(f64, Option<f64>)> = renders.iter().map(|r| r.psnr()).collect();
     let ssims: Vec<f64> = renders.iter().filter_map(|r| r.ssim()).collect();
     let mean = |v: &[f64]| if v.is_empty() { f64::NAN } else { v.iter().sum::<f64>() / v.len() as f64 };
@@ -537,7 +559,8 @@ fn finish(
     let psnr_masked = (!masked.is_empty()).then(|| mean(&masked));
     // Training views (the render-fit figure).
     let every = train_views.len().div_ceil(config.output.eval_train_views.max(1));
-    let fit_views: Vec<usize> = if config.output.eval_train_views == 0 { Vec::new() } else { train_views.iter().copied().step_by(every.max(1)).collect() };
+    let fit_views: Vec<usize> =
+        if config.output.eval_train_views == 0 { Vec::new() } else { train_views.iter().copied().step_by(every.max(1)).collect() };
     let fit: Vec<(f64, Option<f64>)> =
         fit_views.iter().map(|&v| outputs::render_view(config, backbone, params, &scene.views[v], config.output.validate_downscale).psnr()).collect();
     let psnr_train = (!fit.is_empty()).then(|| mean(&fit.iter().map(|p| p.0).collect::<Vec<_>>()));

@@ -150,13 +150,28 @@ pub fn write_mesh(out: &Path, mesh: &IsoMesh, world_from_normalized: &DMat4, col
     for f in formats {
         let path = out.join(format!("mesh.{f}"));
         match f.as_str() {
-            "ply" => PlyData { positions: positions.clone(), colors: colors.map(<[_]>::to_vec).unwrap_or_default(), faces: faces.clone(), ..Default::default() }
-                .write(&path)?,
+            "ply" => PlyData {
+                positions: positions.clone(),
+                colors: colors.map(<[_]>::to_vec).unwrap_or_default(),
+                faces: faces.clone(),
+                ..Default::default()
+            }
+            .write(&path)?,
             "obj" => {
                 let mut s = String::from("# psneus mesh\n");
                 for (i, p) in positions.iter().enumerate() {
                     match colors {
-                        Some(c) => s += &format!("v {} {} {} {} {} {}\n", p.x, p.y, p.z, c[i][0] as f32 / 255.0, c[i][1] as f32 / 255.0, c[i][2] as f32 / 255.0),
+                        Some(c) => {
+                            s += &format!(
+                                "v {} {} {} {} {} {}\n",
+                                p.x,
+                                p.y,
+                                p.z,
+                                c[i][0] as f32 / 255.0,
+                                c[i][1] as f32 / 255.0,
+                                c[i][2] as f32 / 255.0
+                            )
+                        }
                         None => s += &format!("v {} {} {}\n", p.x, p.y, p.z),
                     }
                 }

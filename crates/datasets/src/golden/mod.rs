@@ -127,9 +127,8 @@ fn normalize_mesh(mut mesh: TexturedMesh, y_up: bool) -> (TexturedMesh, DMat4) {
     let z_up_from_y_up = if y_up { DMat3::from_rotation_x(std::f64::consts::FRAC_PI_2) } else { DMat3::IDENTITY };
     let positions = mesh.mesh.positions.iter().map(|p| (z_up_from_y_up * ((p.as_dvec3() - center) * scale)).as_vec3()).collect();
     mesh.mesh = prob_grid::TriangleMesh::new(positions, std::mem::take(&mut mesh.mesh.triangles));
-    let world_from_normalized = DMat4::from_translation(center)
-        * DMat4::from_scale(DVec3::splat(1.0 / scale))
-        * DMat4::from_mat3(z_up_from_y_up.transpose());
+    let world_from_normalized =
+        DMat4::from_translation(center) * DMat4::from_scale(DVec3::splat(1.0 / scale)) * DMat4::from_mat3(z_up_from_y_up.transpose());
     (mesh, world_from_normalized)
 }
 
@@ -241,8 +240,7 @@ pub fn write_idr(golden: &GoldenScene, out: &Path) -> Result<()> {
     write_atomic(&npz_path, &bytes)?;
 
     let to_world = |p: DVec3| scale_mat.transform_point3(p).as_vec3();
-    PlyData { positions: golden.surface_points.iter().map(|p| to_world(*p)).collect(), ..Default::default() }
-        .write(&out.join("gt_points.ply"))?;
+    PlyData { positions: golden.surface_points.iter().map(|p| to_world(*p)).collect(), ..Default::default() }.write(&out.join("gt_points.ply"))?;
     if let Some(mesh) = golden.mesh() {
         PlyData {
             positions: mesh.mesh.positions.iter().map(|p| to_world(p.as_dvec3())).collect(),
@@ -282,7 +280,6 @@ pub fn thumbnail_grid(scene: &Scene, columns: usize, rows: usize, thumb_width: u
     }
     out
 }
-
 
 #[cfg(test)]
 mod tests {

@@ -161,12 +161,8 @@ pub fn render_view(geometry: &Geometry, camera: &PinholeCamera, with_backdrop: b
                 .collect()
         })
         .collect();
-    let mut out = Render {
-        image: RgbImage::new(w, h),
-        mask: Mask::new(w, h),
-        depth: vec![0.0; (w * h) as usize],
-        normal: vec![[0.0; 3]; (w * h) as usize],
-    };
+    let mut out =
+        Render { image: RgbImage::new(w, h), mask: Mask::new(w, h), depth: vec![0.0; (w * h) as usize], normal: vec![[0.0; 3]; (w * h) as usize] };
     for (row, line) in rows.into_iter().enumerate() {
         for (col, (hit, direction)) in line.into_iter().enumerate() {
             let i = row * w as usize + col;

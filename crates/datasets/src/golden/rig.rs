@@ -52,13 +52,7 @@ pub struct RigOptions {
 pub fn cameras(options: &RigOptions) -> Vec<PinholeCamera> {
     let RigOptions { rig, count, width, height, seed } = *options;
     let f = 1.8 * height as f64;
-    let intrinsics = Intrinsics {
-        fx: f,
-        fy: f,
-        cx: (width as f64 - 1.0) / 2.0,
-        cy: (height as f64 - 1.0) / 2.0,
-        skew: 0.0,
-    };
+    let intrinsics = Intrinsics { fx: f, fy: f, cx: (width as f64 - 1.0) / 2.0, cy: (height as f64 - 1.0) / 2.0, skew: 0.0 };
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let golden_angle = std::f64::consts::PI * (3.0 - 5f64.sqrt());
     (0..count)
@@ -92,8 +86,7 @@ pub fn cameras(options: &RigOptions) -> Vec<PinholeCamera> {
                     (dir * distance, target, up)
                 }
             };
-            PinholeCamera::look_at(eye, target, up, intrinsics, width, height, PixelCenters::Integer)
-                .expect("rig cameras are valid by construction")
+            PinholeCamera::look_at(eye, target, up, intrinsics, width, height, PixelCenters::Integer).expect("rig cameras are valid by construction")
         })
         .collect()
 }

@@ -16,7 +16,8 @@ pub enum DatasetError {
     /// The folder matches none of the known layouts.
     #[error(
         "{dir}: unknown dataset layout (expected cameras_sphere.npz or cameras.npz with image/ (IDR, NeuS, DTU), \
-         transforms_train.json (NeRF-synthetic), or transforms.json (instant-ngp, Neuralangelo))"
+         transforms_train.json (NeRF-synthetic), transforms.json (instant-ngp, Neuralangelo), or images/ with a \
+         COLMAP model in sparse/0/, sparse/ or the folder itself (COLMAP))"
     )]
     UnknownLayout {
         /// The folder.
@@ -29,6 +30,14 @@ pub enum DatasetError {
         dir: PathBuf,
         /// The camera index.
         camera: usize,
+    },
+    /// A file that another file refers to does not exist (a COLMAP image, a mask).
+    #[error("{path}: not found ({why})")]
+    NotFound {
+        /// The missing file.
+        path: PathBuf,
+        /// Who refers to it.
+        why: String,
     },
     /// Numbers of cameras and of images (or masks) differ.
     #[error("{path}: {found} {what} for {cameras} cameras")]

@@ -8,6 +8,10 @@
 //!   colour is composited over [`LoadOptions::background`]).
 //! - **instant-ngp / Neuralangelo** (`transforms.json` with `fl_x`, `cx`, …, per-frame overrides,
 //!   `sphere_center`/`sphere_radius` or `aabb`). Lens distortion is rejected with a clear error.
+//! - **COLMAP** (`images/` with a sparse model `sparse/0/{cameras,images,points3D}.{bin,txt}`,
+//!   optional `masks/`): see [`colmap`]. Distorted cameras (SIMPLE_RADIAL, RADIAL, OPENCV) are
+//!   undistorted at load time ([`undistort`]); the region of interest comes from the sparse
+//!   points; [`colmap::import_colmap`] writes the IDR layout.
 //!
 //! Every scene lives in a *normalised frame* where the region of interest is the unit sphere;
 //! [`Scene::world_from_normalized`] maps back to the input's units (DTU: millimetres).
@@ -18,6 +22,7 @@
 //! - Pixels are u8 RGB and masks one bit per pixel (DTU scan 24, 49 × 1600×1200: < 400 MB).
 #![deny(missing_docs)]
 
+pub mod colmap;
 mod error;
 pub mod golden;
 mod idr;
@@ -27,7 +32,9 @@ mod load;
 pub mod npy;
 mod scene;
 mod transforms;
+pub mod undistort;
 
+pub use colmap::{ImportReport, import_colmap};
 pub use error::{DatasetError, Result};
 pub use images::{Mask, RgbImage};
 pub use load::{detect_format, load_scene, read_cameras};

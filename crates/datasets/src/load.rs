@@ -1,5 +1,6 @@
 //! Layout detection and loading of pixels.
 
+use crate::colmap::ColmapWorkspace;
 use crate::error::{DatasetError, Result};
 use crate::images::{Mask, load_mask, load_rgb};
 use crate::scene::{Format, LoadOptions, Scene, SceneCameras, View};
@@ -15,6 +16,8 @@ pub fn detect_format(dir: &Path) -> Result<Format> {
         Ok(Format::NerfSynthetic)
     } else if dir.join("transforms.json").is_file() {
         Ok(Format::InstantNgp)
+    } else if ColmapWorkspace::find(dir).is_some() {
+        Ok(Format::Colmap)
     } else {
         Err(DatasetError::UnknownLayout { dir: dir.to_path_buf() })
     }
@@ -35,13 +38,21 @@ pub fn read_cameras(dir: &Path, options: &LoadOptions) -> Result<SceneCameras> {
             transforms::read_cameras(&json, Format::NerfSynthetic, options)
         }
         Format::InstantNgp => transforms::read_cameras(&dir.join("transforms.json"), Format::InstantNgp, options),
+        Format::Colmap => colmap_workspace(dir)?.read_cameras(options),
         Format::Generated => unreachable!("detect_format never returns Generated"),
     }
 }
 
+fn colmap_workspace(dir: &Path) -> Result<ColmapWorkspace> {
+    ColmapWorkspace::find(dir).ok_or_else(|| DatasetError::UnknownLayout { dir: dir.to_path_buf() })
+}
+
 /// Loads a dataset folder: cameras, images (u8, decoded in parallel) and masks (from `mask/` or
-/// from the images' alpha channel).
+/// from the images' alpha channel). COLMAP images are undistorted as they are decoded.
 pub fn load_scene(dir: &Path, options: &LoadOptions) -> Result<Scene> {
+    if detect_format(dir)? == Format::Colmap {
+        return colmap_workspace(dir)?.load_scene(options);
+    }
     let cameras = read_cameras(dir, options)?;
     let views = cameras
         .records

@@ -15,6 +15,8 @@ pub enum Format {
     NerfSynthetic,
     /// instant-ngp / Neuralangelo: `transforms.json`.
     InstantNgp,
+    /// COLMAP: a sparse model (`sparse/0/{cameras,images,points3D}.{bin,txt}`) with `images/`.
+    Colmap,
     /// A golden scene generated in memory (no files).
     Generated,
 }
@@ -104,7 +106,8 @@ pub struct LoadOptions {
     pub split: String,
     /// Overrides the bound sphere (centre and radius in the input's world frame) that defines the
     /// normalised frame, for formats that do not store one (NeRF-synthetic defaults to the
-    /// origin and radius 1.5; instant-ngp reads `sphere_center`/`sphere_radius` or `aabb`).
+    /// origin and radius 1.5; instant-ngp reads `sphere_center`/`sphere_radius` or `aabb`;
+    /// COLMAP derives it from the sparse points, in COLMAP units).
     pub bound_sphere: Option<(DVec3, f64)>,
 }
 

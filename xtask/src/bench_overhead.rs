@@ -2,7 +2,9 @@
 //! side by side with uniform sampling on the same trained model (iterations alternate between
 //! the two, so machine noise hits both alike).
 
-use crate::train::{RestoredRun, StepInputs, guide};
+use crate::config::SamplerKind;
+use crate::run::open_run;
+use crate::trainer::Trainer;
 use anyhow::Result;
 use serde_json::json;
 use std::path::Path;
@@ -10,61 +12,56 @@ use std::time::Instant;
 
 /// Runs the benchmark on the model of `run` for `iterations` pairs.
 pub fn run(run_dir: &Path, iterations: u64, json_out: bool) -> Result<()> {
-    let run = RestoredRun::load(run_dir)?;
-    let (train_views, train_cameras, use_masks) = run.training_views();
-    let inputs = StepInputs {
-        config: &run.config,
-        backbone: &run.backbone,
-        scene: run.scene(),
-        train_views: &train_views,
-        train_cameras: &train_cameras,
-        use_masks,
-    };
+    let mut guided = open_run(run_dir)?;
+    let mut config = guided.config().clone();
+    config.sampler = SamplerKind::Uniform;
+    let mut uniform = Trainer::new(config, guided.data().clone())?;
+    uniform.set_parameters(&guided.state().params)?;
     // Grid updates: the mean of three.
     let mut update_seconds = 0.0;
-    let mut sampler = None;
     for _ in 0..3 {
-        let (s, secs) = guide(&run.config, &run.backbone, &run.params, &train_cameras)?;
-        update_seconds += secs / 3.0;
-        sampler = Some(s);
+        update_seconds += guided.update_grids()?.seconds / 3.0;
     }
-    let sampler = sampler.expect("three updates");
-    let mut grads = vec![0.0f32; run.params.len()];
-    let (mut uniform, mut guided) = (0.0, 0.0);
+    let (mut t_uniform, mut t_guided) = (0.0, 0.0);
+    let s = guided.s();
+    let total_steps = guided.config().steps;
     // Warm-up pair, then alternate which sampler goes first.
     for i in 0..=iterations {
         let mut times = [0.0; 2];
         for k in 0..2 {
             let which = (k + i as usize) % 2; // 0 uniform, 1 guided
-            grads.fill(0.0);
-            let t = Instant::now();
+            let trainer = if which == 0 { &mut uniform } else { &mut guided };
             // Iterations spread over the run, so the uniform/guided mix follows its schedule.
-            let step = i * run.config.steps / (iterations + 1);
-            let _ = inputs.gradient(&run.params, step, (which == 1).then_some(&sampler), &mut grads);
+            let step = i * total_steps / (iterations + 1);
+            let progress = step as f64 / total_steps as f64;
+            let t = Instant::now();
+            let batch = trainer.batch(step, progress, s);
+            let _ = trainer.gradient(&batch);
             times[which] = t.elapsed().as_secs_f64();
         }
         if i > 0 {
-            uniform += times[0] / iterations as f64;
-            guided += times[1] / iterations as f64;
+            t_uniform += times[0] / iterations as f64;
+            t_guided += times[1] / iterations as f64;
         }
     }
-    let per_iteration_update = update_seconds / run.config.guide.update_every as f64;
-    let overhead = (guided + per_iteration_update) / uniform - 1.0;
+    let config = guided.config();
+    let per_iteration_update = update_seconds / (config.steps as f64 / f64::from(config.guide.updates));
+    let overhead = (t_guided + per_iteration_update) / t_uniform - 1.0;
     let result = json!({
         "figure": "sampler_overhead", "run": run_dir.display().to_string(), "iterations": iterations,
-        "rays": run.config.render.rays, "samples": run.config.render.coarse + run.config.render.fine,
-        "uniform_s": uniform, "guided_s": guided, "grid_update_s": update_seconds, "update_every": run.config.guide.update_every,
+        "rays": config.render.rays, "samples": config.render.coarse + config.render.fine,
+        "uniform_s": t_uniform, "guided_s": t_guided, "grid_update_s": update_seconds, "updates": config.guide.updates,
         "overhead": overhead, "threads": rayon::current_num_threads(),
     });
     if json_out {
         println!("{result}");
     } else {
         println!(
-            "{} rays × {} samples, {iterations} alternating pairs on the model of {}: uniform {uniform:.4} s, guided {guided:.4} s per iteration (draw + rays + forward + backward); grid update {update_seconds:.3} s every {} iterations = {per_iteration_update:.4} s; guided costs {:+.1} % per iteration",
-            run.config.render.rays,
-            run.config.render.coarse + run.config.render.fine,
+            "{} rays × {} samples, {iterations} alternating pairs on the model of {}: uniform {t_uniform:.4} s, guided {t_guided:.4} s per iteration (draw + rays + forward + backward); grid update {update_seconds:.3} s, {} per run = {per_iteration_update:.4} s per iteration; guided costs {:+.1} % per iteration",
+            config.render.rays,
+            config.render.coarse + config.render.fine,
             run_dir.display(),
-            run.config.guide.update_every,
+            config.guide.updates,
             100.0 * overhead
         );
     }

@@ -3,7 +3,7 @@
 //! iteration) and a plot of Chamfer and PSNR against iterations.
 
 use crate::draw::{plot, text};
-use crate::train::{RunSummary, TrainArgs};
+use crate::run::{Outcome, RunSummary, TrainArgs, train};
 use anyhow::Result;
 use datasets::images::RgbImage;
 use datasets::io::write_atomic;
@@ -40,27 +40,28 @@ fn field(s: &RunSummary, key: &str) -> f64 {
 }
 
 /// Runs `cargo xtask compare`.
-pub fn run(args: &CompareArgs) -> Result<()> {
+pub fn run(args: &CompareArgs, stop: &std::sync::atomic::AtomicBool) -> Result<()> {
     let mut overrides = args.overrides.clone();
     if let Some(n) = args.iters {
         overrides.push(format!("steps={n}"));
     }
-    let steps = crate::train::config::TrainConfig::load(args.config.as_deref(), &overrides)?.steps;
+    let steps = crate::config::TrainConfig::load(args.config.as_deref(), &overrides)?.steps;
     overrides.push(format!("output.metrics_every={}", (steps / args.points.max(1)).max(1)));
     let mut runs = Vec::new();
     for sampler in ["uniform", "guided"] {
-        let train = TrainArgs {
+        let train_args = TrainArgs {
             data: args.data.clone(),
             config: args.config.clone(),
             sampler: Some(sampler.into()),
             out: args.out.join(sampler),
-            resume: None,
             seed: Some(args.seed),
-            stop_at: None,
-            json: false,
             overrides: overrides.clone(),
+            ..TrainArgs::default()
         };
-        runs.push((sampler, crate::train::run(&train)?));
+        match train(&train_args, stop)? {
+            Outcome::Finished(summary) => runs.push((sampler, *summary)),
+            Outcome::Stopped { step, .. } => anyhow::bail!("the {sampler} run was stopped at step {step}"),
+        }
     }
     let mut table = String::from(
         "| sampler | Chamfer | F-score | PSNR (dB) | PSNR masked (dB) | wall time (s) | time / iteration (s) |\n|---|---|---|---|---|---|---|\n",

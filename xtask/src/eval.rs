@@ -1,8 +1,8 @@
 //! `cargo xtask eval`: a mesh against ground truth (DTU-protocol Chamfer, F-score), or a run's
 //! held-out views (PSNR whole and masked, SSIM).
 
-use crate::train::RestoredRun;
-use crate::train::outputs::render_view;
+use crate::outputs::dilate;
+use crate::run::{image_metrics, open_run};
 use anyhow::{Context, Result, bail};
 use datasets::io::{PlyData, write_atomic};
 use datasets::{LoadOptions, load_scene};
@@ -142,32 +142,13 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     Ok(())
 }
 
-/// A mask dilated by a square of half-width `r` pixels.
-fn dilate(mask: &datasets::images::Mask, r: u32) -> datasets::images::Mask {
-    let (w, h) = (mask.width, mask.height);
-    let mut out = datasets::images::Mask::new(w, h);
-    for y in 0..h {
-        for x in 0..w {
-            if mask.get(x, y) {
-                for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
-                    for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
-                        out.set(xx, yy, true);
-                    }
-                }
-            }
-        }
-    }
-    out
-}
-
 fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
-    let run = RestoredRun::load(dir)?;
-    let views = run.held_out_views();
+    let trainer = open_run(dir)?;
+    let views = trainer.split().evaluation_views();
+    let metrics = image_metrics(&trainer, &views, args.downscale, &|_, _| {});
     let mut per_view = Vec::new();
-    for &v in &views {
-        let r = render_view(&run.config, &run.backbone, &run.params, &run.scene().views[v], args.downscale);
-        let (whole, masked) = r.psnr();
-        per_view.push(json!({"view": v, "psnr": whole, "psnr_masked": masked, "ssim": r.ssim()}));
+    for (&v, (whole, masked, ssim)) in views.iter().zip(&metrics) {
+        per_view.push(json!({"view": v, "psnr": whole, "psnr_masked": masked, "ssim": ssim}));
         if !args.json {
             println!("view {v}: PSNR {whole:.2} dB{}", masked.map_or(String::new(), |m| format!(", masked {m:.2} dB")));
         }
@@ -176,7 +157,8 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
         let v: Vec<f64> = per_view.iter().filter_map(|p| p[key].as_f64()).collect();
         (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
     };
-    let result = json!({"run": dir.display().to_string(), "step": run.step, "views": views, "psnr": mean("psnr"), "psnr_masked": mean("psnr_masked"), "ssim": mean("ssim"), "per_view": per_view, "downscale": args.downscale});
+    let result = json!({"run": dir.display().to_string(), "step": trainer.state().step, "views": views, "psnr": mean("psnr"),
+        "psnr_masked": mean("psnr_masked"), "ssim": mean("ssim"), "per_view": per_view, "downscale": args.downscale});
     write_atomic(&dir.join("eval.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;
     if args.json {
         println!("{result}");

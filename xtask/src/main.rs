@@ -1,7 +1,6 @@
-//! `cargo xtask …`: the psneus runner (always built optimised through the cargo alias).
-//!
-//! Commands that exist today: `cameras`, `inspect`, `golden`, `sample`, `bench sampler`.
-//! Training and evaluation arrive with their issues.
+//! `cargo xtask …`: the psneus runner (always built optimised through the cargo alias). This
+//! binary parses the command line and calls the `xtask` library; it is the only place that ends
+//! the process with an exit code.
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
@@ -11,14 +10,9 @@ use datasets::{LoadOptions, read_cameras};
 use glam::{DVec2, DVec3};
 use std::path::PathBuf;
 
-mod bench;
-mod bench_backbone;
-mod bench_overhead;
-mod compare;
-mod draw;
-mod eval;
-mod sample;
-mod train;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use xtask::{bench, bench_backbone, bench_overhead, compare, eval, run, sample};
 
 #[derive(Parser)]
 #[command(name = "xtask", about = "psneus: neural implicit surfaces with a probability-guided sampler")]
@@ -64,7 +58,7 @@ enum Command {
     },
     /// Train a backbone with the probability-guided (or uniform) sampler: progress, pictures,
     /// checkpoints, the mesh and its metrics. With no arguments: the built-in scene in ≤ 5 min.
-    Train(train::TrainArgs),
+    Train(run::TrainArgs),
     /// Evaluate a mesh against ground truth (DTU-protocol Chamfer, F-score), or a run's model on
     /// its held-out views (PSNR, SSIM).
     Eval(eval::EvalArgs),
@@ -156,12 +150,28 @@ enum BenchKind {
     },
 }
 
+/// A flag that Ctrl-C sets (the first press; a second one ends the process as usual).
+fn stop_signal() -> Arc<AtomicBool> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let handler_flag = flag.clone();
+    let _ = ctrlc::set_handler(move || {
+        if handler_flag.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+        eprintln!("\nstopping after this iteration (a checkpoint will be written); Ctrl-C again to quit now");
+    });
+    flag
+}
+
 fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Sample(args) => sample::run(&args),
-        Command::Train(args) => train::run(&args).map(|_| ()),
+        Command::Train(args) => match run::train(&args, &stop_signal())? {
+            run::Outcome::Finished(_) => Ok(()),
+            run::Outcome::Stopped { .. } => std::process::exit(130),
+        },
         Command::Eval(args) => eval::run(&args),
-        Command::Compare(args) => compare::run(&args),
+        Command::Compare(args) => compare::run(&args, &stop_signal()),
         Command::Bench { which: BenchKind::Sampler { data, json, quick } } => bench::sampler(data.as_deref(), json, quick),
         Command::Bench { which: BenchKind::Backbone { json, quick } } => bench_backbone::run(json, quick),
         Command::Bench { which: BenchKind::Overhead { run, iterations, json } } => bench_overhead::run(&run, iterations, json),

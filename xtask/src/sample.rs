@@ -6,10 +6,10 @@ use anyhow::{Context, Result, bail};
 use datasets::golden::mesh_io::load_mesh;
 use datasets::{LoadOptions, Scene, load_scene};
 use glam::DVec2;
-use prob_grid::{CameraGridConfig, MeshSdf, SceneGridConfig, SdfField, Shape, TriangleMesh, update};
+use prob_grid::{CameraGridConfig, MeshSdf, SdfField, Shape, TriangleMesh};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use view_sampler::{SamplerConfig, UniformSchedule, ViewSampler};
+use view_sampler::{Estimator, EstimatorConfig, UniformSchedule};
 
 /// Options of `cargo xtask sample`.
 #[derive(clap::Args)]
@@ -71,19 +71,23 @@ pub fn run(args: &SampleArgs) -> Result<()> {
     let cameras: Vec<_> = scene.views.iter().map(|v| v.camera).collect();
 
     let camera_config = CameraGridConfig::default();
-    let t = Instant::now();
-    let grids = update(field.as_ref(), args.s, &cameras, &SceneGridConfig::default(), &camera_config)?;
-    let update_seconds = t.elapsed().as_secs_f64();
-    let empty = grids.empty_cameras.clone();
-    let t = Instant::now();
-    let sampler = ViewSampler::new(grids.cameras, SamplerConfig { schedule: UniformSchedule { fractions: vec![0.0] }, ..Default::default() });
-    let cdf_seconds = t.elapsed().as_secs_f64();
+    let config = EstimatorConfig {
+        camera: camera_config.clone(),
+        schedule: UniformSchedule { fractions: vec![0.0] },
+        skip_empty: false,
+        ..EstimatorConfig::default()
+    };
+    let mut estimator = Estimator::new(cameras, config)?;
+    let report = estimator.update(field.as_ref(), args.s)?;
+    let update_seconds = report.seconds;
+    let empty = report.empty_cameras.clone();
     if !empty.is_empty() {
         eprintln!("note: {} camera(s) see no mass and are sampled uniformly: {empty:?}", empty.len());
     }
     let t = Instant::now();
-    let rays = sampler.sample_batch(args.rays, 0.0, 0, 0);
+    let rays = estimator.draw(args.rays, 0.0, 0, 0);
     let draw_seconds = t.elapsed().as_secs_f64();
+    let sampler = estimator.sampler().expect("a guided estimator has a sampler after its update");
 
     // Statistics over every view.
     let (mut in_mask, mut with_mask, mut depth_errors) = (0usize, 0usize, Vec::new());
@@ -99,7 +103,8 @@ pub fn run(args: &SampleArgs) -> Result<()> {
             if d > 0.0 {
                 let b = sampler.cameras()[r.camera as usize].bounds();
                 let cell = (b.depth[1] - b.depth[0]) / camera_config.rl as f64;
-                depth_errors.push((r.depth as f64 - d as f64).abs() / cell);
+                let drawn = r.depth.expect("guided rays have a depth").depth;
+                depth_errors.push((drawn as f64 - d as f64).abs() / cell);
             }
         }
     }
@@ -170,10 +175,10 @@ pub fn run(args: &SampleArgs) -> Result<()> {
         "data": args.data,
         "field": args.field,
         "s": args.s,
-        "cameras": cameras.len(),
-        "scene_grid": 128, "partition": 2, "camera_grid": [camera_config.ru, camera_config.rv, camera_config.rl],
+        "cameras": scene.views.len(),
+        "scene_grid": estimator.config().scene.resolution, "partition": estimator.config().scene.partition,
+        "camera_grid": [camera_config.ru, camera_config.rv, camera_config.rl],
         "update_seconds": update_seconds,
-        "cdf_seconds": cdf_seconds,
         "rays": rays.len(),
         "draw_seconds": draw_seconds,
         "samples_per_second": rays.len() as f64 / draw_seconds,
@@ -188,10 +193,9 @@ pub fn run(args: &SampleArgs) -> Result<()> {
         println!("{summary}");
     } else {
         eprintln!(
-            "{} cameras, update {:.3} s + CDFs {:.3} s, {:.1} M draws/s; guided inside mask: {}; median depth error: {} cells; pictures in {}",
-            cameras.len(),
+            "{} cameras, update (CDFs included) {:.3} s, {:.1} M draws/s; guided inside mask: {}; median depth error: {} cells; pictures in {}",
+            scene.views.len(),
             update_seconds,
-            cdf_seconds,
             rays.len() as f64 / draw_seconds / 1e6,
             summary["guided_fraction_inside_mask"],
             summary["median_depth_error_cells"],

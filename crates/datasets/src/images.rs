@@ -43,7 +43,12 @@ impl RgbImage {
 
     /// Writes a PNG atomically.
     pub fn save_png(&self, path: &Path) -> Result<()> {
-        write_png(path, &self.data, self.width, self.height, image::ExtendedColorType::Rgb8)
+        crate::io::write_atomic(path, &self.png_bytes().map_err(|e| DatasetError::Io { path: path.to_path_buf(), source: e })?)
+    }
+
+    /// The image encoded as PNG.
+    pub fn png_bytes(&self) -> std::io::Result<Vec<u8>> {
+        png_bytes(&self.data, self.width, self.height, image::ExtendedColorType::Rgb8)
     }
 }
 
@@ -114,13 +119,17 @@ impl Mask {
     }
 }
 
-/// Encodes pixels as PNG in memory and writes the file atomically.
-pub fn write_png(path: &Path, pixels: &[u8], width: u32, height: u32, color: image::ExtendedColorType) -> Result<()> {
+/// Encodes pixels as PNG in memory.
+pub fn png_bytes(pixels: &[u8], width: u32, height: u32, color: image::ExtendedColorType) -> std::io::Result<Vec<u8>> {
     use image::ImageEncoder;
     let mut bytes = Vec::new();
-    image::codecs::png::PngEncoder::new(&mut bytes)
-        .write_image(pixels, width, height, color)
-        .map_err(|e| DatasetError::Io { path: path.to_path_buf(), source: std::io::Error::other(e) })?;
+    image::codecs::png::PngEncoder::new(&mut bytes).write_image(pixels, width, height, color).map_err(std::io::Error::other)?;
+    Ok(bytes)
+}
+
+/// Encodes pixels as PNG in memory and writes the file atomically.
+pub fn write_png(path: &Path, pixels: &[u8], width: u32, height: u32, color: image::ExtendedColorType) -> Result<()> {
+    let bytes = png_bytes(pixels, width, height, color).map_err(|e| DatasetError::Io { path: path.to_path_buf(), source: e })?;
     crate::io::write_atomic(path, &bytes)
 }
 

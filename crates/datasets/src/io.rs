@@ -1,4 +1,5 @@
-//! Atomic file writes, a binary PLY writer and a PLY reader (points and triangles).
+//! Atomic file writes, mesh writers (binary PLY, OBJ, binary glTF) and a PLY reader (points and
+//! triangles).
 
 use crate::error::{Result, io_err};
 use glam::Vec3;
@@ -21,6 +22,102 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         let _ = std::fs::remove_file(&tmp);
     }
     result.map_err(io_err(path))
+}
+
+/// The mesh formats psneus writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MeshFormat {
+    /// Binary little-endian PLY (vertex colours as uchar red/green/blue).
+    Ply,
+    /// Wavefront OBJ (vertex colours as the `v x y z r g b` extension).
+    Obj,
+    /// Binary glTF 2.0 (positions and indices).
+    Glb,
+}
+
+impl MeshFormat {
+    /// The file extension, without the dot.
+    pub fn extension(self) -> &'static str {
+        match self {
+            MeshFormat::Ply => "ply",
+            MeshFormat::Obj => "obj",
+            MeshFormat::Glb => "glb",
+        }
+    }
+}
+
+/// A triangle mesh's bytes in `format`: `positions`, counter-clockwise `faces`, optional
+/// per-vertex `colors` (PLY and OBJ keep them; glTF drops them).
+pub fn mesh_bytes(format: MeshFormat, positions: &[Vec3], faces: &[[u32; 3]], colors: Option<&[[u8; 3]]>) -> Vec<u8> {
+    match format {
+        MeshFormat::Ply => PlyData {
+            positions: positions.to_vec(),
+            colors: colors.map(<[_]>::to_vec).unwrap_or_default(),
+            faces: faces.to_vec(),
+            ..Default::default()
+        }
+        .to_bytes(),
+        MeshFormat::Obj => {
+            use std::fmt::Write as _;
+            let mut s = String::from("# psneus mesh\n");
+            for (i, p) in positions.iter().enumerate() {
+                let _ = match colors {
+                    Some(c) => {
+                        let [r, g, b] = c[i].map(|v| f32::from(v) / 255.0);
+                        writeln!(s, "v {} {} {} {r} {g} {b}", p.x, p.y, p.z)
+                    }
+                    None => writeln!(s, "v {} {} {}", p.x, p.y, p.z),
+                };
+            }
+            for t in faces {
+                let _ = writeln!(s, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1);
+            }
+            s.into_bytes()
+        }
+        MeshFormat::Glb => glb_bytes(positions, faces),
+    }
+}
+
+/// A minimal binary glTF 2.0: one mesh of positions and indices.
+fn glb_bytes(positions: &[Vec3], faces: &[[u32; 3]]) -> Vec<u8> {
+    let mut bin: Vec<u8> = positions.iter().flat_map(|p| p.to_array()).flat_map(f32::to_le_bytes).collect();
+    let pos_len = bin.len();
+    bin.extend(faces.iter().flatten().flat_map(|i| i.to_le_bytes()));
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let (lo, hi) = positions.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(a, b), p| (a.min(*p), b.max(*p)));
+    let json = serde_json::json!({
+        "asset": {"version": "2.0", "generator": "psneus"},
+        "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "buffers": [{"byteLength": bin.len()}],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": pos_len, "target": 34962},
+            {"buffer": 0, "byteOffset": pos_len, "byteLength": faces.len() * 12, "target": 34963}
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": positions.len(), "type": "VEC3", "min": lo.to_array(), "max": hi.to_array()},
+            {"bufferView": 1, "componentType": 5125, "count": faces.len() * 3, "type": "SCALAR"}
+        ]
+    });
+    let mut json = serde_json::to_vec(&json).expect("a JSON value serialises");
+    while !json.len().is_multiple_of(4) {
+        json.push(b' ');
+    }
+    let total = 12 + 8 + json.len() + 8 + bin.len();
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&json);
+    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(&bin);
+    out
 }
 
 /// What a PLY file holds: vertices with optional normals and colours, faces, edges.

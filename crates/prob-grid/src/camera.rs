@@ -31,8 +31,9 @@ use camera_geom::{DepthBounds, ImageSpaceBounds, PinholeCamera};
 use glam::{DVec3, Mat3, Vec3};
 use wide::f32x8;
 
-/// How a projected sub-cell's mass is weighted (NOTES §1).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// How a projected sub-cell's mass is weighted (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Weighting {
     /// The paper: mass · λ⁻² (∝ average world density of the U-cell).
     #[default]
@@ -42,11 +43,13 @@ pub enum Weighting {
 }
 
 /// View dependency along λ (see the module docs).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum ViewDependency {
     /// No occlusion (ablation A3).
     Off,
     /// The paper's equation as printed (no cell length, sum includes the current cell).
+    #[serde(rename = "paper")]
     PaperSum,
     /// Naive NeuS density with exact piecewise-constant quadrature.
     Quadrature,
@@ -56,8 +59,10 @@ pub enum ViewDependency {
 }
 
 /// Camera grid configuration. Defaults: 64 × 64 × 128, central-ray depth bounds against the unit
-/// sphere, minimum depth 1e-3, the paper's weighting, opaque view dependency.
-#[derive(Debug, Clone, PartialEq)]
+/// sphere, minimum depth 1e-3, the paper's weighting, opaque view dependency. In a
+/// configuration file every key is optional and unknown keys are errors.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct CameraGridConfig {
     /// Cells along u (the paper: 64).
     pub ru: usize,
@@ -200,13 +205,11 @@ pub fn reproject(active: &ActiveCells, camera: &PinholeCamera, config: &CameraGr
     // Lanes outside the grid scatter zero into a spare cell at index `cells`: no branches.
     let cells = ru * rv * rl;
     grid.values.push(0.0);
-    let sentinel = f32x8::splat(cells as f32);
     let zero = f32x8::ZERO;
     let (sfx, sfy, sskew) = (f32x8::splat(fx), f32x8::splat(fy), f32x8::splat(skew));
     let (su0, sv0, sl0) = (f32x8::splat(u0), f32x8::splat(v0), f32x8::splat(l0));
     let (sdu, sdv, sdl) = (f32x8::splat(inv_du), f32x8::splat(inv_dv), f32x8::splat(inv_dl));
     let (sru, srv, srl) = (f32x8::splat(fru), f32x8::splat(frv), f32x8::splat(frl));
-    let (mrv, mrl) = (f32x8::splat(rv as f32), f32x8::splat(rl as f32));
     let mut inside = 0.0f64;
     if offsets.len() < 8 {
         // F = 1 (one offset): lanes would be mostly padding; the scalar loop is faster.
@@ -246,12 +249,21 @@ pub fn reproject(active: &ActiveCells, camera: &PinholeCamera, config: &CameraGr
                     & fl.simd_ge(zero)
                     & fl.simd_lt(srl)
                     & valid.simd_gt(zero);
-                // Indices in f32 are exact (cells < 2²⁴); truncation is floor for the lanes kept.
-                let index = ok.bitselect((fu.trunc() * mrv + fv.trunc()) * mrl + fl.trunc(), sentinel).fast_trunc_int().to_array();
+                // Per-axis cell coordinates as integers (exact: each < 4096), combined in usize
+                // so that grids of any size index correctly (a flat index in f32 is exact only
+                // below 2²⁴ cells). Truncation is floor for the lanes kept; the others go to the
+                // spare cell.
+                let (iu, iv, il) = (
+                    ok.bitselect(fu, zero).fast_trunc_int().to_array(),
+                    ok.bitselect(fv, zero).fast_trunc_int().to_array(),
+                    ok.bitselect(fl, zero).fast_trunc_int().to_array(),
+                );
+                let kept = ok.to_bitmask();
                 let w = if inverse_square { m * inv_z * inv_z } else { m };
                 let weight = ok.bitselect(w, zero).to_array();
                 for l in 0..8 {
-                    grid.values[index[l] as usize] += weight[l];
+                    let index = if kept & (1 << l) != 0 { (iu[l] as usize * rv + iv[l] as usize) * rl + il[l] as usize } else { cells };
+                    grid.values[index] += weight[l];
                 }
                 inside += ok.bitselect(m, zero).reduce_add() as f64;
             }

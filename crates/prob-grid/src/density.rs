@@ -14,7 +14,8 @@
 //! 0.5 and 0.87 cells of SDF around the centre, depending on its direction).
 
 /// How a cell's density is computed from the SDF at its centre.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum CellDensity {
     /// φ_s(S(centre)), as the paper does. Aliases when the shell is thinner than a cell.
     Point,

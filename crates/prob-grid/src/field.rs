@@ -66,20 +66,50 @@ impl Shape {
         Shape::Union(vec![Shape::Difference(Box::new(body), Box::new(bite)), ring, foot])
     }
 
+    /// A scene of six separate parts, as users' scenes have (a statue on a base, a cup and its
+    /// saucer): a flat base; above it, a cubic cage (bars 0.04 thick) with a ball inside that is
+    /// seen only through the cage's openings; a thin ring (tube radius 0.035); a thin pole under
+    /// the ring's centre; and a bowl (a concavity). No part touches another; everything lies
+    /// inside radius 0.95.
+    pub fn multipart() -> Shape {
+        let cage_center = DVec3::new(-0.3, 0.05, -0.15);
+        let cage = Shape::Difference(
+            Box::new(Shape::Box { center: cage_center, half_extents: DVec3::splat(0.2) }),
+            Box::new(Shape::Union(vec![
+                Shape::Box { center: cage_center, half_extents: DVec3::new(0.16, 0.16, 0.3) },
+                Shape::Box { center: cage_center, half_extents: DVec3::new(0.16, 0.3, 0.16) },
+                Shape::Box { center: cage_center, half_extents: DVec3::new(0.3, 0.16, 0.16) },
+            ])),
+        );
+        let bowl_center = DVec3::new(0.0, -0.45, -0.3);
+        Shape::Union(vec![
+            Shape::Box { center: DVec3::new(0.0, 0.0, -0.55), half_extents: DVec3::new(0.5, 0.5, 0.04) },
+            cage,
+            Shape::Sphere { center: cage_center, radius: 0.1 },
+            Shape::Torus { center: DVec3::new(0.35, 0.05, -0.1), major_radius: 0.22, minor_radius: 0.035 },
+            Shape::Box { center: DVec3::new(0.35, 0.05, -0.3), half_extents: DVec3::new(0.02, 0.02, 0.17) },
+            Shape::Difference(
+                Box::new(Shape::Sphere { center: bowl_center, radius: 0.17 }),
+                Box::new(Shape::Sphere { center: bowl_center + DVec3::new(0.0, 0.0, 0.1), radius: 0.15 }),
+            ),
+        ])
+    }
+
     /// Looks a named shape up: `sphere` (radius 0.5), `torus` (0.5, 0.15), `box` (half 0.35),
-    /// `composite` ([`Shape::composite`]).
+    /// `composite` ([`Shape::composite`]), `multipart` ([`Shape::multipart`]).
     pub fn by_name(name: &str) -> Option<Shape> {
         Some(match name {
             "sphere" => Shape::Sphere { center: DVec3::ZERO, radius: 0.5 },
             "torus" => Shape::Torus { center: DVec3::ZERO, major_radius: 0.5, minor_radius: 0.15 },
             "box" => Shape::Box { center: DVec3::ZERO, half_extents: DVec3::splat(0.35) },
             "composite" => Shape::composite(),
+            "multipart" => Shape::multipart(),
             _ => return None,
         })
     }
 
     /// Names accepted by [`Shape::by_name`].
-    pub const NAMES: [&'static str; 4] = ["sphere", "torus", "box", "composite"];
+    pub const NAMES: [&'static str; 5] = ["sphere", "torus", "box", "composite", "multipart"];
 
     /// The signed distance at `p` (exact for primitives; a Lipschitz-1 bound for CSG).
     pub fn sdf(&self, p: DVec3) -> f64 {

@@ -47,14 +47,16 @@ pub mod field;
 pub mod marching_cubes;
 mod mc_tables;
 pub mod mesh;
+pub mod occupancy;
 pub mod scene;
 
 pub use camera::{CameraGrid, CameraGridConfig, ViewDependency, Weighting, reproject};
 pub use density::{CellDensity, logistic_density};
 pub use field::{SdfField, Shape};
-pub use marching_cubes::{ExtractionStats, IsoMesh, MarchingCubesConfig, marching_cubes};
-pub use mesh::{MeshHit, MeshSdf, TriangleMesh};
-pub use scene::{ActiveCells, Evaluation, GridError, SceneGridConfig, SubcellMass, evaluate};
+pub use marching_cubes::{ExtractionStats, IsoMesh, MarchingCubesConfig, marching_cubes, marching_cubes_with_progress};
+pub use mesh::{MeshHit, MeshSdf, TriangleMesh, vertex_normals};
+pub use occupancy::Occupancy;
+pub use scene::{ActiveCells, Evaluation, GridError, LIPSCHITZ_MARGIN, LipschitzCheck, SceneGridConfig, SubcellMass, evaluate};
 
 use camera_geom::PinholeCamera;
 use rayon::prelude::*;

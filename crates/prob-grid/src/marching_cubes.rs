@@ -13,7 +13,7 @@
 
 use crate::field::SdfField;
 use crate::mc_tables::{EDGE_CORNERS, EDGE_TABLE, TRI_TABLE};
-use crate::scene::GridError;
+use crate::scene::{GridError, LIPSCHITZ_MARGIN, LipschitzCheck};
 use glam::{UVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -49,7 +49,7 @@ pub struct IsoMesh {
 }
 
 /// What an extraction did.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ExtractionStats {
     /// Blocks in the grid.
     pub blocks: usize,
@@ -57,6 +57,9 @@ pub struct ExtractionStats {
     pub blocks_evaluated: usize,
     /// Field queries made.
     pub field_queries: usize,
+    /// The field's Lipschitz claim checked against its values (block centres against their
+    /// neighbours and their blocks' corners); a broken claim redoes the extraction.
+    pub lipschitz: LipschitzCheck,
 }
 
 /// Global id of the grid edge from vertex `v` along `axis`.
@@ -68,6 +71,38 @@ const CORNERS: [[u32; 3]; 8] = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 
 
 /// Extracts the iso-surface of `field`.
 pub fn marching_cubes(field: &dyn SdfField, config: &MarchingCubesConfig) -> Result<(IsoMesh, ExtractionStats), GridError> {
+    marching_cubes_with_progress(field, config, &|_, _| {})
+}
+
+/// [`marching_cubes`], calling `progress(blocks done, blocks to evaluate)` as blocks finish (from
+/// worker threads). The blocks to evaluate are those near the surface; a broken Lipschitz claim
+/// restarts the count with more blocks.
+pub fn marching_cubes_with_progress(
+    field: &dyn SdfField,
+    config: &MarchingCubesConfig,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<(IsoMesh, ExtractionStats), GridError> {
+    let claimed = field.lipschitz_bound().max(1e-6);
+    let mut check = LipschitzCheck { claimed, used: claimed, ..Default::default() };
+    loop {
+        let (mesh, mut stats, measured) = extract(field, config, check.used, progress)?;
+        check.measured = check.measured.max(measured);
+        if !(measured > check.used * 1.0001) || check.retries >= 4 {
+            stats.lipschitz = check;
+            return Ok((mesh, stats));
+        }
+        check.retries += 1;
+        check.used = measured * LIPSCHITZ_MARGIN;
+    }
+}
+
+/// One extraction with Lipschitz bound `lipschitz`; also returns the largest slope measured.
+fn extract(
+    field: &dyn SdfField,
+    config: &MarchingCubesConfig,
+    lipschitz: f32,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<(IsoMesh, ExtractionStats, f32), GridError> {
     let invalid = |message: String| GridError::InvalidConfig { what: "marching cubes", message };
     if config.resolution < 2 || config.block < 1 {
         return Err(invalid(format!("resolution {} must be ≥ 2 and block {} ≥ 1", config.resolution, config.block)));
@@ -79,7 +114,6 @@ pub fn marching_cubes(field: &dyn SdfField, config: &MarchingCubesConfig) -> Res
     let cell = (config.max - config.min) / res as f32;
     let blocks_per_axis = res.div_ceil(config.block);
     let n_vertices_axis = u64::from(res) + 1;
-    let lipschitz = field.lipschitz_bound().max(1e-6);
     let point = |v: UVec3| config.min + v.as_vec3() * cell;
 
     // Block centres → which blocks can hold the surface.
@@ -99,27 +133,50 @@ pub fn marching_cubes(field: &dyn SdfField, config: &MarchingCubesConfig) -> Res
         .collect();
     let mut centre_values = vec![0.0f32; centres.len()];
     centre_values.par_chunks_mut(4096).zip(centres.par_chunks(4096)).for_each(|(o, p)| field.sdf_batch(p, o));
-    let near: Vec<UVec3> = blocks
+    let near: Vec<(UVec3, Vec3, f32)> = blocks
         .iter()
+        .zip(&centres)
         .zip(&centre_values)
-        .filter(|&(&b, &v)| {
+        .filter(|&((&b, _), &v)| {
             let (lo, hi) = block_range(b);
             let half_diagonal = 0.5 * (point(hi) - point(lo)).length();
             // NaN counts as "maybe": evaluate.
             !((v - config.iso).abs() > lipschitz * half_diagonal * 1.01 + 1e-6)
         })
-        .map(|(&b, _)| b)
+        .map(|((&b, &c), &v)| (b, c, v))
         .collect();
+    // Slopes between neighbouring block centres.
+    let n = blocks_per_axis as usize;
+    let at = |i: usize, j: usize, k: usize| (k * n + j) * n + i;
+    let mut measured = 0.0f32;
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                for (di, dj, dk) in [(1, 0, 0), (0, 1, 0), (0, 0, 1)] {
+                    if i + di < n && j + dj < n && k + dk < n {
+                        let (a, b) = (at(i, j, k), at(i + di, j + dj, k + dk));
+                        let slope = (centre_values[a] - centre_values[b]).abs() / centres[a].distance(centres[b]);
+                        if slope.is_finite() {
+                            measured = measured.max(slope);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    progress(0, near.len());
 
     struct BlockMesh {
         keys: Vec<u64>,
         positions: Vec<Vec3>,
         triangles: Vec<[u32; 3]>,
         queries: usize,
+        slope: f32,
     }
     let parts: Vec<BlockMesh> = near
         .par_iter()
-        .map(|&b| {
+        .map(|&(b, centre, centre_value)| {
             let (lo, hi) = block_range(b);
             let dim = hi - lo + UVec3::ONE; // corners per axis
             let idx = |v: UVec3| ((v.z * dim.y + v.y) * dim.x + v.x) as usize;
@@ -133,8 +190,18 @@ pub fn marching_cubes(field: &dyn SdfField, config: &MarchingCubesConfig) -> Res
             }
             let mut values = vec![0.0f32; points.len()];
             field.sdf_batch(&points, &mut values);
+            // The block's corners against its centre: slopes the claim must cover.
+            let slope = points
+                .iter()
+                .zip(&values)
+                .map(|(p, v)| {
+                    let d = p.distance(centre);
+                    if d > 0.0 { (v - centre_value).abs() / d } else { 0.0 }
+                })
+                .filter(|x| x.is_finite())
+                .fold(0.0f32, f32::max);
             let mut local: HashMap<u64, u32> = HashMap::new();
-            let mut out = BlockMesh { keys: Vec::new(), positions: Vec::new(), triangles: Vec::new(), queries: points.len() };
+            let mut out = BlockMesh { keys: Vec::new(), positions: Vec::new(), triangles: Vec::new(), queries: points.len(), slope };
             for z in 0..dim.z - 1 {
                 for y in 0..dim.y - 1 {
                     for x in 0..dim.x - 1 {
@@ -183,16 +250,18 @@ pub fn marching_cubes(field: &dyn SdfField, config: &MarchingCubesConfig) -> Res
                     }
                 }
             }
+            progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1, near.len());
             out
         })
         .collect();
 
     // Merge: vertices on block faces appear in both blocks; the first one wins.
-    let mut stats = ExtractionStats { blocks: blocks.len(), blocks_evaluated: near.len(), field_queries: centres.len() };
+    let mut stats = ExtractionStats { blocks: blocks.len(), blocks_evaluated: near.len(), field_queries: centres.len(), ..Default::default() };
     let mut mesh = IsoMesh::default();
     let mut global: HashMap<u64, u32> = HashMap::new();
     for part in parts {
         stats.field_queries += part.queries;
+        measured = measured.max(part.slope);
         let remap: Vec<u32> = part
             .keys
             .iter()
@@ -206,12 +275,13 @@ pub fn marching_cubes(field: &dyn SdfField, config: &MarchingCubesConfig) -> Res
             .collect();
         mesh.triangles.extend(part.triangles.iter().map(|t| t.map(|i| remap[i as usize])));
     }
-    Ok((mesh, stats))
+    Ok((mesh, stats, measured))
 }
 
 impl IsoMesh {
-    /// Keeps only the largest connected component (by triangle count); vertices are reindexed.
-    pub fn largest_component(&self) -> IsoMesh {
+    /// Connected components (triangles sharing a vertex): a label per triangle in `0..count`,
+    /// numbered in the order of their first triangle, and the count.
+    pub fn component_labels(&self) -> (Vec<u32>, usize) {
         let n = self.vertices.len();
         let mut parent: Vec<u32> = (0..n as u32).collect();
         fn find(parent: &mut [u32], mut x: u32) -> u32 {
@@ -229,17 +299,25 @@ impl IsoMesh {
                 }
             }
         }
-        let mut counts: HashMap<u32, usize> = HashMap::new();
-        for t in &self.triangles {
-            *counts.entry(find(&mut parent, t[0])).or_default() += 1;
-        }
-        let Some((&root, _)) = counts.iter().max_by_key(|&(&r, &c)| (c, std::cmp::Reverse(r))) else {
-            return IsoMesh::default();
-        };
-        let mut remap = vec![u32::MAX; n];
+        let mut label_of_root: HashMap<u32, u32> = HashMap::new();
+        let labels = self
+            .triangles
+            .iter()
+            .map(|t| {
+                let root = find(&mut parent, t[0]);
+                let next = label_of_root.len() as u32;
+                *label_of_root.entry(root).or_insert(next)
+            })
+            .collect();
+        (labels, label_of_root.len())
+    }
+
+    /// The triangles whose component label is kept (`keep[labels[t]]`); vertices are reindexed.
+    pub fn select_components(&self, labels: &[u32], keep: &[bool]) -> IsoMesh {
+        let mut remap = vec![u32::MAX; self.vertices.len()];
         let mut out = IsoMesh::default();
-        for t in &self.triangles {
-            if find(&mut parent, t[0]) != root {
+        for (t, &label) in self.triangles.iter().zip(labels) {
+            if !keep[label as usize] {
                 continue;
             }
             out.triangles.push(t.map(|v| {
@@ -251,6 +329,31 @@ impl IsoMesh {
             }));
         }
         out
+    }
+
+    /// Surface area of each component (`labels` and `count` from [`Self::component_labels`]).
+    pub fn component_areas(&self, labels: &[u32], count: usize) -> Vec<f64> {
+        let mut areas = vec![0.0f64; count];
+        for (t, &label) in self.triangles.iter().zip(labels) {
+            let [a, b, c] = t.map(|i| self.vertices[i as usize].as_dvec3());
+            areas[label as usize] += 0.5 * (b - a).cross(c - a).length();
+        }
+        areas
+    }
+
+    /// Keeps only the largest connected component (by triangle count; ties: the first);
+    /// vertices are reindexed.
+    pub fn largest_component(&self) -> IsoMesh {
+        let (labels, count) = self.component_labels();
+        let mut triangles = vec![0usize; count];
+        for &l in &labels {
+            triangles[l as usize] += 1;
+        }
+        let Some(best) = (0..count).max_by_key(|&c| (triangles[c], std::cmp::Reverse(c))) else {
+            return IsoMesh::default();
+        };
+        let keep: Vec<bool> = (0..count).map(|c| c == best).collect();
+        self.select_components(&labels, &keep)
     }
 
     /// Euler characteristic V − E + F.
@@ -352,6 +455,31 @@ mod tests {
         let big = mesh.largest_component();
         assert_eq!(big.euler_characteristic(), 2);
         assert!(big.vertices.iter().all(|p| p.x < 0.1));
+        let (labels, count) = mesh.component_labels();
+        assert_eq!(count, 2);
+        let areas = mesh.component_areas(&labels, count);
+        let mut sorted = areas.clone();
+        sorted.sort_by(f64::total_cmp);
+        // 4π r² for r = 0.15 and 0.4, within the mesh's discretisation.
+        assert!((sorted[0] - 0.2827).abs() < 0.02 && (sorted[1] - 2.0106).abs() < 0.1, "{areas:?}");
+    }
+
+    /// Regression: blocks were skipped by the field's claimed bound without checking it; a field
+    /// steeper than it claims lost parts of its surface (holes) silently.
+    #[test]
+    fn marching_cubes_detects_a_broken_lipschitz_claim_and_keeps_the_surface_closed() {
+        struct Steep;
+        impl SdfField for Steep {
+            fn sdf_batch(&self, points: &[Vec3], out: &mut [f32]) {
+                for (p, o) in points.iter().zip(out) {
+                    *o = 4.0 * ((*p - Vec3::new(0.13, -0.07, 0.05)).length() - 0.45);
+                }
+            }
+        }
+        let config = MarchingCubesConfig { resolution: 64, block: 8, ..Default::default() };
+        let (mesh, stats) = marching_cubes(&Steep, &config).unwrap();
+        assert!(stats.lipschitz.retries >= 1 && stats.lipschitz.measured > 3.5, "{:?}", stats.lipschitz);
+        assert_eq!(mesh.euler_characteristic(), 2, "the sphere must come out closed");
     }
 
     #[test]

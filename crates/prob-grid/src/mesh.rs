@@ -255,6 +255,20 @@ fn box_distance_squared(min: Vec3, max: Vec3, p: Vec3) -> f32 {
     d.length_squared()
 }
 
+/// Area-weighted vertex normals of an indexed triangle mesh (unit length; zero for a vertex of
+/// only degenerate triangles). Counter-clockwise triangles give outward normals.
+pub fn vertex_normals(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
+    let mut normals = vec![Vec3::ZERO; positions.len()];
+    for t in triangles {
+        let [a, b, c] = t.map(|i| positions[i as usize]);
+        let n = (b - a).cross(c - a); // length = 2 × area: area weighting
+        for &i in t {
+            normals[i as usize] += n;
+        }
+    }
+    normals.into_iter().map(|n| n.normalize_or_zero()).collect()
+}
+
 /// The closest point of triangle abc to p (Ericson, Real-Time Collision Detection, 5.1.5).
 pub fn closest_point_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Vec3 {
     let ab = b - a;

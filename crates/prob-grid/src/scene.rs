@@ -34,7 +34,8 @@ pub enum GridError {
 }
 
 /// How the mass of a cell is split among its F³ sub-cells.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum SubcellMass {
     /// Each sub-cell carries the parent's mass / F³ (the paper; no extra field queries).
     #[default]
@@ -44,7 +45,8 @@ pub enum SubcellMass {
 }
 
 /// Dense (reference) or sparse (coarse-to-fine) field evaluation.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Evaluation {
     /// Every cell centre is queried.
     Dense,
@@ -54,8 +56,10 @@ pub enum Evaluation {
 }
 
 /// The scene grid's configuration. Defaults: 128³ over [−1, 1]³, F = 2, split masses,
-/// cell-averaged density, sparse evaluation, mass tolerance 1e-5.
-#[derive(Debug, Clone, PartialEq)]
+/// cell-averaged density, sparse evaluation, mass tolerance 1e-5. In a configuration file every
+/// key is optional and unknown keys are errors.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
 pub struct SceneGridConfig {
     /// Cells per axis (the paper: 128).
     pub resolution: usize,
@@ -151,6 +155,153 @@ pub struct ActiveCells {
     pub nan_values: usize,
     /// Number of parent cells kept.
     pub cells: usize,
+    /// Cells per axis of the scene grid these came from.
+    pub resolution: usize,
+    /// The Lipschitz bound the field claimed, what its own values showed, and what was used.
+    pub lipschitz: LipschitzCheck,
+}
+
+/// A field's Lipschitz claim checked against its values: the largest slope |S(a) − S(b)| / |a − b|
+/// between pairs of points the evaluation queried anyway (neighbouring cells, or a block and its
+/// sub-blocks). The slope is a lower bound of the true constant, so a claim below it is wrong:
+/// the evaluation is then redone with `used = measured × 1.5` (`retries` counts the redos).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct LipschitzCheck {
+    /// The field's [`SdfField::lipschitz_bound`].
+    pub claimed: f32,
+    /// The largest slope measured between evaluated points.
+    pub measured: f32,
+    /// The bound the final evaluation used (≥ `claimed`).
+    pub used: f32,
+    /// Evaluations redone because the claim was broken.
+    pub retries: u32,
+}
+
+/// Margin over a measured slope when a Lipschitz claim is found broken.
+pub const LIPSCHITZ_MARGIN: f32 = 1.5;
+
+/// The largest slope between axis neighbours of a dense `r³` grid of values (x fastest) with
+/// spacing `h`; NaN values are ignored.
+fn neighbour_slope(values: &[f32], r: usize, h: f32) -> f32 {
+    let at = |i: usize, j: usize, k: usize| values[(k * r + j) * r + i];
+    (0..r)
+        .into_par_iter()
+        .map(|k| {
+            let mut worst = 0.0f32;
+            for j in 0..r {
+                for i in 0..r {
+                    let v = at(i, j, k);
+                    for (di, dj, dk) in [(1, 0, 0), (0, 1, 0), (0, 0, 1)] {
+                        if i + di < r && j + dj < r && k + dk < r {
+                            let d = (at(i + di, j + dj, k + dk) - v).abs();
+                            if d > worst {
+                                worst = d;
+                            }
+                        }
+                    }
+                }
+            }
+            worst / h
+        })
+        .reduce(|| 0.0, f32::max)
+}
+
+/// The octree descent of the sparse evaluation with Lipschitz bound `lipschitz`: the leaf cells
+/// (size 1) with their centre values, and the largest slope measured between a block's centre
+/// and its sub-blocks' centres (and between neighbouring top-level blocks).
+fn sparse_descent(
+    field: &dyn SdfField,
+    config: &SceneGridConfig,
+    lipschitz: f32,
+    keep_distance: f32,
+    queries: &mut usize,
+) -> (Vec<UVec3>, Vec<f32>, f32) {
+    let r = config.resolution as u32;
+    let cell = config.cell_size();
+    // Blocks are (origin, size) in cells; start from blocks of up to 16³ cells.
+    let mut size = 16u32.min(r.next_power_of_two());
+    let top = r.div_ceil(size);
+    let mut blocks: Vec<UVec3> = Vec::new();
+    for k in 0..top {
+        for j in 0..top {
+            for i in 0..top {
+                blocks.push(UVec3::new(i, j, k) * size);
+            }
+        }
+    }
+    // Each block's parent centre and value (none at the top level).
+    let mut parents: Vec<(Vec3, f32)> = vec![(Vec3::NAN, f32::NAN); blocks.len()];
+    let mut measured = 0.0f32;
+    let mut first = true;
+    loop {
+        // A block's true extent may be clipped by the grid's end.
+        let extent = |o: UVec3| (o + UVec3::splat(size)).min(UVec3::splat(r)) - o;
+        let centers: Vec<Vec3> = blocks.par_iter().map(|o| config.bound_min + (o.as_vec3() + extent(*o).as_vec3() * 0.5) * cell).collect();
+        let values = query(field, &centers);
+        *queries += blocks.len();
+        // Slopes: child against parent, and (top level) neighbouring blocks.
+        let level_slope = centers
+            .par_iter()
+            .zip(values.par_iter())
+            .zip(parents.par_iter())
+            .map(|((c, v), (pc, pv))| {
+                let d = c.distance(*pc);
+                if d > 0.0 { (v - pv).abs() / d } else { 0.0 }
+            })
+            .filter(|x| x.is_finite())
+            .reduce(|| 0.0, f32::max);
+        measured = measured.max(level_slope);
+        if first {
+            // Top-level blocks are full-size except at the far edge: their centres are about a
+            // block apart; the exact distance is used.
+            let n = top as usize;
+            let at = |i: usize, j: usize, k: usize| (k * n + j) * n + i;
+            for k in 0..n {
+                for j in 0..n {
+                    for i in 0..n {
+                        for (di, dj, dk) in [(1, 0, 0), (0, 1, 0), (0, 0, 1)] {
+                            if i + di < n && j + dj < n && k + dk < n {
+                                let (a, b) = (at(i, j, k), at(i + di, j + dj, k + dk));
+                                let slope = (values[a] - values[b]).abs() / centers[a].distance(centers[b]);
+                                if slope.is_finite() {
+                                    measured = measured.max(slope);
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+            first = false;
+        }
+        if size == 1 {
+            return (blocks, values, measured);
+        }
+        let half = size / 2;
+        let (next, next_parents): (Vec<UVec3>, Vec<(Vec3, f32)>) = blocks
+            .par_iter()
+            .zip(values.par_iter())
+            .zip(centers.par_iter())
+            .flat_map_iter(|((o, v), c)| {
+                let radius = 0.5 * extent(*o).as_vec3().length() * cell;
+                // NaN compares false: a NaN block is refined, never silently dropped.
+                let skip = v.abs() - lipschitz * radius > keep_distance;
+                let e = extent(*o);
+                let children: Vec<(UVec3, (Vec3, f32))> = if skip {
+                    Vec::new()
+                } else {
+                    (0..8u32)
+                        .map(|c| UVec3::new(c & 1, (c >> 1) & 1, (c >> 2) & 1) * half)
+                        .filter(|d| d.x < e.x && d.y < e.y && d.z < e.z)
+                        .map(|d| (*o + d, (*c, *v)))
+                        .collect()
+                };
+                children
+            })
+            .unzip();
+        blocks = next;
+        parents = next_parents;
+        size = half;
+    }
 }
 
 /// Queries the field at `points` in parallel chunks.
@@ -171,66 +322,37 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
     // Densities below this are dropped before the relative pruning (see the module docs).
     let threshold = 0.1 * config.mass_tolerance / config.volume();
     let mut queries = 0usize;
+    let lipschitz_claimed = field.lipschitz_bound().max(1e-6);
+    let (mut lipschitz_measured, mut lipschitz_retries) = (0.0f32, 0u32);
 
     // Candidate cells: all of them (dense) or the leaves of the octree descent (sparse), with
     // their centre SDF values.
-    let (cells, values): (Vec<UVec3>, Vec<f32>) = match config.evaluation {
+    let (cells, values, lipschitz_used): (Vec<UVec3>, Vec<f32>, f32) = match config.evaluation {
         Evaluation::Dense => {
             let cells: Vec<UVec3> = (0..r).flat_map(|k| (0..r).flat_map(move |j| (0..r).map(move |i| UVec3::new(i, j, k)))).collect();
             let centers: Vec<Vec3> = cells.par_iter().map(|c| config.cell_center(*c)).collect();
             let values = query(field, &centers);
             queries += cells.len();
-            (cells, values)
+            lipschitz_measured = neighbour_slope(&values, r as usize, cell);
+            (cells, values, lipschitz_claimed)
         }
         Evaluation::Sparse => {
             let keep_distance = negligible_distance(config.cell_density, s, threshold, cell);
-            let lipschitz = field.lipschitz_bound().max(1e-6);
-            // Blocks are (origin, size) in cells; start from blocks of up to 16³ cells.
-            let mut size = 16u32.min(r.next_power_of_two());
-            let mut blocks: Vec<UVec3> = Vec::new();
-            for k in (0..r).step_by(size as usize) {
-                for j in (0..r).step_by(size as usize) {
-                    for i in (0..r).step_by(size as usize) {
-                        blocks.push(UVec3::new(i, j, k));
-                    }
-                }
-            }
+            // The descent trusts L only as far as the field's own values allow: a slope measured
+            // between two evaluated points that exceeds L proves the claim wrong, and the
+            // descent is redone with the measured slope and a margin (never silently truncated).
+            let mut bound = lipschitz_claimed;
             loop {
-                // A block's true extent may be clipped by the grid's end.
-                let extent = |o: UVec3| (o + UVec3::splat(size)).min(UVec3::splat(r)) - o;
-                let centers: Vec<Vec3> = blocks.par_iter().map(|o| config.bound_min + (o.as_vec3() + extent(*o).as_vec3() * 0.5) * cell).collect();
-                let values = query(field, &centers);
-                queries += blocks.len();
-                if size == 1 {
-                    break (blocks, values);
+                let (cells, values, measured) = sparse_descent(field, config, bound, keep_distance, &mut queries);
+                lipschitz_measured = lipschitz_measured.max(measured);
+                if !(measured > bound * 1.0001) || lipschitz_retries >= 4 {
+                    break (cells, values, bound);
                 }
-                let half = size / 2;
-                let next: Vec<UVec3> = blocks
-                    .par_iter()
-                    .zip(values.par_iter())
-                    .flat_map_iter(|(o, v)| {
-                        let radius = 0.5 * extent(*o).as_vec3().length() * cell;
-                        // NaN compares false: a NaN block is refined, never silently dropped.
-                        let skip = v.abs() - lipschitz * radius > keep_distance;
-                        let e = extent(*o);
-                        let children: Vec<UVec3> = if skip {
-                            Vec::new()
-                        } else {
-                            (0..8u32)
-                                .map(|c| UVec3::new(c & 1, (c >> 1) & 1, (c >> 2) & 1) * half)
-                                .filter(|d| d.x < e.x && d.y < e.y && d.z < e.z)
-                                .map(|d| *o + d)
-                                .collect()
-                        };
-                        children
-                    })
-                    .collect();
-                blocks = next;
-                size = half;
+                lipschitz_retries += 1;
+                bound = measured * LIPSCHITZ_MARGIN;
             }
         }
     };
-
     let f = config.partition;
     let subcell = cell / f as f32;
     let offsets: Vec<Vec3> =
@@ -238,7 +360,14 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
     let cell_volume = (cell as f64).powi(3);
     let nan_values = values.iter().filter(|v| v.is_nan()).count();
 
-    let mut out = ActiveCells { subcell_size: subcell, field_queries: queries, nan_values, ..Default::default() };
+    let mut out = ActiveCells {
+        subcell_size: subcell,
+        field_queries: queries,
+        nan_values,
+        lipschitz: LipschitzCheck { claimed: lipschitz_claimed, measured: lipschitz_measured, used: lipschitz_used, retries: lipschitz_retries },
+        resolution: config.resolution,
+        ..Default::default()
+    };
     match config.subcell_mass {
         SubcellMass::Split => {
             let kept: Vec<(Vec3, f32)> = cells
@@ -256,7 +385,7 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
         }
         SubcellMass::Reevaluate => {
             // Parents that may hold mass at sub-cell level: |S| within reach of a sub-cell.
-            let reach = negligible_distance(config.cell_density, s, threshold, subcell) + 0.87 * cell * field.lipschitz_bound();
+            let reach = negligible_distance(config.cell_density, s, threshold, subcell) + 0.87 * cell * lipschitz_used;
             let parents: Vec<Vec3> = cells.iter().zip(&values).filter(|(_, v)| !(v.abs() > reach)).map(|(c, _)| config.cell_center(*c)).collect();
             out.cells = parents.len();
             let points: Vec<Vec3> = parents.iter().flat_map(|c| offsets.iter().map(move |o| *c + *o)).collect();
@@ -377,6 +506,35 @@ mod tests {
         let a = evaluate(&sphere(), 1e-3, &one).unwrap();
         assert_eq!(a.cells, 1);
         assert!(a.total_mass.is_finite() && a.total_mass > 0.0);
+    }
+
+    /// A field whose gradient is 4 while it claims a Lipschitz bound of 1 (a learnt SDF that
+    /// is no distance yet).
+    struct Steep;
+    impl SdfField for Steep {
+        fn sdf_batch(&self, points: &[Vec3], out: &mut [f32]) {
+            for (p, o) in points.iter().zip(out) {
+                *o = 4.0 * (p.length() - 0.5);
+            }
+        }
+    }
+
+    /// Regression: the sparse descent skipped blocks by the claimed bound without checking it;
+    /// a steeper field lost its surface silently. Now the claim is checked against the values the
+    /// descent queries and the descent is redone with the measured slope.
+    #[test]
+    fn field_breaking_its_lipschitz_claim_is_detected_not_truncated() {
+        let base = SceneGridConfig { resolution: 64, ..Default::default() };
+        let dense = evaluate(&Steep, 200.0, &SceneGridConfig { evaluation: Evaluation::Dense, ..base.clone() }).unwrap();
+        let sparse = evaluate(&Steep, 200.0, &base).unwrap();
+        assert!(sparse.lipschitz.retries >= 1, "{:?}", sparse.lipschitz);
+        assert!(sparse.lipschitz.measured > 3.5 && sparse.lipschitz.used >= sparse.lipschitz.measured, "{:?}", sparse.lipschitz);
+        let diff = (dense.total_mass - sparse.total_mass).abs();
+        assert!(diff <= 1e-4 * dense.total_mass, "sparse {} vs dense {}", sparse.total_mass, dense.total_mass);
+        // An honest field is not redone and its slope is measured near 1.
+        let honest = evaluate(&sphere(), 200.0, &base).unwrap();
+        assert_eq!(honest.lipschitz.retries, 0);
+        assert!(honest.lipschitz.measured > 0.8 && honest.lipschitz.measured <= 1.0001, "{:?}", honest.lipschitz);
     }
 
     #[test]

@@ -184,3 +184,49 @@ fn scalar_and_simd_projection_paths_conserve_mass_for_every_partition() {
     // The same mass lands in the grid whatever F (the sphere is fully in view).
     assert!((totals[0] - totals[2]).abs() < 1e-3 * totals[0], "{totals:?}");
 }
+
+/// Regression: the 8-lane projection computed the flat cell index in f32, exact only below 2²⁴
+/// cells; above that the mass of odd indices landed in a neighbouring cell (or past the end).
+#[test]
+fn camera_grids_above_two_to_the_24_cells_index_the_right_cell() {
+    let cam = camera_at(DVec3::new(0.0, -3.0, 0.0));
+    // 1000 × 1000 × 32 = 3.2·10⁷ cells > 2²⁴ ≈ 1.68·10⁷.
+    let config = CameraGridConfig {
+        ru: 1000,
+        rv: 1000,
+        rl: 32,
+        weighting: Weighting::MassPreserving,
+        view_dependency: ViewDependency::Off,
+        ..Default::default()
+    };
+    assert!(config.ru * config.rv * config.rl > 1 << 24);
+    // Points spread over the image, each with 8 tiny sub-cell offsets (the 8-lane path) that
+    // stay in the point's camera cell.
+    let points: Vec<Vec3> = (0..40).map(|i| Vec3::new(-0.45 + 0.023 * i as f32, 0.13 - 0.011 * i as f32, 0.3 - 0.017 * i as f32)).collect();
+    let active = ActiveCells {
+        masses: vec![1.0; points.len()],
+        offsets: (0..8).map(|k| Vec3::new((k & 1) as f32, ((k >> 1) & 1) as f32, (k >> 2) as f32) * 1e-7).collect(),
+        subcell_size: 1e-7,
+        total_mass: points.len() as f64,
+        cells: points.len(),
+        points: points.clone(),
+        ..Default::default()
+    };
+    let grid = reproject(&active, &cam, &config);
+    let (du, dv, dl) = grid.cell_sizes();
+    let mut checked = 0;
+    for p in &points {
+        let x = cam.pixel_space_from_world(p.as_dvec3());
+        let f = [(x.x - grid.bounds.u[0]) / du, (x.y - grid.bounds.v[0]) / dv, (x.z - grid.bounds.depth[0]) / dl];
+        // Points within f32 rounding of a cell border may land on either side: not a check.
+        if f.iter().any(|c| (c - c.round()).abs() < 1e-3) {
+            continue;
+        }
+        checked += 1;
+        let (iu, iv, il) = (f[0] as usize, f[1] as usize, f[2] as usize);
+        let value = grid.values[grid.index(iu, iv, il)];
+        assert!((value - 1.0).abs() < 1e-5, "point {p}: cell ({iu}, {iv}, {il}) holds {value}, expected its whole mass 1");
+    }
+    assert!(checked >= 30, "only {checked} points away from cell borders");
+    assert!((grid.total() - points.len() as f64).abs() < 1e-3);
+}

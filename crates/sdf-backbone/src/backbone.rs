@@ -87,9 +87,11 @@ pub type SdfNet = Chain<InputEncoding, Mlp>;
 pub type Backbone = Pipeline<SdfNet, Mlp>;
 
 /// Named configurations.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Preset {
     /// Hash grid 8 levels × 2 features, 2¹⁶ entries, 16 → 256; SDF MLP 2 × 64; colour MLP 2 × 64.
+    #[default]
     NeuralangeloCpu,
     /// Positional encoding (6 frequencies); SDF MLP 4 × 64; colour MLP 2 × 64.
     NeusCpu,
@@ -196,6 +198,7 @@ pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
             normals: NormalScheme::Tetrahedral,
             curvature_weight: 0.0,
             background: [0.0; 3],
+            masked_color: false,
         },
     };
     let layout = backbone.layout();
@@ -290,9 +293,9 @@ impl Backbone {
         self.background = Some(net);
     }
 
-    /// The logistic scale s = exp(10 v) of these parameters.
+    /// The logistic scale s of these parameters ([`crate::pipeline::scale_from_variance`]).
     pub fn scale(&self, params: &[f32]) -> f64 {
-        (10.0 * f64::from(params[self.layout().variance])).exp()
+        crate::pipeline::scale_from_variance(f64::from(params[self.layout().variance]))
     }
 
     /// Hash-grid levels (None for positional encoding).

@@ -93,11 +93,13 @@ impl HashGrid {
         let mut slope = [scale; 3];
         for d in 0..3 {
             let raw = (x[d] + R::ONE) * scale;
-            let p = raw.max(R::ZERO).min(R::of(n as f64) - R::of(1e-6));
+            let p = raw.max(R::ZERO).min(R::of(n as f64));
             if p != raw {
                 slope[d] = R::ZERO;
             }
-            let c = p.to_f64().floor();
+            // The last cell is closed: p = N is its far face (frac = 1), never a cell N (whose
+            // corners N + 1 would read another row of a dense table).
+            let c = p.to_f64().floor().min(f64::from(n) - 1.0);
             cell[d] = c as u32;
             frac[d] = p - R::of(c);
         }

@@ -37,7 +37,9 @@ pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};
 pub use hashgrid::{HashGrid, HashGridConfig};
 pub use mlp::{Mlp, MlpConfig};
 pub use module::{Activation, Chain, Module, batch_gradients};
-pub use optim::{Adam, WarmupCosine, WarmupStep};
-pub use pipeline::{ColorLoss, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, interval_weights};
+pub use optim::{Adam, Decay, LrSchedule, WarmupCosine, WarmupStep};
+pub use pipeline::{
+    ColorLoss, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, interval_weights, scale_from_variance,
+};
 pub use real::Real;
 pub use render::{RayGradients, RayRender, merge_sorted, render_ray, render_ray_backward, sample_intervals};

@@ -53,7 +53,79 @@ impl Adam {
     }
 }
 
-/// Learning-rate schedule: linear warm-up, then cosine decay to `final_factor` of the base rate.
+/// How the learning rate decays after the warm-up.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Decay {
+    /// Cosine to `final_factor` of the base rate at the end of the run (NeuS).
+    #[default]
+    Cosine,
+    /// × `step_factor` at each milestone (Neuralangelo).
+    Step,
+}
+
+/// A learning-rate schedule on the *fraction of the run* done (so that it works for a budget of
+/// steps and for a budget of time alike): linear warm-up over the first `warmup` of the run, then
+/// the decay. `factor(p)` is the multiplier of the base rate for a step that ends at progress p.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LrSchedule {
+    /// Warm-up, as a fraction of the run.
+    pub warmup: f64,
+    /// Decay after the warm-up.
+    pub decay: Decay,
+    /// Cosine: final rate as a fraction of the base.
+    pub final_factor: f64,
+    /// Step: milestones as fractions of the run.
+    pub milestones: Vec<f64>,
+    /// Step: multiplier per milestone.
+    pub step_factor: f64,
+}
+
+impl Default for LrSchedule {
+    fn default() -> Self {
+        LrSchedule { warmup: 0.05, decay: Decay::Cosine, final_factor: 0.1, milestones: vec![0.5, 0.75], step_factor: 0.3 }
+    }
+}
+
+impl LrSchedule {
+    /// The multiplier at progress `p` ∈ [0, 1] (the end of the step).
+    pub fn factor(&self, p: f64) -> f32 {
+        let p = p.clamp(0.0, 1.0);
+        if p < self.warmup {
+            return (p / self.warmup) as f32;
+        }
+        match self.decay {
+            Decay::Cosine => {
+                let q = ((p - self.warmup) / (1.0 - self.warmup).max(1e-12)).min(1.0);
+                let cosine = 0.5 * (1.0 + (std::f64::consts::PI * q).cos());
+                (self.final_factor + (1.0 - self.final_factor) * cosine) as f32
+            }
+            Decay::Step => self.step_factor.powi(self.milestones.iter().filter(|&&m| p >= m).count() as i32) as f32,
+        }
+    }
+
+    /// Checks the ranges; the error names the field.
+    pub fn validate(&self) -> Result<(), String> {
+        let unit = |x: f64| (0.0..=1.0).contains(&x);
+        if !(unit(self.warmup) && self.warmup < 1.0) {
+            return Err(format!("warmup = {} (a fraction of the run in [0, 1))", self.warmup));
+        }
+        if !unit(self.final_factor) {
+            return Err(format!("final_factor = {} (in [0, 1])", self.final_factor));
+        }
+        if !self.milestones.iter().all(|m| unit(*m)) {
+            return Err(format!("milestones = {:?} (fractions of the run in [0, 1])", self.milestones));
+        }
+        if !unit(self.step_factor) {
+            return Err(format!("step_factor = {} (in [0, 1])", self.step_factor));
+        }
+        Ok(())
+    }
+}
+
+/// Learning-rate schedule in steps: linear warm-up, then cosine decay to `final_factor` of the
+/// base rate.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WarmupCosine {
     /// Base learning rate.
@@ -106,6 +178,16 @@ impl WarmupStep {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn progress_schedule_warms_up_then_decays() {
+        let s = LrSchedule { warmup: 0.1, ..Default::default() };
+        assert!((s.factor(0.05) - 0.5).abs() < 1e-6 && (s.factor(0.1) - 1.0).abs() < 1e-6);
+        assert!((s.factor(1.0) - 0.1).abs() < 1e-6 && s.factor(0.55) < 1.0 && s.factor(0.55) > 0.1);
+        let s = LrSchedule { warmup: 0.0, decay: Decay::Step, ..Default::default() };
+        assert_eq!((s.factor(0.2), s.factor(0.5), s.factor(0.9)), (1.0, 0.3, 0.3 * 0.3));
+        assert!(LrSchedule { warmup: 1.0, ..Default::default() }.validate().is_err());
+    }
 
     #[test]
     fn adam_minimises_a_quadratic() {

@@ -5,7 +5,10 @@
 //! numerical differences ([`NormalScheme`]): central, 6n points `xᵢ ± h·e_k`,
 //! `nᵢ = (S(xᵢ + h e_k) − S(xᵢ − h e_k)) / 2h`; or tetrahedral, 4n points `xᵢ + h·vⱼ` with
 //! v ∈ {(1,−1,−1), (−1,−1,1), (−1,1,−1), (1,1,1)}, `nᵢ = Σⱼ vⱼ S(xᵢ + h vⱼ) / 4h` (a third fewer
-//! network evaluations, the same O(h²) accuracy). The
+//! network evaluations). Central differences are second-order accurate (error O(h²)); the
+//! tetrahedral stencil is only first-order: since v_x v_y v_z = 1 at all four vertices, its
+//! error is h·(∂²S/∂y∂z, ∂²S/∂x∂z, ∂²S/∂x∂y) + O(h²), which vanishes where the mixed second
+//! derivatives do (a plane, and at h → 0). The
 //! colour network maps `[xᵢ, nᵢ, SH₄(d), featuresᵢ]` to the colour of interval i; the ray is
 //! rendered with [`render_ray`] at scale `s = exp(10·v)` (NeuS's learnt variance v). The loss is
 //! the colour error (L1 as NeuS, or L2) of `colour + (1 − opacity)·background`, plus
@@ -36,7 +39,8 @@ pub enum ColorLoss {
 }
 
 /// How normals are taken from the SDF network.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum NormalScheme {
     /// Central differences: 6 probes per sample.
     Central,
@@ -66,10 +70,25 @@ impl NormalScheme {
 /// A per-ray loss on the samples, added to the pipeline's loss (the surface losses of
 /// `surface-losses` plug in here). Works in f64 whatever the pipeline's precision.
 pub trait SampleLoss: Sync {
-    /// Loss of ray `ray` (its index in the batch) from its sample depths `t` (n + 1), SDF values
-    /// `sdf` (n + 1) and rendering weights `weights` (n); adds ∂loss/∂S into `d_sdf` and
-    /// ∂loss/∂w into `d_weights`. The pipeline divides the loss by the batch's ray count.
-    fn ray_loss(&self, ray: usize, t: &[f64], sdf: &[f64], weights: &[f64], d_sdf: &mut [f64], d_weights: &mut [f64]) -> f64;
+    /// Loss of ray `ray` (its index in the batch) from the pipeline's logistic scale `s` (the one
+    /// it renders with, [`scale_from_variance`]), its sample depths `t` (n + 1), SDF values `sdf`
+    /// (n + 1) and rendering weights `weights` (n); adds ∂loss/∂S into `d_sdf` and ∂loss/∂w into
+    /// `d_weights` (no gradient flows into s). The pipeline divides the loss by the batch's ray
+    /// count.
+    #[allow(clippy::too_many_arguments)]
+    fn ray_loss(&self, ray: usize, s: f64, t: &[f64], sdf: &[f64], weights: &[f64], d_sdf: &mut [f64], d_weights: &mut [f64]) -> f64;
+}
+
+/// NeuS's learnt variance v → the logistic scale s = exp(10 v), the one place this formula lives.
+#[inline]
+pub fn scale_from_variance<R: Real>(v: R) -> R {
+    (R::of(10.0) * v).exp()
+}
+
+/// ∂s/∂v of [`scale_from_variance`], given s.
+#[inline]
+fn scale_derivative<R: Real>(s: R) -> R {
+    R::of(10.0) * s
 }
 
 /// No extra loss.
@@ -77,7 +96,7 @@ pub trait SampleLoss: Sync {
 pub struct NoSampleLoss;
 
 impl SampleLoss for NoSampleLoss {
-    fn ray_loss(&self, _: usize, _: &[f64], _: &[f64], _: &[f64], _: &mut [f64], _: &mut [f64]) -> f64 {
+    fn ray_loss(&self, _: usize, _: f64, _: &[f64], _: &[f64], _: &[f64], _: &mut [f64], _: &mut [f64]) -> f64 {
         0.0
     }
 }
@@ -114,8 +133,13 @@ pub struct PipelineConfig {
     /// from the same probes as the normals: `ΔS ≈ (Σⱼ S(x + h vⱼ) − m S(x)) / (h² c/2)`, where
     /// Σⱼ vⱼvⱼᵀ = c I (c = 2 central, 4 tetrahedral; m probes). Neuralangelo: 5e-4.
     pub curvature_weight: f64,
-    /// Colour behind the surface (what an empty ray renders), e.g. black for masked training.
+    /// Colour behind the surface (what an empty ray renders). With masks (`masked_color`) it
+    /// only colours renders; without, a fixed background colour is composited in the loss too.
     pub background: [f64; 3],
+    /// Masked training as NeuS does it: the colour loss covers foreground rays only (mask ≥ ½),
+    /// normalised by their count, on the rendered colour without any background; the mask BCE
+    /// alone drives the opacity of backdrop rays. Rays without a mask are foreground.
+    pub masked_color: bool,
 }
 
 /// SDF network + colour network + learnt variance (+ an optional learned background),
@@ -165,7 +189,18 @@ impl<S, C> Pipeline<S, C> {
         S: Module<R>,
         C: Module<R>,
     {
-        self.accumulate(params, rays, 0, d_params, R::of(rays.len() as f64), extra)
+        let norm = self.color_normaliser::<R>(rays);
+        self.accumulate(params, rays, 0, d_params, R::of(rays.len() as f64), norm, extra)
+    }
+
+    /// The colour loss's normaliser: the number of rays, or of foreground rays when the colour
+    /// loss is masked (at least 1).
+    fn color_normaliser<R: Real>(&self, rays: &[RayInput<R>]) -> R {
+        if self.config.masked_color {
+            R::of(rays.iter().filter(|r| r.mask.is_none_or(|m| m.to_f64() >= 0.5)).count().max(1) as f64)
+        } else {
+            R::of(rays.len() as f64)
+        }
     }
 
     /// [`Self::loss`] over chunks of `chunk` rays in parallel: one gradient buffer per chunk,
@@ -186,13 +221,14 @@ impl<S, C> Pipeline<S, C> {
         use rayon::prelude::*;
         let n = d_params.len();
         let m = R::of(rays.len() as f64);
+        let norm = self.color_normaliser::<R>(rays);
         let chunk = chunk.max(1);
         let parts: Vec<(R, Vec<R>, Vec<RayOutput<R>>)> = rays
             .par_chunks(chunk)
             .enumerate()
             .map(|(i, c)| {
                 let mut g = vec![R::ZERO; n];
-                let (l, o) = self.accumulate(params, c, i * chunk, Some(&mut g), m, extra);
+                let (l, o) = self.accumulate(params, c, i * chunk, Some(&mut g), m, norm, extra);
                 (l, g, o)
             })
             .collect();
@@ -263,8 +299,9 @@ impl<S, C> Pipeline<S, C> {
     }
 
     /// The loss of `rays` (the batch's rays from index `first`) divided by `m` (the whole batch's
-    /// ray count), gradients added. All rays of the call go through each network together (one
-    /// matrix product per layer), the per-ray work in between.
+    /// ray count; the colour loss by `color_norm`), gradients added. All rays of the call go
+    /// through each network together (one matrix product per layer), the per-ray work in between.
+    #[allow(clippy::too_many_arguments)]
     fn accumulate<R: Real>(
         &self,
         params: &[R],
@@ -272,6 +309,7 @@ impl<S, C> Pipeline<S, C> {
         first: usize,
         d_params: Option<&mut [R]>,
         m: R,
+        color_norm: R,
         extra: &dyn SampleLoss,
     ) -> (R, Vec<RayOutput<R>>)
     where
@@ -282,7 +320,7 @@ impl<S, C> Pipeline<S, C> {
         let (p_sdf, rest) = params.split_at(n_sdf);
         let (p_col, p_var) = rest.split_at(n_col);
         let (var, p_bg) = (p_var[0], &p_var[1..]);
-        let s = (R::of(10.0) * var).exp();
+        let s = scale_from_variance(var);
         let f = self.sdf.n_outputs() - 1;
         let n_out = 1 + f;
         let h = R::of(self.config.normal_step);
@@ -388,29 +426,41 @@ impl<S, C> Pipeline<S, C> {
                 None => fixed_background,
             };
             let composited: [R; 3] = [0, 1, 2].map(|k| r_out.color[k] + (R::ONE - r_out.opacity) * background[k]);
-            // Losses.
+            // Colour loss: on the composited colour, or (masked) on the rendered colour of
+            // foreground rays only, normalised by their count instead of the batch's.
+            let masked = self.config.masked_color;
+            let color_weight = if !masked {
+                R::ONE
+            } else if ray.mask.is_none_or(|mk| mk >= R::of(0.5)) {
+                m / color_norm
+            } else {
+                R::ZERO
+            };
+            let predicted = if masked { r_out.color } else { composited };
             let mut d_color = [R::ZERO; 3];
             let mut loss = R::ZERO;
             for k in 0..3 {
-                let e = composited[k] - ray.target[k];
+                let e = predicted[k] - ray.target[k];
                 match self.config.color_loss {
                     ColorLoss::L1 => {
-                        loss += e.abs();
-                        d_color[k] = if e > R::ZERO {
+                        loss += color_weight * e.abs();
+                        let sign = if e > R::ZERO {
                             R::ONE
                         } else if e < R::ZERO {
                             -R::ONE
                         } else {
                             R::ZERO
                         };
+                        d_color[k] = color_weight * sign;
                     }
                     ColorLoss::L2 => {
-                        loss += e * e;
-                        d_color[k] = e + e;
+                        loss += color_weight * e * e;
+                        d_color[k] = color_weight * (e + e);
                     }
                 }
             }
-            let mut d_opacity = -(d_color[0] * background[0] + d_color[1] * background[1] + d_color[2] * background[2]);
+            let mut d_opacity =
+                if masked { R::ZERO } else { -(d_color[0] * background[0] + d_color[1] * background[1] + d_color[2] * background[2]) };
             // Curvature: mean |ΔS| over the samples.
             let curv_w = R::of(self.config.curvature_weight) / R::of(n as f64);
             let c_probe: f64 = probes.iter().map(|(o, _)| o[0] * o[0]).sum();
@@ -462,7 +512,7 @@ impl<S, C> Pipeline<S, C> {
             let w64: Vec<f64> = r_out.weights.iter().map(|v| v.to_f64()).collect();
             let mut d_sdf_extra = vec![0.0f64; n + 1];
             let mut d_w_extra = vec![0.0f64; n];
-            loss += R::of(extra.ray_loss(first + r, &t64, &sdf64, &w64, &mut d_sdf_extra, &mut d_w_extra));
+            loss += R::of(extra.ray_loss(first + r, s.to_f64(), &t64, &sdf64, &w64, &mut d_sdf_extra, &mut d_w_extra));
             total += loss / m;
             let mut normal = [R::ZERO; 3];
             for i in 0..n {
@@ -477,9 +527,11 @@ impl<S, C> Pipeline<S, C> {
             let d_w: Vec<R> = d_w_extra.iter().map(|&v| R::of(v) * inv_m).collect();
             let g =
                 render_ray_backward(&sdf_values, &ray.depths, &colors, s, &r_out, d_color.map(|d| d * inv_m), R::ZERO, d_opacity * inv_m, Some(&d_w));
-            d_var += g.s * R::of(10.0) * s;
-            for k in 0..3 {
-                d_bg_all[3 * r + k] = d_color[k] * (R::ONE - r_out.opacity) * inv_m;
+            d_var += g.s * scale_derivative(s);
+            if !masked {
+                for k in 0..3 {
+                    d_bg_all[3 * r + k] = d_color[k] * (R::ONE - r_out.opacity) * inv_m;
+                }
             }
             for (i, c) in g.colors.iter().enumerate() {
                 d_colors_flat[3 * (c0 + i)..3 * (c0 + i) + 3].copy_from_slice(c);

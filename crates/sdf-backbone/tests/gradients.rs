@@ -341,7 +341,7 @@ fn spherical_harmonics_are_orthonormal_and_differentiable() {
 struct TestSampleLoss;
 
 impl SampleLoss for TestSampleLoss {
-    fn ray_loss(&self, ray: usize, t: &[f64], sdf: &[f64], w: &[f64], d_sdf: &mut [f64], d_w: &mut [f64]) -> f64 {
+    fn ray_loss(&self, ray: usize, _s: f64, t: &[f64], sdf: &[f64], w: &[f64], d_sdf: &mut [f64], d_w: &mut [f64]) -> f64 {
         let scale = 1.0 + ray as f64;
         let mut loss = 0.0;
         for i in 0..w.len() {
@@ -359,11 +359,11 @@ impl SampleLoss for TestSampleLoss {
 
 /// The whole render + loss pipeline (SDF net with PE, normals and curvature by central and by
 /// tetrahedral differences, colour net on [x, n, SH(d), features], NeuS rendering, L2 colour over a grey
-/// or a learned background + eikonal + mask BCE + a loss on the samples, learnt variance) against finite
-/// differences in f64.
+/// or a learned background, or masked (foreground rays only) + eikonal + mask BCE + a loss on the
+/// samples, learnt variance) against finite differences in f64.
 #[test]
 fn whole_pipeline_gradients_match_finite_differences() {
-    for normals in [NormalScheme::Central, NormalScheme::Tetrahedral] {
+    for (normals, masked_color) in [(NormalScheme::Central, false), (NormalScheme::Tetrahedral, false), (NormalScheme::Central, true)] {
         let pe = PositionalEncoding { frequencies: 2 };
         let sdf_mlp = Mlp::new(MlpConfig {
             n_inputs: 15,
@@ -408,6 +408,7 @@ fn whole_pipeline_gradients_match_finite_differences() {
                 normals,
                 curvature_weight: 1e-3,
                 background: [0.3, 0.5, 0.1],
+                masked_color,
             },
         };
         let n = pipeline.n_params::<f64>();
@@ -443,7 +444,61 @@ fn whole_pipeline_gradients_match_finite_differences() {
             }
             worst = worst.max(rel);
         }
-        assert!(worst <= 1e-5, "{normals:?}: relative error {worst:e}");
+        assert!(worst <= 1e-5, "{normals:?}, masked colour {masked_color}: relative error {worst:e}");
+    }
+}
+
+/// Masked training (NeuS): a backdrop ray's colour does not enter the loss, so changing its
+/// target changes nothing, while a foreground ray's does; and the sample-loss hook is handed the
+/// very s the pipeline renders with.
+#[test]
+fn masked_colour_loss_ignores_backdrop_rays_and_the_hook_sees_the_pipelines_s() {
+    let (mut backbone, params) = sdf_backbone::build(sdf_backbone::Preset::NeusCpu, 0.5, 3);
+    backbone.config.masked_color = true;
+    let ray = |target: [f32; 3], mask: f32| RayInput {
+        origin: [0.0, -3.0, 0.1],
+        direction: [0.0, 1.0, 0.0],
+        depths: (0..=16).map(|i| 2.0 + 2.0 * i as f32 / 16.0).collect(),
+        target,
+        mask: Some(mask),
+    };
+    let loss = |rays: &[RayInput<f32>]| backbone.loss(&params, rays, None, &NoSampleLoss).0;
+    let base = loss(&[ray([0.1; 3], 1.0), ray([0.2; 3], 0.0)]);
+    assert_eq!(base, loss(&[ray([0.1; 3], 1.0), ray([0.9; 3], 0.0)]), "a backdrop target changed the masked loss");
+    assert_ne!(base, loss(&[ray([0.7; 3], 1.0), ray([0.2; 3], 0.0)]), "a foreground target did not change the loss");
+    struct Record(std::sync::Mutex<Vec<f64>>);
+    impl SampleLoss for Record {
+        fn ray_loss(&self, _: usize, s: f64, _: &[f64], _: &[f64], _: &[f64], _: &mut [f64], _: &mut [f64]) -> f64 {
+            self.0.lock().unwrap().push(s);
+            0.0
+        }
+    }
+    let record = Record(std::sync::Mutex::new(Vec::new()));
+    backbone.loss(&params, &[ray([0.1; 3], 1.0)], None, &record);
+    let seen = record.0.lock().unwrap()[0];
+    assert!((seen - backbone.scale(&params)).abs() <= 1e-5 * seen, "hook saw s = {seen}, the backbone's is {}", backbone.scale(&params));
+}
+
+/// Regression: in f32, `N − 1e-6` rounds to N for N ≥ 32, so a point at x = 1 fell in cell N and
+/// indexed vertex N + 1 (with weight 0): another row of a dense table, and past the end of the
+/// parameters for a dense last level whose (N + 1)³ nearly fills the table (N = 39, 2¹⁶: panic).
+/// f32 and f64 must agree there, in the forward and the backward pass.
+#[test]
+fn hash_grid_points_on_the_far_face_read_the_last_cell() {
+    let grid = HashGrid::new(HashGridConfig { levels: 2, features: 2, log2_table: 16, base_resolution: 33, finest_resolution: 39 });
+    let n = Module::<f64>::n_params(&grid);
+    let p64 = random_params(n, 1.0, 5);
+    let p32: Vec<f32> = p64.iter().map(|v| *v as f32).collect();
+    for x in [[1.0, 0.3, -0.2], [1.2, 1.0, 0.999_999], [1.0, 1.0, 1.0]] {
+        let (mut y32, mut y64) = (vec![0.0f32; 4], vec![0.0f64; 4]);
+        grid.forward(&p32, &x.map(|v| v as f32), &mut y32, &mut []);
+        grid.forward(&p64, &x, &mut y64, &mut []);
+        let mut g32 = vec![0.0f32; n];
+        grid.backward(&p32, &x.map(|v| v as f32), &[], &[1.0; 4], &mut g32, None);
+        assert!(g32.iter().all(|g| g.is_finite()));
+        for k in 0..4 {
+            assert!((f64::from(y32[k]) - y64[k]).abs() < 1e-5, "x = {x:?}, output {k}: f32 {} vs f64 {}", y32[k], y64[k]);
+        }
     }
 }
 
@@ -483,6 +538,7 @@ fn both_normal_schemes_recover_a_known_gradient() {
                 normals,
                 curvature_weight: 0.0,
                 background: [0.0; 3],
+                masked_color: false,
             },
         };
         let n = pipeline.n_params::<f64>();
@@ -541,6 +597,7 @@ fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
             normals: NormalScheme::Tetrahedral,
             curvature_weight: 1e-4,
             background: [0.2; 3],
+            masked_color: false,
         },
     };
     let n = pipeline.n_params::<f64>();
@@ -611,6 +668,7 @@ fn curvature_term_is_the_mean_absolute_laplacian() {
                 normals,
                 curvature_weight: 0.0,
                 background: [0.0; 3],
+                masked_color: false,
             },
         };
         let n = pipeline.n_params::<f64>();

@@ -24,19 +24,21 @@ fn main() {
         let ray = camera.ray_through_pixel(r.pixel_coords);
         if let Some((t_near, _)) = ray_sphere(&ray, DVec3::ZERO, 0.5) {
             on_sphere += 1;
-            depth_error += (r.depth as f64 - t_near * camera.depth_per_distance(ray.direction)).abs();
+            let depth = r.depth.expect("a guided sampler gives every ray a depth").depth;
+            depth_error += (depth as f64 - t_near * camera.depth_per_distance(ray.direction)).abs();
         }
     }
     println!("{} rays: {guided} guided, {:.1} % of them through the sphere's silhouette", rays.len(), 100.0 * on_sphere as f64 / guided as f64);
     println!("mean |λ̃ − depth of the first hit| = {:.4} (logistic scale 1/s = {:.4})", depth_error / on_sphere as f64, 1.0 / 500.0);
     let r = rays.iter().find(|r| r.guided).expect("some guided ray");
     let d = &sampler.cameras()[r.camera as usize];
+    let depth = r.depth.expect("a guided sampler gives every ray a depth").depth;
     println!(
         "first guided ray: camera {}, pixel {:?}, λ̃ = {:.4}, pdf(pixel) = {:.3e}/px², pdf(λ̃ | pixel) = {:.3}",
         r.camera,
         r.pixel,
-        r.depth,
+        depth,
         d.pdf_pixel(r.pixel_coords),
-        d.pdf_depth(r.pixel_coords, r.depth as f64)
+        d.pdf_depth(r.pixel_coords, depth as f64)
     );
 }

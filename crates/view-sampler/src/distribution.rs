@@ -22,7 +22,8 @@ use glam::DVec2;
 use prob_grid::CameraGrid;
 
 /// How the conditionals are evaluated between column centres.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Interpolation {
     /// The cell that contains the point.
     Nearest,

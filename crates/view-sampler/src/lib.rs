@@ -37,9 +37,12 @@
 #![deny(missing_docs)]
 
 mod distribution;
+mod estimator;
 
 pub use distribution::{CameraDistribution, ImageSpaceSample, Interpolation};
+pub use estimator::{Estimator, EstimatorConfig, UpdateReport, near_far};
 
+use camera_geom::PinholeCamera;
 use glam::DVec2;
 use prob_grid::CameraGrid;
 use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
@@ -83,7 +86,7 @@ pub struct SamplerConfig {
     pub schedule: UniformSchedule,
 }
 
-/// One ray drawn by the sampler.
+/// One ray drawn by a sampler.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RaySample {
     /// Camera index.
@@ -92,17 +95,33 @@ pub struct RaySample {
     pub pixel: [u32; 2],
     /// Continuous pixel coordinates (ũ, ṽ) (for uniform rays, the pixel centre).
     pub pixel_coords: DVec2,
-    /// Sampled depth λ̃ along the optical axis (normalised units).
-    pub depth: f32,
-    /// Density of λ̃ given the pixel, per unit depth.
-    pub pdf_depth: f32,
-    /// Density of (ũ, ṽ) under the guided distribution of this camera, per pixel².
+    /// Density of (ũ, ṽ) under the guided distribution of this camera, per pixel² (for rays
+    /// drawn without a guide, the uniform density 1 / (width · height)).
     pub pdf_pixel: f32,
     /// True for guided rays, false for uniform ones.
     pub guided: bool,
+    /// λ̃ for this pixel, when a guide exists (uniform rays of a guided run get one too, as the
+    /// paper does); `None` without a guide.
+    pub depth: Option<DepthSample>,
+}
+
+/// The depth λ̃ drawn for a ray's pixel.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthSample {
+    /// λ̃ along the optical axis (normalised units).
+    pub depth: f32,
+    /// Density of λ̃ given the pixel, per unit depth.
+    pub pdf: f32,
     /// True when λ̃ was drawn from the pixel's depth conditional; false when the pixel's column
     /// held no mass and λ̃ is uniform over the depth range (the ray likely misses the surface).
-    pub depth_from_grid: bool,
+    pub from_grid: bool,
+}
+
+/// A uniform pixel of `camera` from two uniform numbers: (column, row), its centre, its density.
+pub fn uniform_pixel(camera: &PinholeCamera, u: [f64; 2]) -> ([u32; 2], DVec2, f64) {
+    let col = ((u[0] * camera.width as f64) as u32).min(camera.width - 1);
+    let row = ((u[1] * camera.height as f64) as u32).min(camera.height - 1);
+    ([col, row], camera.pixel_center(col, row), 1.0 / (camera.width as f64 * camera.height as f64))
 }
 
 /// Guided ray sampling over a set of cameras.
@@ -110,6 +129,28 @@ pub struct RaySample {
 pub struct ViewSampler {
     cameras: Vec<CameraDistribution>,
     config: SamplerConfig,
+}
+
+/// `n` rays in chunks of [`CHUNK`], each chunk with its own RNG stream from (seed, step, chunk):
+/// ray i gets a camera (uniform over `cameras`) and three uniforms for `draw(i, camera, u)`.
+/// Deterministic whatever the thread count.
+pub(crate) fn draw_batch(
+    n: usize,
+    cameras: usize,
+    seed: u64,
+    step: u64,
+    draw: impl Fn(usize, usize, [f64; 3]) -> RaySample + Sync,
+) -> Vec<RaySample> {
+    let empty = RaySample { camera: 0, pixel: [0, 0], pixel_coords: DVec2::ZERO, pdf_pixel: 0.0, guided: false, depth: None };
+    let mut out = vec![empty; n];
+    out.par_chunks_mut(CHUNK).enumerate().for_each(|(chunk, rays)| {
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(stream_seed(seed, step, chunk as u64));
+        for (k, ray) in rays.iter_mut().enumerate() {
+            let camera = ((rng.random::<f64>() * cameras as f64) as usize).min(cameras - 1);
+            *ray = draw(chunk * CHUNK + k, camera, [rng.random(), rng.random(), rng.random()]);
+        }
+    });
+    out
 }
 
 /// A stream seed from (seed, step, chunk) by SplitMix64 finalisation (one RNG stream per work
@@ -144,7 +185,7 @@ impl ViewSampler {
     }
 
     /// First half of a ray: the pixel (guided: from the marginal; uniform: a uniform pixel
-    /// centre), with its pdf and the nearest pixel.
+    /// centre), with its pdf under the guided distribution and the nearest pixel.
     fn ray_pixel(&self, camera: usize, guided: bool, u: [f64; 2]) -> ((u32, u32), DVec2, f64) {
         let d = &self.cameras[camera];
         let cam = d.camera();
@@ -159,9 +200,7 @@ impl ViewSampler {
             });
             (pixel, coords, pdf)
         } else {
-            let col = ((u[0] * cam.width as f64) as u32).min(cam.width - 1);
-            let row = ((u[1] * cam.height as f64) as u32).min(cam.height - 1);
-            let coords = cam.pixel_center(col, row);
+            let ([col, row], coords, _) = uniform_pixel(cam, u);
             ((col, row), coords, d.pdf_pixel(coords))
         }
     }
@@ -179,20 +218,17 @@ impl ViewSampler {
         }
     }
 
-    /// Draws one ray of `camera` from four uniform numbers (the fourth is unused today and
-    /// reserved, so that streams stay aligned when a choice is added).
-    pub fn sample_ray(&self, camera: usize, guided: bool, u: [f64; 4]) -> RaySample {
+    /// Draws one ray of `camera` from three uniform numbers (pixel, then depth).
+    pub fn sample_ray(&self, camera: usize, guided: bool, u: [f64; 3]) -> RaySample {
         let (pixel, coords, pdf_pixel) = self.ray_pixel(camera, guided, [u[0], u[1]]);
-        let (depth, pdf_depth, depth_from_grid) = self.ray_depth(camera, coords, u[2]);
+        let (depth, pdf_depth, from_grid) = self.ray_depth(camera, coords, u[2]);
         RaySample {
             camera: camera as u32,
             pixel: [pixel.0, pixel.1],
             pixel_coords: coords,
-            depth: depth as f32,
-            pdf_depth: pdf_depth as f32,
             pdf_pixel: pdf_pixel as f32,
             guided,
-            depth_from_grid,
+            depth: Some(DepthSample { depth: depth as f32, pdf: pdf_depth as f32, from_grid }),
         }
     }
 
@@ -201,29 +237,6 @@ impl ViewSampler {
     /// whatever the thread count.
     pub fn sample_batch(&self, n: usize, progress: f64, seed: u64, step: u64) -> Vec<RaySample> {
         let uniform = (self.config.schedule.fraction(progress) * n as f64).round() as usize;
-        let mut out = vec![
-            RaySample {
-                camera: 0,
-                pixel: [0, 0],
-                pixel_coords: DVec2::ZERO,
-                depth: 0.0,
-                pdf_depth: 0.0,
-                pdf_pixel: 0.0,
-                guided: false,
-                depth_from_grid: false
-            };
-            n
-        ];
-        let cameras = self.cameras.len();
-        out.par_chunks_mut(CHUNK).enumerate().for_each(|(chunk, rays)| {
-            let mut rng = Xoshiro256PlusPlus::seed_from_u64(stream_seed(seed, step, chunk as u64));
-            for (k, ray) in rays.iter_mut().enumerate() {
-                let i = chunk * CHUNK + k;
-                let camera = ((rng.random::<f64>() * cameras as f64) as usize).min(cameras - 1);
-                let u = [rng.random(), rng.random(), rng.random(), rng.random()];
-                *ray = self.sample_ray(camera, i >= uniform, u);
-            }
-        });
-        out
+        draw_batch(n, self.cameras.len(), seed, step, |i, camera, u| self.sample_ray(camera, i >= uniform, u))
     }
 }

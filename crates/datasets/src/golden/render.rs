@@ -31,15 +31,7 @@ pub enum Geometry {
 impl Geometry {
     /// Wraps a mesh and computes its vertex normals.
     pub fn from_mesh(mesh: TexturedMesh) -> Geometry {
-        let m = &mesh.mesh;
-        let mut normals = vec![Vec3::ZERO; m.positions.len()];
-        for (t, tri) in m.triangles.iter().enumerate() {
-            let n = m.face_normal(t as u32); // length = 2 × area: area weighting
-            for &i in tri {
-                normals[i as usize] += n;
-            }
-        }
-        let vertex_normals = normals.into_iter().map(|n| n.normalize_or_zero()).collect();
+        let vertex_normals = prob_grid::vertex_normals(&mesh.mesh.positions, &mesh.mesh.triangles);
         Geometry::Mesh { mesh, vertex_normals }
     }
 }

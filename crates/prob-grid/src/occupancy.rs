@@ -1,0 +1,223 @@
+//! An occupancy bitfield over the scene grid: which cells can hold mass (the surface's band at
+//! the current s), from the same evaluation as the probability grid, for empty-space skipping
+//! (instant-ngp's and nerfacc's occupancy grids).
+//!
+//! A cell is occupied when the evaluation kept it (its density is above the negligible level,
+//! see [`crate::scene`]); the set is then dilated by `dilation` cells so that a surface that moved
+//! a little since the update is still covered. Rays query the occupied intervals of their path
+//! by a 3D DDA (Amanatides & Woo) over the grid.
+//!
+//! Safety: the evaluation behind it checks the field's Lipschitz claim against the field's own
+//! values ([`crate::LipschitzCheck`]), so a field steeper than it claims does not empty cells
+//! that hold the surface.
+
+use crate::scene::{ActiveCells, SceneGridConfig};
+use glam::{UVec3, Vec3};
+
+/// Occupied cells of a scene grid (one bit per cell, x fastest).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Occupancy {
+    resolution: usize,
+    bound_min: Vec3,
+    cell: f32,
+    bits: Vec<u64>,
+    occupied: usize,
+}
+
+impl Occupancy {
+    /// Every cell occupied (no skipping).
+    pub fn full(config: &SceneGridConfig) -> Occupancy {
+        let n = config.resolution.pow(3);
+        let mut bits = vec![u64::MAX; n.div_ceil(64)];
+        if !n.is_multiple_of(64) {
+            *bits.last_mut().expect("at least one word") = (1u64 << (n % 64)) - 1;
+        }
+        Occupancy { resolution: config.resolution, bound_min: config.bound_min, cell: config.cell_size(), bits, occupied: n }
+    }
+
+    /// The cells holding the evaluation's mass (the sub-cells' parents), dilated by `dilation`
+    /// cells along each axis (a cube of side 2·dilation + 1 around each).
+    pub fn from_active(active: &ActiveCells, config: &SceneGridConfig, dilation: u32) -> Occupancy {
+        let r = config.resolution;
+        let cell = config.cell_size();
+        let mut dense = vec![false; r * r * r];
+        for p in &active.points {
+            let c = ((*p - config.bound_min) / cell).floor();
+            if c.cmpge(Vec3::ZERO).all() && c.cmplt(Vec3::splat(r as f32)).all() {
+                dense[(c.z as usize * r + c.y as usize) * r + c.x as usize] = true;
+            }
+        }
+        // Separable box dilation: along x, then y, then z.
+        let d = dilation as usize;
+        for axis in 0..3 {
+            if d == 0 {
+                break;
+            }
+            let stride = [1, r, r * r][axis];
+            let mut next = dense.clone();
+            for base in 0..r * r * r {
+                let pos = (base / stride) % r;
+                if !dense[base] {
+                    continue;
+                }
+                for k in pos.saturating_sub(d)..(pos + d + 1).min(r) {
+                    next[base - pos * stride + k * stride] = true;
+                }
+            }
+            dense = next;
+        }
+        let mut bits = vec![0u64; dense.len().div_ceil(64)];
+        let mut occupied = 0;
+        for (i, &b) in dense.iter().enumerate() {
+            if b {
+                bits[i / 64] |= 1 << (i % 64);
+                occupied += 1;
+            }
+        }
+        Occupancy { resolution: r, bound_min: config.bound_min, cell, bits, occupied }
+    }
+
+    /// Cells per axis.
+    pub fn resolution(&self) -> usize {
+        self.resolution
+    }
+
+    /// Whether cell (i, j, k) is occupied.
+    pub fn is_occupied(&self, cell: UVec3) -> bool {
+        let r = self.resolution;
+        let i = (cell.z as usize * r + cell.y as usize) * r + cell.x as usize;
+        self.bits[i / 64] & (1 << (i % 64)) != 0
+    }
+
+    /// Whether the cell containing `point` is occupied (points outside the grid are not).
+    pub fn contains(&self, point: Vec3) -> bool {
+        let c = ((point - self.bound_min) / self.cell).floor();
+        c.cmpge(Vec3::ZERO).all() && c.cmplt(Vec3::splat(self.resolution as f32)).all() && self.is_occupied(c.as_uvec3())
+    }
+
+    /// Fraction of the cells occupied.
+    pub fn occupied_fraction(&self) -> f64 {
+        self.occupied as f64 / (self.resolution.pow(3)) as f64
+    }
+
+    /// Appends to `out` the occupied intervals `[t_a, t_b]` of the ray `origin + t·direction`
+    /// within `[t0, t1]`, in increasing order, adjacent cells merged. Parts of the ray outside the
+    /// grid are not occupied. `direction` need not be normalised (t is in its units).
+    pub fn segments(&self, origin: Vec3, direction: Vec3, t0: f32, t1: f32, out: &mut Vec<[f32; 2]>) {
+        let r = self.resolution as i32;
+        let size = self.cell * self.resolution as f32;
+        let lo = self.bound_min;
+        let hi = lo + Vec3::splat(size);
+        // Clip [t0, t1] to the grid's box (slabs).
+        let inv = direction.recip();
+        let (ta, tb) = ((lo - origin) * inv, (hi - origin) * inv);
+        let (t_enter, t_exit) = (ta.min(tb).max_element().max(t0), ta.max(tb).min_element().min(t1));
+        if !(t_enter < t_exit) {
+            return;
+        }
+        // Start cell, at a point slightly inside the clipped interval.
+        let start = origin + direction * t_enter;
+        let mut c = ((start - lo) / self.cell).floor().as_ivec3().clamp(glam::IVec3::ZERO, glam::IVec3::splat(r - 1));
+        let step = direction.signum().as_ivec3();
+        // t at which the ray crosses the next cell boundary on each axis, and the t per cell.
+        let next_boundary = |axis: usize| {
+            let d = direction[axis];
+            if d > 0.0 {
+                (lo[axis] + (c[axis] + 1) as f32 * self.cell - origin[axis]) / d
+            } else if d < 0.0 {
+                (lo[axis] + c[axis] as f32 * self.cell - origin[axis]) / d
+            } else {
+                f32::INFINITY
+            }
+        };
+        let mut t_max = Vec3::new(next_boundary(0), next_boundary(1), next_boundary(2));
+        let t_delta = (Vec3::splat(self.cell) * inv).abs();
+        let mut t = t_enter;
+        let mut open: Option<f32> = None;
+        loop {
+            let inside = c.cmpge(glam::IVec3::ZERO).all() && c.cmplt(glam::IVec3::splat(r)).all();
+            if !inside {
+                break;
+            }
+            let occupied = self.is_occupied(c.as_uvec3());
+            let axis = if t_max.x <= t_max.y && t_max.x <= t_max.z {
+                0
+            } else if t_max.y <= t_max.z {
+                1
+            } else {
+                2
+            };
+            let t_next = t_max[axis].min(t_exit);
+            match (occupied, open) {
+                (true, None) => open = Some(t),
+                (false, Some(a)) => {
+                    out.push([a, t]);
+                    open = None;
+                }
+                _ => {}
+            }
+            if t_next >= t_exit {
+                break;
+            }
+            t = t_next;
+            c[axis] += step[axis];
+            t_max[axis] += t_delta[axis];
+        }
+        if let Some(a) = open {
+            out.push([a, t_exit]);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{Shape, evaluate};
+    use glam::DVec3;
+
+    #[test]
+    fn occupancy_covers_the_shell_and_rays_find_it() {
+        let config = SceneGridConfig { resolution: 32, ..Default::default() };
+        let sphere = Shape::Sphere { center: DVec3::ZERO, radius: 0.5 };
+        let active = evaluate(&sphere, 300.0, &config).unwrap();
+        let occ = Occupancy::from_active(&active, &config, 1);
+        assert!(occ.occupied_fraction() < 0.3, "a thin shell: {}", occ.occupied_fraction());
+        assert!(occ.contains(Vec3::new(0.5, 0.0, 0.0)) && !occ.contains(Vec3::ZERO) && !occ.contains(Vec3::splat(0.9)));
+        // A ray through the centre crosses the shell twice: two segments around t = 2.5 and 3.5.
+        let mut seg = Vec::new();
+        occ.segments(Vec3::new(0.0, 0.0, -3.0), Vec3::Z, 0.0, 10.0, &mut seg);
+        assert_eq!(seg.len(), 2, "{seg:?}");
+        assert!(seg[0][0] < 2.5 && seg[0][1] > 2.5 && seg[1][0] < 3.5 && seg[1][1] > 3.5, "{seg:?}");
+        assert!(seg.iter().all(|s| s[1] - s[0] < 0.4), "{seg:?}");
+        // A ray that misses the sphere finds nothing; one clipped before the shell neither.
+        seg.clear();
+        occ.segments(Vec3::new(0.9, 0.9, -3.0), Vec3::Z, 0.0, 10.0, &mut seg);
+        assert!(seg.is_empty(), "{seg:?}");
+        occ.segments(Vec3::new(0.0, 0.0, -3.0), Vec3::Z, 0.0, 2.0, &mut seg);
+        assert!(seg.is_empty(), "{seg:?}");
+        // Diagonal and negative directions: every sample point inside a segment is occupied.
+        for dir in [Vec3::new(1.0, 0.7, -0.4), Vec3::new(-0.3, -1.0, 0.2), Vec3::new(0.0, 1.0, 0.0)] {
+            let dir = dir.normalize();
+            let origin = -3.0 * dir + Vec3::new(0.05, -0.02, 0.03);
+            seg.clear();
+            occ.segments(origin, dir, 0.0, 6.0, &mut seg);
+            assert!(!seg.is_empty());
+            for s in &seg {
+                for k in 1..10 {
+                    let t = s[0] + (s[1] - s[0]) * k as f32 / 10.0;
+                    assert!(occ.contains(origin + t * dir), "{dir}: t = {t} in {s:?}");
+                }
+            }
+            // And points outside every segment are empty.
+            for k in 0..600 {
+                let t = k as f32 * 0.01;
+                let inside_segment = seg.iter().any(|s| t >= s[0] - 1e-4 && t <= s[1] + 1e-4);
+                if !inside_segment {
+                    assert!(!occ.contains(origin + t * dir), "{dir}: t = {t} is occupied but outside {seg:?}");
+                }
+            }
+        }
+        let full = Occupancy::full(&config);
+        assert_eq!(full.occupied_fraction(), 1.0);
+    }
+}

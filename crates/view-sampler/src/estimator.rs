@@ -1,0 +1,307 @@
+//! The estimator (nerfacc's shape): one object a training loop holds, with two verbs —
+//! [`Estimator::update`] from any [`SdfField`] every so often, and [`Estimator::draw`] +
+//! [`Estimator::march`] for each batch.
+//!
+//! - **Guided** (`config.guided`): the update evaluates p(x) = φ_s(S(x)) on the scene grid,
+//!   reprojects it into every camera and builds the samplers; draws mix guided and uniform rays
+//!   by the schedule, each with its λ̃.
+//! - **Uniform** (guide off): the same object draws uniform pixels (no λ̃). It still updates when
+//!   empty-space skipping is on, for the occupancy.
+//! - **Empty-space skipping** (`config.skip_empty`): the update keeps an occupancy bitfield of
+//!   the scene grid's cells that hold mass ([`Occupancy`], dilated by `config.dilation` cells);
+//!   [`Estimator::march`] then places a ray's coarse samples only in its occupied intervals, so
+//!   the samples freed from empty space land where the surface can be. The evaluation checks the
+//!   field's Lipschitz claim against its own values ([`prob_grid::LipschitzCheck`]): a wrong bound
+//!   is detected and the evaluation redone, not trusted.
+//!
+//! Sampling is outside any gradient graph: everything here returns numbers.
+
+use crate::{CameraDistribution, DepthSample, Interpolation, RaySample, SamplerConfig, UniformSchedule, ViewSampler, draw_batch, uniform_pixel};
+use camera_geom::PinholeCamera;
+use glam::DVec3;
+use prob_grid::{CameraGrid, CameraGridConfig, GridError, LipschitzCheck, Occupancy, SceneGridConfig, SdfField, evaluate, reproject};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// What an [`Estimator`] does and with which grids.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EstimatorConfig {
+    /// Guided rays (the paper) or uniform pixels only.
+    pub guided: bool,
+    /// The scene grid (evaluation of p(x)).
+    pub scene: SceneGridConfig,
+    /// The camera grids.
+    pub camera: CameraGridConfig,
+    /// Interpolation of the conditionals.
+    pub interpolation: Interpolation,
+    /// Uniform/guided mix over the run.
+    pub schedule: UniformSchedule,
+    /// FS ablation: the update evaluates p(x) at this fixed s instead of the backbone's.
+    pub fixed_s: Option<f32>,
+    /// Empty-space skipping for [`Estimator::march`].
+    pub skip_empty: bool,
+    /// Dilation of the occupancy, in scene-grid cells (covers a surface that moves between
+    /// updates).
+    pub dilation: u32,
+}
+
+impl Default for EstimatorConfig {
+    fn default() -> Self {
+        EstimatorConfig {
+            guided: true,
+            scene: SceneGridConfig::default(),
+            camera: CameraGridConfig::default(),
+            interpolation: Interpolation::Linear,
+            schedule: UniformSchedule::default(),
+            fixed_s: None,
+            skip_empty: true,
+            dilation: 1,
+        }
+    }
+}
+
+/// What one update did and cost.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UpdateReport {
+    /// Wall time of the update (evaluation, reprojection, CDFs).
+    pub seconds: f64,
+    /// The s the field was evaluated at.
+    pub s: f32,
+    /// Field queries made.
+    pub field_queries: usize,
+    /// Scene mass Σ p(x)·volume.
+    pub scene_mass: f64,
+    /// Fraction of the scene grid occupied (1 without empty-space skipping).
+    pub occupied_fraction: f64,
+    /// Cameras whose grid holds no mass (sampled uniformly).
+    pub empty_cameras: Vec<usize>,
+    /// The field's Lipschitz claim against its values.
+    pub lipschitz: LipschitzCheck,
+}
+
+/// Guided (or uniform) rays and their coarse samples, updated from an SDF (see the module docs).
+#[derive(Debug, Clone)]
+pub struct Estimator {
+    cameras: Vec<PinholeCamera>,
+    config: EstimatorConfig,
+    sampler: Option<ViewSampler>,
+    occupancy: Option<Occupancy>,
+}
+
+/// NeuS's near/far: the sphere of radius 1 around the origin, measured from the ray's closest
+/// approach (`mid = −o·d`, `[mid − 1, mid + 1]`), near clamped to 0.05 so that cameras inside the
+/// bound still get samples in front of them. `direction` is a unit vector.
+pub fn near_far(origin: DVec3, direction: DVec3) -> (f64, f64) {
+    let mid = -origin.dot(direction);
+    let near = (mid - 1.0).max(0.05);
+    (near, (mid + 1.0).max(near + 1e-3))
+}
+
+impl Estimator {
+    /// An estimator over `cameras` (the training views); checks the configuration.
+    pub fn new(cameras: Vec<PinholeCamera>, config: EstimatorConfig) -> Result<Estimator, GridError> {
+        config.scene.validate()?;
+        config.camera.validate()?;
+        if cameras.is_empty() {
+            return Err(GridError::InvalidConfig { what: "estimator", message: "no cameras".into() });
+        }
+        if let Some(s) = config.fixed_s.filter(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err(GridError::InvalidConfig { what: "fixed s", message: format!("{s} (must be finite and > 0)") });
+        }
+        Ok(Estimator { cameras, config, sampler: None, occupancy: None })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &EstimatorConfig {
+        &self.config
+    }
+
+    /// The cameras.
+    pub fn cameras(&self) -> &[PinholeCamera] {
+        &self.cameras
+    }
+
+    /// Whether [`Self::update`] does anything (a guide, or empty-space skipping).
+    pub fn needs_updates(&self) -> bool {
+        self.config.guided || self.config.skip_empty
+    }
+
+    /// The guided sampler of the last update (`None` before it, or without a guide).
+    pub fn sampler(&self) -> Option<&ViewSampler> {
+        self.sampler.as_ref()
+    }
+
+    /// The per-camera distributions of the last update (empty without a guide).
+    pub fn distributions(&self) -> &[CameraDistribution] {
+        self.sampler.as_ref().map_or(&[], ViewSampler::cameras)
+    }
+
+    /// The occupancy of the last update (`None` before it, or without skipping).
+    pub fn occupancy(&self) -> Option<&Occupancy> {
+        self.occupancy.as_ref()
+    }
+
+    /// Rebuilds the grids from `field` at scale `s` (or the fixed s): the occupancy (with
+    /// skipping) and the guide (guided). A no-op that reports zeros when neither is on.
+    pub fn update(&mut self, field: &dyn SdfField, s: f32) -> Result<UpdateReport, GridError> {
+        let t = Instant::now();
+        let s = self.config.fixed_s.unwrap_or(s);
+        let mut report = UpdateReport {
+            seconds: 0.0,
+            s,
+            field_queries: 0,
+            scene_mass: 0.0,
+            occupied_fraction: 1.0,
+            empty_cameras: Vec::new(),
+            lipschitz: LipschitzCheck::default(),
+        };
+        if !self.needs_updates() {
+            return Ok(report);
+        }
+        let active = evaluate(field, s, &self.config.scene)?;
+        report.field_queries = active.field_queries;
+        report.scene_mass = active.total_mass;
+        report.lipschitz = active.lipschitz;
+        if self.config.skip_empty {
+            let occupancy = Occupancy::from_active(&active, &self.config.scene, self.config.dilation);
+            report.occupied_fraction = occupancy.occupied_fraction();
+            self.occupancy = Some(occupancy);
+        }
+        if self.config.guided {
+            let grids: Vec<CameraGrid> = self.cameras.par_iter().map(|c| reproject(&active, c, &self.config.camera)).collect();
+            report.empty_cameras = grids.iter().enumerate().filter(|(_, g)| !(g.total() > 0.0)).map(|(i, _)| i).collect();
+            let config = SamplerConfig { interpolation: self.config.interpolation, schedule: self.config.schedule.clone() };
+            self.sampler = Some(ViewSampler::new(grids, config));
+        }
+        report.seconds = t.elapsed().as_secs_f64();
+        Ok(report)
+    }
+
+    /// Draws `n` rays at training `progress` ∈ [0, 1]: guided and uniform by the schedule with
+    /// their λ̃ (guided, after an update), else uniform pixels without λ̃. Deterministic in
+    /// (seed, step) whatever the thread count.
+    pub fn draw(&self, n: usize, progress: f64, seed: u64, step: u64) -> Vec<RaySample> {
+        match (&self.sampler, self.config.guided) {
+            (Some(sampler), true) => sampler.sample_batch(n, progress, seed, step),
+            _ => draw_batch(n, self.cameras.len(), seed, step, |_, camera, u| {
+                let (pixel, pixel_coords, pdf) = uniform_pixel(&self.cameras[camera], [u[0], u[1]]);
+                RaySample { camera: camera as u32, pixel, pixel_coords, pdf_pixel: pdf as f32, guided: false, depth: None }
+            }),
+        }
+    }
+
+    /// λ̃ of a drawn ray as a distance along its (unit) `direction`, and whether it is a
+    /// *background* ray for the surface losses: no λ̃ from the grid (its column held no mass),
+    /// or λ̃ outside the unit bound sphere. `None` for rays without λ̃.
+    pub fn surface_distance(&self, ray: &RaySample, origin: DVec3, direction: DVec3) -> Option<(f64, bool)> {
+        let DepthSample { depth, from_grid, .. } = ray.depth?;
+        let camera = &self.cameras[ray.camera as usize];
+        let t = f64::from(depth) / camera.depth_per_distance(direction).max(1e-9);
+        Some((t, !from_grid || (origin + t * direction).length() > 1.0))
+    }
+
+    /// The `n + 1` coarse sample depths of the ray `origin + t·direction` (unit direction) within
+    /// [`near_far`]: stratified with one `jitter` ∈ [0, 1) over the ray's occupied intervals when
+    /// skipping is on and the ray crosses any (the last depth ends the last interval), else over
+    /// the whole [near, far] (the last depth is far). `depths` is cleared first.
+    pub fn march(&self, origin: DVec3, direction: DVec3, n: usize, jitter: f64, depths: &mut Vec<f32>) {
+        depths.clear();
+        let (near, far) = near_far(origin, direction);
+        let mut segments: Vec<[f32; 2]> = Vec::new();
+        if let Some(occupancy) = &self.occupancy {
+            occupancy.segments(origin.as_vec3(), direction.as_vec3(), near as f32, far as f32, &mut segments);
+        }
+        let total: f64 = segments.iter().map(|s| f64::from(s[1] - s[0])).sum();
+        if segments.is_empty() || !(total > 1e-6) {
+            let step = (far - near) / n as f64;
+            depths.extend((0..n).map(|i| (near + (i as f64 + jitter) * step) as f32));
+            depths.push(far as f32);
+            return;
+        }
+        // Stratified positions along the concatenated occupied length.
+        let mut k = 0;
+        let mut start = 0.0f64;
+        for i in 0..n {
+            let x = (i as f64 + jitter) / n as f64 * total;
+            while k + 1 < segments.len() && x > start + f64::from(segments[k][1] - segments[k][0]) {
+                start += f64::from(segments[k][1] - segments[k][0]);
+                k += 1;
+            }
+            let t = f64::from(segments[k][0]) + (x - start);
+            depths.push((t as f32).min(segments[k][1]));
+        }
+        let end = segments.last().expect("segments")[1];
+        depths.push(end.max(*depths.last().expect("n ≥ 1")));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use camera_geom::{Intrinsics, PixelCenters};
+    use prob_grid::Shape;
+
+    fn cameras() -> Vec<PinholeCamera> {
+        let k = Intrinsics { fx: 300.0, fy: 300.0, cx: 99.5, cy: 74.5, skew: 0.0 };
+        [DVec3::new(0.0, -3.0, 0.5), DVec3::new(3.0, 0.0, 0.5)]
+            .map(|eye| PinholeCamera::look_at(eye, DVec3::ZERO, DVec3::Z, k, 200, 150, PixelCenters::Integer).unwrap())
+            .to_vec()
+    }
+
+    fn config(guided: bool) -> EstimatorConfig {
+        EstimatorConfig {
+            guided,
+            scene: SceneGridConfig { resolution: 32, ..Default::default() },
+            camera: CameraGridConfig { ru: 16, rv: 16, rl: 32, ..Default::default() },
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn near_far_brackets_the_unit_sphere_and_stays_in_front_of_the_camera() {
+        let (n, f) = near_far(DVec3::new(0.0, 0.0, -3.0), DVec3::Z);
+        assert!((n - 2.0).abs() < 1e-12 && (f - 4.0).abs() < 1e-12);
+        let (n, f) = near_far(DVec3::new(0.0, 0.0, 0.5), DVec3::Z);
+        assert!(n >= 0.05 && f > n);
+    }
+
+    #[test]
+    fn uniform_estimator_draws_pixels_without_depth_and_guided_ones_with() {
+        let sphere = Shape::Sphere { center: DVec3::ZERO, radius: 0.5 };
+        let mut uniform = Estimator::new(cameras(), EstimatorConfig { skip_empty: false, ..config(false) }).unwrap();
+        assert!(!uniform.needs_updates());
+        uniform.update(&sphere, 100.0).unwrap();
+        let rays = uniform.draw(600, 0.0, 1, 0);
+        assert!(rays.iter().all(|r| r.depth.is_none() && !r.guided && r.pixel[0] < 200 && r.pixel[1] < 150));
+        assert!(rays.iter().any(|r| r.camera == 1) && rays.iter().any(|r| r.camera == 0));
+        let mut guided = Estimator::new(cameras(), config(true)).unwrap();
+        let report = guided.update(&sphere, 100.0).unwrap();
+        assert!(report.empty_cameras.is_empty() && report.occupied_fraction < 0.5, "{report:?}");
+        let rays = guided.draw(600, 0.0, 1, 0);
+        assert_eq!(rays.iter().filter(|r| r.guided).count(), 480, "20 % uniform at the start");
+        assert!(rays.iter().all(|r| r.depth.is_some()));
+    }
+
+    #[test]
+    fn march_puts_the_coarse_samples_where_the_surface_can_be() {
+        let sphere = Shape::Sphere { center: DVec3::ZERO, radius: 0.5 };
+        let mut e = Estimator::new(cameras(), config(false)).unwrap();
+        e.update(&sphere, 200.0).unwrap();
+        let (o, d) = (DVec3::new(0.0, 0.0, -3.0), DVec3::Z);
+        let mut depths = Vec::new();
+        e.march(o, d, 32, 0.5, &mut depths);
+        assert_eq!(depths.len(), 33);
+        assert!(depths.windows(2).all(|w| w[0] <= w[1]));
+        // Every sample within the occupied shell around t = 2.5 or 3.5.
+        assert!(depths.iter().all(|&t| (t - 2.5).abs() < 0.2 || (t - 3.5).abs() < 0.2), "{depths:?}");
+        // A ray that misses everything keeps NeuS's stratified [near, far].
+        e.march(DVec3::new(0.95, 0.95, -3.0), d, 8, 0.0, &mut depths);
+        let (near, far) = near_far(DVec3::new(0.95, 0.95, -3.0), d);
+        assert_eq!(depths.len(), 9);
+        assert!((f64::from(depths[0]) - near).abs() < 1e-5 && (f64::from(depths[8]) - far).abs() < 1e-5);
+        // Without skipping: stratified over [near, far].
+        let plain = Estimator::new(cameras(), EstimatorConfig { skip_empty: false, ..config(false) }).unwrap();
+        plain.march(o, d, 4, 0.5, &mut depths);
+        assert_eq!(depths, vec![2.25, 2.75, 3.25, 3.75, 4.0]);
+    }
+}

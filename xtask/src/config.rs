@@ -1,0 +1,578 @@
+//! The training configuration: TOML with every knob of the paper and its ablations, typed (serde
+//! enums and the libraries' own configuration structs), unknown keys and out-of-range values
+//! rejected with the key named, `key=value` overrides on the command line.
+//!
+//! Where a library defines a knob (the scene and camera grids of `prob-grid`, the surface losses,
+//! the learning-rate schedule), its struct is used here as it is: one default and one valid range
+//! per knob, checked by the library's own `validate`. The trainer's sections set a few of those
+//! defaults differently for a 2-core CPU (grids of 64³ and 32 × 32 × 64 instead of the paper's
+//! 128³ and 64 × 64 × 128), which `TrainConfig::default` says.
+//!
+//! Schedules are defined on the *fraction of the run* done, so that a run can be bounded by
+//! `steps` or by `time_budget_s` alike: learning rate (warm-up and decay), coarse-to-fine levels,
+//! the curvature ramp, the uniform-ray fractions and the grid updates (`guide.updates` per run).
+
+use anyhow::{Context, Result, bail};
+use datasets::io::MeshFormat;
+use prob_grid::{CameraGridConfig, SceneGridConfig};
+use sdf_backbone::{LrSchedule, NormalScheme, Preset};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use surface_losses::{ExtraPoints, SurfaceLossConfig};
+use view_sampler::Interpolation;
+
+/// Which rays the trainer draws.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SamplerKind {
+    /// The probability-guided sampler with the surface losses and the extra ray points.
+    Guided,
+    /// Uniform pixels, the plain backbone (same rays and samples per ray).
+    Uniform,
+}
+
+/// Which connected components of the extracted mesh are kept.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MeshFilter {
+    /// Every component.
+    All,
+    /// Only the largest (by triangle count).
+    Largest,
+    /// Every component the views support: with masks, a component whose vertices lie inside the
+    /// visual hull (in the foreground of ≥ 90 % of the training views that see them in frame);
+    /// without masks, a component of at least `output.min_component_area` of the mesh's area.
+    Supported,
+}
+
+/// Everything a run needs. Defaults: the built-in scene on a 2-core CPU in ≤ 5 minutes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainConfig {
+    /// Seed of every random stream.
+    pub seed: u64,
+    /// Training iterations (when `time_budget_s` is 0).
+    pub steps: u64,
+    /// Train for this many seconds instead of `steps` (0: off). The schedules follow the fraction
+    /// of the budget spent; the run stops at the budget and writes its mesh and metrics.
+    pub time_budget_s: f64,
+    /// Guided or uniform.
+    pub sampler: SamplerKind,
+    /// Data options.
+    pub data: DataConfig,
+    /// The backbone.
+    pub model: ModelConfig,
+    /// Rays and samples.
+    pub render: RenderConfig,
+    /// Optimiser.
+    pub optim: OptimConfig,
+    /// The probability-guided sampler.
+    pub guide: GuideConfig,
+    /// The surface losses (`surface-losses`' own configuration).
+    pub surface: SurfaceLossConfig,
+    /// Outputs.
+    pub output: OutputConfig,
+}
+
+/// Data options.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DataConfig {
+    /// Integer downscale of the images (area average; intrinsics follow).
+    pub downscale: u32,
+    /// Use the dataset's masks when it has them: the colour loss covers the foreground only and
+    /// the mask BCE drives the opacity (NeuS).
+    pub masks: bool,
+    /// Every n-th view is held out for evaluation (0: none).
+    pub holdout_every: usize,
+    /// The built-in scene (no `--data`).
+    pub builtin: BuiltinConfig,
+}
+
+/// The built-in golden scene.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BuiltinConfig {
+    /// Analytic shape: composite (default), multipart, sphere, torus, box.
+    pub shape: String,
+    /// Image width (height = 3/4 of it).
+    pub width: u32,
+    /// Number of views (DTU-like rig).
+    pub views: usize,
+    /// A textured backdrop behind the object (as real captures have), or black.
+    pub backdrop: bool,
+}
+
+/// The backbone.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelConfig {
+    /// neuralangelo-cpu, neus-cpu, neuralangelo (paper scale), neus (paper scale).
+    pub preset: Preset,
+    /// Radius of the initial sphere.
+    pub init_radius: f64,
+    /// Hash-grid levels active at the start (coarse-to-fine; Neuralangelo: 4).
+    pub initial_levels: usize,
+    /// Fraction of the run after which all levels are active.
+    pub all_levels_at: f64,
+    /// Eikonal weight (NeuS: 0.1).
+    pub eikonal: f64,
+    /// Mask BCE weight (NeuS: 0.1).
+    pub mask: f64,
+    /// Curvature loss weight, reached linearly over the learning-rate warm-up (Neuralangelo:
+    /// 5e-4; default 0: not measured to help on short runs).
+    pub curvature: f64,
+    /// Normals (and curvature) by tetrahedral (4 probes) or central (6 probes) differences.
+    pub normals: NormalScheme,
+    /// Colour behind the object in renders (and, without masks and without a learned
+    /// background, in the loss).
+    pub background: [f64; 3],
+    /// A learned background model instead of the fixed colour, for captures without masks.
+    pub learned_background: bool,
+}
+
+/// Rays and samples per iteration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RenderConfig {
+    /// Rays per iteration.
+    pub rays: usize,
+    /// Coarse samples per ray (NeuS: 64), stratified over [near, far] or, with empty-space
+    /// skipping, over the ray's occupied cells.
+    pub coarse: usize,
+    /// Up-sampled samples per ray (NeuS: 64 in 4 rounds); guided runs give `guide.extra_points`
+    /// of them to the points around λ̃, so both samplers use coarse + fine per ray.
+    pub fine: usize,
+    /// Up-sampling rounds (NeuS: 4).
+    pub upsample_rounds: usize,
+    /// Scale of the first up-sampling round, doubled each round (NeuS: 64).
+    pub upsample_s: f64,
+    /// Rays per work item (gradient chunk).
+    pub chunk: usize,
+    /// Empty-space skipping (both samplers): coarse samples only in the scene-grid cells that
+    /// can hold the surface at the current s, refreshed at each grid update.
+    pub skip_empty: bool,
+    /// Dilation of the occupancy in scene-grid cells.
+    pub occupancy_dilation: u32,
+}
+
+/// Optimiser.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OptimConfig {
+    /// Learning rate of the MLPs and the variance.
+    pub lr: f64,
+    /// Learning rate of the hash tables.
+    pub lr_grid: f64,
+    /// The schedule on the fraction of the run (`sdf-backbone`'s own configuration).
+    pub schedule: LrSchedule,
+    /// Clip the gradient's global norm (0: off).
+    pub clip_norm: f64,
+}
+
+/// The probability-guided sampler (the paper's knobs and ablation switches).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GuideConfig {
+    /// Grid updates per run: the grids are rebuilt at the start of each of `updates` equal parts
+    /// of the run (6: every 50 iterations of 300).
+    pub updates: u32,
+    /// The scene grid (`prob-grid`'s configuration: resolution, partition F, …).
+    pub scene: SceneGridConfig,
+    /// The camera grids (`prob-grid`'s configuration: ru, rv, rl, view dependency VD, weighting
+    /// η⁻² or exact mass, …).
+    pub camera: CameraGridConfig,
+    /// Interpolation of the conditionals: linear (the paper) or nearest.
+    pub interpolation: Interpolation,
+    /// FS: a fixed s for the probability update (0: the backbone's current s).
+    pub fixed_s: f64,
+    /// Fractions of uniform rays over equal parts of the run (paper: 0.2, 0.4, 0.6, 0.8).
+    pub uniform_fractions: Vec<f64>,
+    /// Extra points per ray around λ̃ (paper: 32 of 128).
+    pub extra_points: usize,
+    /// How the extra points are drawn: gaussian (paper), uniform (RU), log (Log).
+    pub extra: ExtraPoints,
+}
+
+/// Outputs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OutputConfig {
+    /// Validation pictures every n iterations (0: only at the end).
+    pub validate_every: u64,
+    /// Downscale of the validation renders.
+    pub validate_downscale: u32,
+    /// Held-out views rendered for the final PSNR (spread over the held-out set).
+    pub eval_views: usize,
+    /// Training views rendered for the final training-view PSNR (the render-fit figure).
+    pub eval_train_views: usize,
+    /// Mesh + Chamfer and PSNR of one held-out view every n iterations, logged (0: only at the
+    /// end; not counted in the training time).
+    pub metrics_every: u64,
+    /// Checkpoint every n iterations (0: only at the end).
+    pub checkpoint_every: u64,
+    /// Log scalars every n iterations.
+    pub log_every: u64,
+    /// Marching-cubes resolution of the final mesh.
+    pub mesh_resolution: u32,
+    /// Which connected components of the mesh are kept.
+    pub mesh_filter: MeshFilter,
+    /// `supported` without masks: the smallest component kept, as a fraction of the mesh's area.
+    pub min_component_area: f64,
+    /// Mesh formats: any of ply, obj, glb.
+    pub mesh_formats: Vec<MeshFormat>,
+    /// Vertex colours (rendered along the normal) on the mesh.
+    pub vertex_colors: bool,
+    /// Spacing of the points sampled on meshes for Chamfer (normalised units).
+    pub chamfer_spacing: f64,
+    /// Chamfer outlier distance (normalised units; DTU: 20 mm ≈ 0.087 of scan 24's radius).
+    pub chamfer_max_dist: f64,
+    /// F-score threshold τ (normalised units).
+    pub fscore_tau: f64,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        TrainConfig {
+            seed: 0,
+            steps: 300,
+            time_budget_s: 0.0,
+            sampler: SamplerKind::Guided,
+            data: DataConfig::default(),
+            model: ModelConfig::default(),
+            render: RenderConfig::default(),
+            optim: OptimConfig::default(),
+            guide: GuideConfig::default(),
+            surface: SurfaceLossConfig::default(),
+            output: OutputConfig::default(),
+        }
+    }
+}
+
+impl Default for DataConfig {
+    fn default() -> Self {
+        DataConfig { downscale: 1, masks: true, holdout_every: 8, builtin: BuiltinConfig::default() }
+    }
+}
+
+impl Default for BuiltinConfig {
+    fn default() -> Self {
+        BuiltinConfig { shape: "composite".into(), width: 200, views: 49, backdrop: true }
+    }
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        ModelConfig {
+            preset: Preset::NeuralangeloCpu,
+            init_radius: 0.5,
+            initial_levels: 4,
+            all_levels_at: 0.25,
+            eikonal: 0.1,
+            mask: 0.1,
+            curvature: 0.0,
+            normals: NormalScheme::Tetrahedral,
+            background: [0.0; 3],
+            learned_background: false,
+        }
+    }
+}
+
+impl Default for RenderConfig {
+    fn default() -> Self {
+        RenderConfig { rays: 256, coarse: 32, fine: 32, upsample_rounds: 2, upsample_s: 64.0, chunk: 32, skip_empty: false, occupancy_dilation: 1 }
+    }
+}
+
+impl Default for OptimConfig {
+    fn default() -> Self {
+        OptimConfig { lr: 5e-3, lr_grid: 1e-2, schedule: LrSchedule::default(), clip_norm: 0.0 }
+    }
+}
+
+impl Default for GuideConfig {
+    /// The paper's knobs at 2-core sizes: scene grid 64³ (paper 128³), camera grids 32 × 32 × 64
+    /// (paper 64 × 64 × 128), F = 2, opaque view dependency, η⁻² weighting, 16 extra points.
+    fn default() -> Self {
+        GuideConfig {
+            updates: 6,
+            scene: SceneGridConfig { resolution: 64, ..Default::default() },
+            camera: CameraGridConfig { ru: 32, rv: 32, rl: 64, ..Default::default() },
+            interpolation: Interpolation::Linear,
+            fixed_s: 0.0,
+            uniform_fractions: vec![0.2, 0.4, 0.6, 0.8],
+            extra_points: 16,
+            extra: ExtraPoints::Gaussian,
+        }
+    }
+}
+
+impl Default for OutputConfig {
+    fn default() -> Self {
+        OutputConfig {
+            validate_every: 100,
+            validate_downscale: 2,
+            eval_views: 3,
+            eval_train_views: 2,
+            metrics_every: 0,
+            checkpoint_every: 100,
+            log_every: 10,
+            mesh_resolution: 192,
+            mesh_filter: MeshFilter::Supported,
+            min_component_area: 0.01,
+            mesh_formats: vec![MeshFormat::Ply],
+            vertex_colors: false,
+            chamfer_spacing: 0.004,
+            chamfer_max_dist: 0.1,
+            fscore_tau: 0.01,
+        }
+    }
+}
+
+/// Sets `a.b.c = value` in a TOML table; the value is parsed as TOML (`5`, `1e-3`, `true`,
+/// `[1, 2]`, `"text"`) and taken as a bare string otherwise.
+fn set_dotted(table: &mut toml::Table, key: &str, raw: &str) -> Result<()> {
+    let value: toml::Value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| toml::Value::String(raw.to_string()));
+    let mut parts: Vec<&str> = key.split('.').collect();
+    let last = parts.pop().filter(|s| !s.is_empty()).with_context(|| format!("override {key:?}: empty key"))?;
+    let mut t = table;
+    for p in parts {
+        t = t
+            .entry(p.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+            .as_table_mut()
+            .with_context(|| format!("override {key:?}: {p:?} is not a section"))?;
+    }
+    t.insert(last.to_string(), value);
+    Ok(())
+}
+
+/// Parses a duration such as `90`, `90s`, `10m`, `1.5h` into seconds.
+pub fn parse_duration(text: &str) -> Result<f64> {
+    let t = text.trim();
+    let (number, unit) = match t.char_indices().find(|(_, c)| c.is_ascii_alphabetic()) {
+        Some((i, _)) => (&t[..i], &t[i..]),
+        None => (t, "s"),
+    };
+    let value: f64 = number.trim().parse().with_context(|| format!("{text:?} is not a duration (e.g. 90s, 10m, 1h)"))?;
+    let scale = match unit {
+        "s" | "sec" => 1.0,
+        "m" | "min" => 60.0,
+        "h" => 3600.0,
+        other => bail!("{text:?}: unknown unit {other:?} (s, m, h)"),
+    };
+    let seconds = value * scale;
+    if !(seconds.is_finite() && seconds > 0.0) {
+        bail!("{text:?}: a duration must be positive");
+    }
+    Ok(seconds)
+}
+
+impl TrainConfig {
+    /// The defaults, then `file` (if any), then the `key=value` overrides; validated.
+    pub fn load(file: Option<&Path>, overrides: &[String]) -> Result<TrainConfig> {
+        let mut table = match file {
+            Some(path) => {
+                let text = std::fs::read_to_string(path).with_context(|| format!("cannot read config {}", path.display()))?;
+                toml::from_str::<toml::Table>(&text).with_context(|| format!("config {} is not valid TOML", path.display()))?
+            }
+            None => toml::Table::new(),
+        };
+        for o in overrides {
+            let (k, v) = o.split_once('=').with_context(|| format!("override {o:?} is not key=value"))?;
+            set_dotted(&mut table, k.trim(), v.trim())?;
+        }
+        let origin = file.map_or("the command line".to_string(), |p| format!("{} and the command line", p.display()));
+        let config: TrainConfig = table.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("config from {origin}: {}", e.message()))?;
+        config.validate().with_context(|| format!("config from {origin}"))?;
+        Ok(config)
+    }
+
+    /// Parses the TOML text of a resolved configuration (a run folder's `config.toml`).
+    pub fn from_toml(text: &str) -> Result<TrainConfig> {
+        let config: TrainConfig = toml::from_str(text).map_err(|e| anyhow::anyhow!("{}", e.message()))?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Whether the run is bounded by time rather than steps.
+    pub fn timed(&self) -> bool {
+        self.time_budget_s > 0.0
+    }
+
+    /// Checks every range; the error names the key.
+    pub fn validate(&self) -> Result<()> {
+        fn need(ok: bool, key: &str, value: impl std::fmt::Debug, expected: &str) -> Result<()> {
+            if ok { Ok(()) } else { bail!("{key} = {value:?} is out of range: expected {expected}") }
+        }
+        let finite_pos = |v: f64| v.is_finite() && v > 0.0;
+        let non_neg = |v: f64| v.is_finite() && v >= 0.0;
+        need(self.steps >= 1, "steps", self.steps, "≥ 1")?;
+        need(non_neg(self.time_budget_s), "time_budget_s", self.time_budget_s, "≥ 0 (0: bounded by steps)")?;
+        need(self.data.downscale >= 1, "data.downscale", self.data.downscale, "≥ 1")?;
+        need(self.data.builtin.width >= 16, "data.builtin.width", self.data.builtin.width, "≥ 16")?;
+        need(self.data.builtin.views >= 2, "data.builtin.views", self.data.builtin.views, "≥ 2")?;
+        need(
+            prob_grid::Shape::by_name(&self.data.builtin.shape).is_some(),
+            "data.builtin.shape",
+            &self.data.builtin.shape,
+            &prob_grid::Shape::NAMES.join(", "),
+        )?;
+        need(self.model.init_radius > 0.0 && self.model.init_radius < 1.0, "model.init_radius", self.model.init_radius, "in (0, 1)")?;
+        need(self.model.initial_levels >= 1, "model.initial_levels", self.model.initial_levels, "≥ 1")?;
+        need((0.0..=1.0).contains(&self.model.all_levels_at), "model.all_levels_at", self.model.all_levels_at, "in [0, 1]")?;
+        need(non_neg(self.model.eikonal), "model.eikonal", self.model.eikonal, "≥ 0")?;
+        need(non_neg(self.model.mask), "model.mask", self.model.mask, "≥ 0")?;
+        need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;
+        need(self.model.background.iter().all(|c| (0.0..=1.0).contains(c)), "model.background", self.model.background, "each in [0, 1]")?;
+        need(self.render.rays >= 1, "render.rays", self.render.rays, "≥ 1")?;
+        need(self.render.coarse >= 2, "render.coarse", self.render.coarse, "≥ 2")?;
+        need(
+            self.render.upsample_rounds >= 1 || self.render.fine == 0,
+            "render.upsample_rounds",
+            self.render.upsample_rounds,
+            "≥ 1 when render.fine > 0",
+        )?;
+        need(finite_pos(self.render.upsample_s), "render.upsample_s", self.render.upsample_s, "> 0")?;
+        need(self.render.chunk >= 1, "render.chunk", self.render.chunk, "≥ 1")?;
+        need(self.render.occupancy_dilation <= 8, "render.occupancy_dilation", self.render.occupancy_dilation, "in 0..=8")?;
+        need(finite_pos(self.optim.lr), "optim.lr", self.optim.lr, "> 0")?;
+        need(non_neg(self.optim.lr_grid), "optim.lr_grid", self.optim.lr_grid, "≥ 0")?;
+        self.optim.schedule.validate().map_err(|e| anyhow::anyhow!("optim.schedule.{e}"))?;
+        need(non_neg(self.optim.clip_norm), "optim.clip_norm", self.optim.clip_norm, "≥ 0")?;
+        need(self.guide.updates >= 1, "guide.updates", self.guide.updates, "≥ 1")?;
+        self.guide.scene.validate().map_err(|e| anyhow::anyhow!("guide.scene: {e}"))?;
+        self.guide.camera.validate().map_err(|e| anyhow::anyhow!("guide.camera: {e}"))?;
+        need(non_neg(self.guide.fixed_s), "guide.fixed_s", self.guide.fixed_s, "≥ 0 (0: the backbone's s)")?;
+        need(
+            !self.guide.uniform_fractions.is_empty() && self.guide.uniform_fractions.iter().all(|f| (0.0..=1.0).contains(f)),
+            "guide.uniform_fractions",
+            &self.guide.uniform_fractions,
+            "a non-empty list of fractions in [0, 1]",
+        )?;
+        need(
+            self.guide.extra_points <= self.render.fine,
+            "guide.extra_points",
+            self.guide.extra_points,
+            "≤ render.fine (the extra points replace up-sampled ones)",
+        )?;
+        self.surface.validate().map_err(|e| anyhow::anyhow!("surface.{e}"))?;
+        need(self.output.validate_downscale >= 1, "output.validate_downscale", self.output.validate_downscale, "≥ 1")?;
+        need(self.output.log_every >= 1, "output.log_every", self.output.log_every, "≥ 1")?;
+        need((8..=2048).contains(&self.output.mesh_resolution), "output.mesh_resolution", self.output.mesh_resolution, "in 8..=2048")?;
+        need((0.0..1.0).contains(&self.output.min_component_area), "output.min_component_area", self.output.min_component_area, "in [0, 1)")?;
+        need(finite_pos(self.output.chamfer_spacing), "output.chamfer_spacing", self.output.chamfer_spacing, "> 0")?;
+        need(finite_pos(self.output.chamfer_max_dist), "output.chamfer_max_dist", self.output.chamfer_max_dist, "> 0")?;
+        need(finite_pos(self.output.fscore_tau), "output.fscore_tau", self.output.fscore_tau, "> 0")?;
+        Ok(())
+    }
+
+    /// The configuration as TOML (written to the run folder).
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("the configuration serialises")
+    }
+
+    /// The keys whose values differ between two configurations (dotted paths), for messages.
+    pub fn differences(&self, other: &TrainConfig) -> Vec<String> {
+        fn walk(prefix: &str, a: &toml::Value, b: &toml::Value, out: &mut Vec<String>) {
+            match (a, b) {
+                (toml::Value::Table(ta), toml::Value::Table(tb)) => {
+                    let mut keys: Vec<&String> = ta.keys().chain(tb.keys()).collect();
+                    keys.sort();
+                    keys.dedup();
+                    for k in keys {
+                        let key = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
+                        match (ta.get(k), tb.get(k)) {
+                            (Some(x), Some(y)) => walk(&key, x, y, out),
+                            _ => out.push(key),
+                        }
+                    }
+                }
+                _ if a != b => out.push(prefix.to_string()),
+                _ => {}
+            }
+        }
+        let (a, b) = (toml::Value::try_from(self).expect("serialises"), toml::Value::try_from(other).expect("serialises"));
+        let mut out = Vec::new();
+        walk("", &a, &b, &mut out);
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid_and_round_trip_through_toml() {
+        let c = TrainConfig::default();
+        c.validate().unwrap();
+        let back = TrainConfig::from_toml(&c.to_toml()).unwrap();
+        assert_eq!(back, c);
+        assert!(c.differences(&back).is_empty());
+    }
+
+    #[test]
+    fn overrides_set_nested_keys_and_typed_values() {
+        let c = TrainConfig::load(
+            None,
+            &[
+                "steps=7".into(),
+                "guide.scene.partition=1".into(),
+                "sampler=uniform".into(),
+                "guide.extra=log".into(),
+                "guide.camera.view_dependency=quadrature".into(),
+                "guide.camera.weighting=mass-preserving".into(),
+                "guide.interpolation=nearest".into(),
+                "model.preset=neus-cpu".into(),
+                "model.normals=central".into(),
+                "optim.schedule.decay=step".into(),
+                "output.mesh_formats=[\"obj\", \"glb\"]".into(),
+            ],
+        )
+        .unwrap();
+        assert_eq!((c.steps, c.guide.scene.partition, c.sampler, c.guide.extra), (7, 1, SamplerKind::Uniform, ExtraPoints::LogVariance));
+        assert_eq!(c.guide.camera.view_dependency, prob_grid::ViewDependency::Quadrature);
+        assert_eq!(c.guide.camera.weighting, prob_grid::Weighting::MassPreserving);
+        assert_eq!((c.guide.interpolation, c.model.preset, c.model.normals), (Interpolation::Nearest, Preset::NeusCpu, NormalScheme::Central));
+        assert_eq!(c.optim.schedule.decay, sdf_backbone::Decay::Step);
+        assert_eq!(c.output.mesh_formats, vec![MeshFormat::Obj, MeshFormat::Glb]);
+        let d = TrainConfig::default().differences(&c);
+        assert!(d.contains(&"guide.scene.partition".to_string()) && d.contains(&"steps".to_string()), "{d:?}");
+    }
+
+    #[test]
+    fn unknown_keys_bad_enums_and_bad_values_are_named() {
+        for (o, expect) in [
+            ("guide.scene.partitoin=2", "partitoin"),
+            ("guide.scene.partition=0", "partition factor F"),
+            ("guide.fixed_s=-1", "guide.fixed_s"),
+            ("surface.beta=-1", "beta"),
+            ("model.preset=nerf", "nerf"),
+            ("guide.camera.view_dependency=sometimes", "sometimes"),
+            ("output.mesh_formats=[\"stl\"]", "stl"),
+            ("optim.schedule.warmup=1.5", "optim.schedule.warmup"),
+            ("steps", "key=value"),
+        ] {
+            let err = TrainConfig::load(None, &[o.into()]).unwrap_err();
+            assert!(format!("{err:#}").contains(expect), "{o}: {err:#}");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("bad.toml");
+        std::fs::write(&file, "[render]\nrayz = 5\n").unwrap();
+        let msg = format!("{:#}", TrainConfig::load(Some(&file), &[]).unwrap_err());
+        assert!(msg.contains("rayz") && msg.contains("bad.toml"), "{msg}");
+    }
+
+    #[test]
+    fn durations_parse_with_units() {
+        assert_eq!(parse_duration("90").unwrap(), 90.0);
+        assert_eq!(parse_duration("10m").unwrap(), 600.0);
+        assert_eq!(parse_duration("1.5h").unwrap(), 5400.0);
+        assert_eq!(parse_duration("45s").unwrap(), 45.0);
+        assert!(parse_duration("-3m").is_err() && parse_duration("3 weeks").is_err() && parse_duration("m").is_err());
+    }
+}

@@ -1,0 +1,118 @@
+//! The data of a run: the scene (built-in golden scene or a dataset folder), its ground truth
+//! when it has one, and the split into training and held-out views.
+
+use crate::config::TrainConfig;
+use anyhow::{Context, Result, bail};
+use datasets::golden::{self, GeometrySource, GoldenSpec};
+use datasets::io::PlyData;
+use datasets::{LoadOptions, Scene, load_scene};
+use glam::{DVec3, Vec3};
+use std::path::{Path, PathBuf};
+
+/// A scene with what a run needs to know about where it came from.
+#[derive(Debug, Clone)]
+pub struct SceneData {
+    /// The views (normalised frame).
+    pub scene: Scene,
+    /// Surface points of the built-in scene (normalised frame), its ground truth.
+    pub builtin_truth: Option<Vec<DVec3>>,
+    /// The dataset folder (`None` for the built-in scene).
+    pub path: Option<PathBuf>,
+}
+
+impl SceneData {
+    /// The built-in golden scene as `config.data.builtin` describes it (no files).
+    pub fn builtin(config: &TrainConfig) -> Result<SceneData> {
+        let b = &config.data.builtin;
+        let mut spec = GoldenSpec::builtin();
+        spec.geometry = GeometrySource::Shape(b.shape.clone());
+        spec.rig.width = b.width;
+        spec.rig.height = b.width * 3 / 4;
+        spec.rig.count = b.views;
+        spec.backdrop = b.backdrop;
+        let g = golden::generate(&spec).context("rendering the built-in scene")?;
+        Ok(SceneData { scene: g.scene, builtin_truth: Some(g.surface_points), path: None })
+    }
+
+    /// A dataset folder (any layout `datasets` reads).
+    pub fn folder(config: &TrainConfig, dir: &Path) -> Result<SceneData> {
+        let options = LoadOptions { downscale: config.data.downscale, background: config.model.background.map(|c| c as f32), ..Default::default() };
+        let scene = load_scene(dir, &options).with_context(|| format!("cannot load the data folder {}", dir.display()))?;
+        if scene.views.is_empty() {
+            bail!("the data folder {} has no views", dir.display());
+        }
+        Ok(SceneData { scene, builtin_truth: None, path: Some(dir.to_path_buf()) })
+    }
+
+    /// The folder if given, else the built-in scene.
+    pub fn load(config: &TrainConfig, dir: Option<&Path>) -> Result<SceneData> {
+        match dir {
+            Some(dir) => SceneData::folder(config, dir),
+            None => SceneData::builtin(config),
+        }
+    }
+
+    /// Ground-truth points in the normalised frame, if the data has them: the built-in scene's
+    /// surface samples, or `gt_mesh.ply` (sampled every `spacing`) / `gt_points.ply` (input world
+    /// units) in the data folder.
+    pub fn ground_truth(&self, spacing: f64) -> Result<Option<Vec<[f32; 3]>>> {
+        if let Some(points) = &self.builtin_truth {
+            return Ok(Some(points.iter().map(|p| p.as_vec3().to_array()).collect()));
+        }
+        let Some(dir) = &self.path else { return Ok(None) };
+        let normalized_from_world = self.scene.world_from_normalized.inverse();
+        let to_normalized = |p: &Vec3| normalized_from_world.transform_point3(p.as_dvec3()).as_vec3().to_array();
+        let mesh_path = dir.join("gt_mesh.ply");
+        if mesh_path.exists() {
+            let ply = PlyData::read(&mesh_path).with_context(|| format!("ground-truth mesh {}", mesh_path.display()))?;
+            let v: Vec<[f32; 3]> = ply.positions.iter().map(to_normalized).collect();
+            return Ok(Some(eval_metrics::sample_mesh(&v, &ply.faces, spacing as f32, 7)));
+        }
+        let points_path = dir.join("gt_points.ply");
+        if points_path.exists() {
+            let ply = PlyData::read(&points_path).with_context(|| format!("ground-truth points {}", points_path.display()))?;
+            return Ok(Some(ply.positions.iter().map(to_normalized).collect()));
+        }
+        Ok(None)
+    }
+
+    /// One line describing the data.
+    pub fn description(&self) -> &str {
+        &self.scene.source.description
+    }
+}
+
+/// Training and held-out views.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ViewSplit {
+    /// Indices of the training views.
+    pub train: Vec<usize>,
+    /// Indices of the held-out views (may be empty).
+    pub held_out: Vec<usize>,
+}
+
+impl ViewSplit {
+    /// Every `holdout_every`-th view is held out (a single view is always trained on).
+    pub fn new(config: &TrainConfig, scene: &Scene) -> ViewSplit {
+        let every = config.data.holdout_every;
+        let n = scene.views.len();
+        let held = |i: usize| every > 0 && i % every == every - 1 && n > 1;
+        ViewSplit { train: (0..n).filter(|&i| !held(i)).collect(), held_out: (0..n).filter(|&i| held(i)).collect() }
+    }
+
+    /// The views evaluation renders: the held-out ones, or all views when none are held out.
+    pub fn evaluation_views(&self) -> Vec<usize> {
+        if self.held_out.is_empty() {
+            let mut all: Vec<usize> = self.train.clone();
+            all.sort_unstable();
+            all
+        } else {
+            self.held_out.clone()
+        }
+    }
+}
+
+/// Whether the masks are used: asked for and present on every view.
+pub fn uses_masks(config: &TrainConfig, scene: &Scene) -> bool {
+    config.data.masks && scene.views.iter().all(|v| v.mask.is_some())
+}

@@ -1,0 +1,30 @@
+//! The psneus runner as a library: the trainer ([`trainer::Trainer`]) and everything the
+//! `cargo xtask` commands do, so that a training run can be driven from other code as well as
+//! from the command line. The binary (`main.rs`) only parses arguments and calls these modules.
+//!
+//! - [`config`]: the typed training configuration (TOML, overrides, validation).
+//! - [`data`]: the scene of a run (built-in golden scene or a dataset folder), its ground truth,
+//!   the training/held-out split.
+//! - [`trainer`]: [`trainer::Trainer`] — step, checkpoint/restore, renders, mesh.
+//! - [`rays`]: drawn pixels → the backbone's rays (coarse samples, up-sampling, extra points).
+//! - [`run`]: the `train` command — run folder, log, pictures, checkpoints, resume, stop
+//!   signal, final mesh and metrics; [`run::open_run`] reopens a run folder.
+//! - [`outputs`], [`progress`], [`draw`]: renders, panels, mesh files and filters, progress.
+//! - [`eval`], [`compare`], [`sample`], [`bench`], [`bench_backbone`], [`bench_overhead`]: the
+//!   other commands.
+#![deny(missing_docs)]
+
+pub mod bench;
+pub mod bench_backbone;
+pub mod bench_overhead;
+pub mod compare;
+pub mod config;
+pub mod data;
+pub mod draw;
+pub mod eval;
+pub mod outputs;
+pub mod progress;
+pub mod rays;
+pub mod run;
+pub mod sample;
+pub mod trainer;

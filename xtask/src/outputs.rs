@@ -1,0 +1,208 @@
+//! What a run shows and leaves: renders of views (PSNR, SSIM, validation panels), pdf heat maps,
+//! the mesh (connected components filtered, written in the input's world units with optional
+//! vertex colours) and its picture, and geometry metrics.
+
+use crate::config::MeshFilter;
+use crate::draw::colormap;
+use anyhow::Result;
+use datasets::Scene;
+use datasets::images::RgbImage;
+use datasets::io::{MeshFormat, mesh_bytes};
+use glam::{DMat4, Vec3};
+use prob_grid::IsoMesh;
+use sdf_backbone::RayOutput;
+
+/// A view rendered at `downscale`: prediction and targets, row-major.
+pub struct ViewRender {
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Outputs per pixel.
+    pub outputs: Vec<RayOutput<f32>>,
+    /// Ground-truth colours.
+    pub target: Vec<[f32; 3]>,
+    /// Mask, if the view has one.
+    pub mask: Option<Vec<bool>>,
+}
+
+impl ViewRender {
+    /// PSNR over the whole image and inside the mask.
+    pub fn psnr(&self) -> (f64, Option<f64>) {
+        let pred: Vec<[f32; 3]> = self.outputs.iter().map(|o| o.color).collect();
+        let whole = eval_metrics::psnr(&pred, &self.target, None).unwrap_or(f64::NAN);
+        let masked = self.mask.as_ref().and_then(|m| eval_metrics::psnr(&pred, &self.target, Some(m)).ok());
+        (whole, masked)
+    }
+
+    /// SSIM over the whole image.
+    pub fn ssim(&self) -> Option<f64> {
+        let pred: Vec<[f32; 3]> = self.outputs.iter().map(|o| o.color).collect();
+        eval_metrics::ssim(&pred, &self.target, self.width as usize, self.height as usize).ok()
+    }
+
+    /// RGB | ground truth | |error| (×4) | normal | depth, side by side.
+    pub fn panel(&self) -> RgbImage {
+        let (w, h) = (self.width, self.height);
+        let mut img = RgbImage::new(5 * w, h);
+        let hit: Vec<f32> = self.outputs.iter().filter(|o| o.opacity > 0.5).map(|o| o.depth / o.opacity).collect();
+        let (d_lo, d_hi) = hit.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &d| (a.min(d), b.max(d)));
+        for r in 0..h {
+            for c in 0..w {
+                let i = (r * w + c) as usize;
+                let o = &self.outputs[i];
+                let t = self.target[i];
+                img.set_f32(c, r, o.color);
+                img.set_f32(w + c, r, t);
+                img.set_f32(2 * w + c, r, [0, 1, 2].map(|k| ((o.color[k] - t[k]).abs() * 4.0).min(1.0)));
+                let n = Vec3::from_array(o.normal);
+                let n = if n.length() > 1e-6 { n.normalize() } else { Vec3::ZERO };
+                img.set_f32(3 * w + c, r, (n * 0.5 + 0.5).to_array().map(|v| v * o.opacity.clamp(0.0, 1.0)));
+                let depth = if o.opacity > 0.5 && d_hi > d_lo { colormap(1.0 - (o.depth / o.opacity - d_lo) / (d_hi - d_lo)) } else { [0.0; 3] };
+                img.set_f32(4 * w + c, r, depth);
+            }
+        }
+        img
+    }
+}
+
+/// A heat map of a pixel marginal (R_u × R_v, row-major in v), scaled up `zoom` times.
+pub fn heat_map(marginal: &[f64], ru: usize, rv: usize, zoom: u32) -> RgbImage {
+    let peak = marginal.iter().copied().fold(0.0f64, f64::max).max(1e-300);
+    let mut img = RgbImage::new(ru as u32 * zoom, rv as u32 * zoom);
+    for y in 0..img.height {
+        for x in 0..img.width {
+            let v = marginal[(y / zoom) as usize * ru + (x / zoom) as usize] / peak;
+            img.set_f32(x, y, colormap(v as f32));
+        }
+    }
+    img
+}
+
+/// Which connected components of `mesh` (normalised frame) to keep, by `filter`: `supported`
+/// keeps, with masks, the components whose vertices lie in the visual hull (a vertex is in it
+/// when ≥ 90 % of the training views that see it in frame have it in their foreground, the mask
+/// dilated by 2 pixels; a component is kept when ≥ half of up to 200 of its vertices are), and
+/// without masks the components of at least `min_area` of the mesh's area. Returns the kept mesh
+/// and (components, kept).
+pub fn filter_components(
+    mesh: &IsoMesh,
+    filter: MeshFilter,
+    scene: &Scene,
+    train_views: &[usize],
+    use_masks: bool,
+    min_area: f64,
+) -> (IsoMesh, usize, usize) {
+    let (labels, count) = mesh.component_labels();
+    let keep: Vec<bool> = match filter {
+        MeshFilter::All => vec![true; count],
+        MeshFilter::Largest => {
+            let kept = mesh.largest_component();
+            let n = usize::from(!kept.triangles.is_empty());
+            return (kept, count, n);
+        }
+        MeshFilter::Supported if use_masks => {
+            let masks: Vec<(camera_geom::PinholeCamera, datasets::images::Mask)> =
+                train_views.iter().filter_map(|&v| scene.views[v].mask.as_ref().map(|m| (scene.views[v].camera, dilate(m, 2)))).collect();
+            // Up to 200 vertices per component, spread over its triangles.
+            let mut members: Vec<Vec<u32>> = vec![Vec::new(); count];
+            for (t, &l) in mesh.triangles.iter().zip(&labels) {
+                members[l as usize].push(t[0]);
+            }
+            members
+                .iter()
+                .map(|vertices| {
+                    let step = vertices.len().div_ceil(200).max(1);
+                    let sample: Vec<u32> = vertices.iter().copied().step_by(step).collect();
+                    let in_hull = sample
+                        .iter()
+                        .filter(|&&v| {
+                            let p = mesh.vertices[v as usize].as_dvec3();
+                            let (mut seen, mut fg) = (0usize, 0usize);
+                            for (camera, mask) in &masks {
+                                let x = camera.pixel_space_from_world(p);
+                                if x.z <= 0.0 {
+                                    continue;
+                                }
+                                if let Some((c, r)) = camera.nearest_pixel(x.truncate()) {
+                                    seen += 1;
+                                    fg += usize::from(mask.get(c, r));
+                                }
+                            }
+                            seen > 0 && fg * 10 >= seen * 9
+                        })
+                        .count();
+                    in_hull * 2 >= sample.len()
+                })
+                .collect()
+        }
+        MeshFilter::Supported => {
+            let areas = mesh.component_areas(&labels, count);
+            let total: f64 = areas.iter().sum();
+            areas.iter().map(|a| *a >= min_area * total).collect()
+        }
+    };
+    let kept = keep.iter().filter(|k| **k).count();
+    (mesh.select_components(&labels, &keep), count, kept)
+}
+
+/// A mask dilated by a square of half-width `r` pixels.
+pub fn dilate(mask: &datasets::images::Mask, r: u32) -> datasets::images::Mask {
+    let (w, h) = (mask.width, mask.height);
+    let mut out = datasets::images::Mask::new(w, h);
+    for y in 0..h {
+        for x in 0..w {
+            if mask.get(x, y) {
+                for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                    for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                        out.set(xx, yy, true);
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The mesh's bytes in each format, in the input's world units (`world_from_normalized`
+/// applied; a reflection flips the winding so that normals stay outward): (format, bytes).
+pub fn mesh_files(mesh: &IsoMesh, world_from_normalized: &DMat4, colors: Option<&[[u8; 3]]>, formats: &[MeshFormat]) -> Vec<(MeshFormat, Vec<u8>)> {
+    let positions: Vec<Vec3> = mesh.vertices.iter().map(|p| world_from_normalized.transform_point3(p.as_dvec3()).as_vec3()).collect();
+    let flip = world_from_normalized.determinant() < 0.0;
+    let faces: Vec<[u32; 3]> = mesh.triangles.iter().map(|t| if flip { [t[0], t[2], t[1]] } else { *t }).collect();
+    formats.iter().map(|&f| (f, mesh_bytes(f, &positions, &faces, colors))).collect()
+}
+
+/// Chamfer and F-score of a mesh (normalised frame) against ground-truth points.
+pub fn geometry_metrics(mesh: &IsoMesh, gt: &[[f32; 3]], spacing: f64, max_dist: f64, tau: f64) -> Result<eval_metrics::GeometryMetrics> {
+    let v: Vec<[f32; 3]> = mesh.vertices.iter().map(|p| p.to_array()).collect();
+    let pred = eval_metrics::sample_mesh(&v, &mesh.triangles, spacing as f32, 11);
+    Ok(eval_metrics::chamfer(&pred, gt, max_dist, tau)?)
+}
+
+/// The mesh (normalised frame) seen from `cameras`, shaded by its normals, side by side.
+pub fn mesh_picture(mesh: &IsoMesh, cameras: &[camera_geom::PinholeCamera]) -> RgbImage {
+    use datasets::golden::{mesh_io::TexturedMesh, render::Geometry};
+    let n = mesh.triangles.len();
+    let geometry = Geometry::from_mesh(TexturedMesh {
+        mesh: prob_grid::TriangleMesh::new(mesh.vertices.clone(), mesh.triangles.clone()),
+        uvs: None,
+        triangle_texture: vec![u32::MAX; n],
+        textures: Vec::new(),
+    });
+    let (w, h) = (cameras.iter().map(|c| c.width).sum::<u32>(), cameras.iter().map(|c| c.height).max().unwrap_or(1));
+    let mut img = RgbImage::new(w.max(1), h);
+    let mut x0 = 0;
+    for cam in cameras {
+        let r = datasets::golden::render::render_view(&geometry, cam, false);
+        for y in 0..cam.height {
+            for x in 0..cam.width {
+                let nrm = r.normal[(y * cam.width + x) as usize];
+                let rgb = if r.mask.get(x, y) { nrm.map(|v| v * 0.5 + 0.5) } else { [1.0; 3] };
+                img.set_f32(x0 + x, y, rgb);
+            }
+        }
+        x0 += cam.width;
+    }
+    img
+}

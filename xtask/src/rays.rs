@@ -1,0 +1,109 @@
+//! From drawn pixels to the backbone's rays: the estimator's coarse samples along each pixel's
+//! ray, NeuS's hierarchical up-sampling, and (guided) the extra points around λ̃ with what the
+//! surface losses need per ray.
+
+use camera_geom::PinholeCamera;
+use datasets::View;
+use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
+use rayon::prelude::*;
+use sdf_backbone::{Backbone, RayInput, merge_sorted};
+use surface_losses::{ExtraPoints, RaySurface, extra_depths};
+use view_sampler::{Estimator, RaySample};
+
+/// Samples per ray and how they are placed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sampling {
+    /// Coarse samples (stratified over the ray's occupied intervals, or [near, far]).
+    pub coarse: usize,
+    /// Up-sampled samples, extra points included.
+    pub fine: usize,
+    /// Up-sampling rounds.
+    pub rounds: usize,
+    /// Scale of the first up-sampling round.
+    pub upsample_s: f64,
+    /// Extra points around λ̃ (rays that have one), taken from `fine`.
+    pub extra_points: usize,
+    /// Their law.
+    pub extra: ExtraPoints,
+}
+
+/// The rays of one iteration with the surface-loss information of each.
+#[derive(Debug, Clone)]
+pub struct Batch {
+    /// What the estimator drew.
+    pub drawn: Vec<RaySample>,
+    /// Rays with their final sample depths, targets and masks.
+    pub rays: Vec<RayInput<f32>>,
+    /// Per ray: λ̃ as a distance along the ray and whether it is a background ray (rays without
+    /// λ̃: background, unused by the losses).
+    pub surfaces: Vec<RaySurface>,
+}
+
+/// A stream seed from (seed, step, item): the sampler's SplitMix64 finalisation, on a seed
+/// offset so that the trainer's streams differ from the sampler's.
+pub fn stream_seed(seed: u64, step: u64, item: u64) -> u64 {
+    view_sampler::stream_seed(seed ^ 0x7261_7973, step, item)
+}
+
+/// The ray through pixel (col, row) of `camera` with the estimator's coarse depths (one jitter).
+pub fn pixel_ray(estimator: &Estimator, camera: &PinholeCamera, col: u32, row: u32, coarse: usize, jitter: f64) -> RayInput<f32> {
+    let ray = camera.ray_through_pixel_index(col, row);
+    let mut depths = Vec::with_capacity(coarse + 1);
+    estimator.march(ray.origin, ray.direction, coarse, jitter, &mut depths);
+    RayInput { origin: ray.origin.as_vec3().to_array(), direction: ray.direction.as_vec3().to_array(), depths, target: [0.0; 3], mask: None }
+}
+
+/// Builds the rays of `drawn` (camera indices into `views`): coarse depths, up-sampling (fewer
+/// for rays that get extra points), extra points around λ̃ at scale `s`; targets and masks
+/// (`use_masks`) from the views. Deterministic in (seed, step).
+#[allow(clippy::too_many_arguments)]
+pub fn build_batch(
+    estimator: &Estimator,
+    views: &[&View],
+    use_masks: bool,
+    backbone: &Backbone,
+    params: &[f32],
+    sampling: &Sampling,
+    drawn: Vec<RaySample>,
+    seed: u64,
+    step: u64,
+    s: f64,
+) -> Batch {
+    let guided = drawn.iter().any(|d| d.depth.is_some());
+    let n_extra = if guided { sampling.extra_points } else { 0 };
+    let per_ray: Vec<(RayInput<f32>, Xoshiro256PlusPlus)> = drawn
+        .par_iter()
+        .enumerate()
+        .map(|(i, d)| {
+            let mut rng = Xoshiro256PlusPlus::seed_from_u64(stream_seed(seed, step, i as u64));
+            let view = views[d.camera as usize];
+            let [col, row] = d.pixel;
+            let mut ray = pixel_ray(estimator, &view.camera, col, row, sampling.coarse, rng.random());
+            ray.target = view.image.get_f32(col, row);
+            ray.mask = if use_masks { view.mask.as_ref().map(|m| if m.get(col, row) { 1.0 } else { 0.0 }) } else { None };
+            (ray, rng)
+        })
+        .collect();
+    let (mut rays, mut rngs): (Vec<RayInput<f32>>, Vec<Xoshiro256PlusPlus>) = per_ray.into_iter().unzip();
+    backbone.upsample(params, &mut rays, sampling.fine - n_extra, sampling.rounds, sampling.upsample_s);
+    let surfaces = rays
+        .par_iter_mut()
+        .zip(rngs.par_iter_mut())
+        .zip(drawn.par_iter())
+        .map(|((ray, rng), d)| {
+            let o = glam::DVec3::from_array(ray.origin.map(f64::from));
+            let dir = glam::DVec3::from_array(ray.direction.map(f64::from));
+            let Some((t_surface, background)) = estimator.surface_distance(d, o, dir) else {
+                return RaySurface { depth: 0.0, background: true };
+            };
+            if n_extra > 0 {
+                let (near, far) = (f64::from(ray.depths[0]), f64::from(*ray.depths.last().expect("depths")));
+                let u: Vec<f64> = (0..n_extra).map(|_| rng.random()).collect();
+                let extra: Vec<f32> = extra_depths(sampling.extra, t_surface, s, near, far, &u).into_iter().map(|t| t as f32).collect();
+                ray.depths = merge_sorted(&ray.depths, &extra);
+            }
+            RaySurface { depth: t_surface, background }
+        })
+        .collect();
+    Batch { drawn, rays, surfaces }
+}

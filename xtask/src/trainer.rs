@@ -1,0 +1,544 @@
+//! The trainer as a library: a [`Trainer`] built from a configuration and a scene, advanced one
+//! [`Trainer::step`] at a time, saved and restored as a [`Checkpoint`], and asked for renders, a
+//! mesh and metrics. It owns no files and no terminal: the `train` command ([`crate::run`]) adds
+//! the run folder, the progress bar and the stop signal around it.
+//!
+//! ```no_run
+//! use xtask::config::TrainConfig;
+//! use xtask::data::SceneData;
+//! use xtask::trainer::Trainer;
+//! # fn main() -> anyhow::Result<()> {
+//! let config = TrainConfig::load(None, &["steps=5".into(), "data.builtin.width=64".into(), "render.rays=64".into()])?;
+//! let data = SceneData::builtin(&config)?;
+//! let mut trainer = Trainer::new(config, data)?;
+//! while !trainer.done() {
+//!     let report = trainer.step()?;
+//!     println!("step {} loss {:.4} s {:.1}", report.step, report.loss, report.s);
+//! }
+//! let mesh = trainer.extract_mesh(&|_, _| {})?;
+//! println!("{} triangles", mesh.triangles.len());
+//! # Ok(()) }
+//! ```
+//!
+//! Each iteration: coarse-to-fine levels and the curvature ramp from the run's progress; a grid
+//! update at the start of each of `guide.updates` parts of the run (the estimator's guide and/or
+//! occupancy, from the parameters of that moment); the estimator's rays; their loss and gradient
+//! (with the surface losses on guided runs); one Adam step with the schedule's rate. A run is
+//! bounded by steps (deterministic: the same bits for any thread count, and a resumed run equals
+//! an uninterrupted one) or by a time budget (the schedules follow the fraction of time spent).
+
+use crate::config::{MeshFilter, SamplerKind, TrainConfig};
+use crate::data::{SceneData, ViewSplit, uses_masks};
+use crate::outputs::{ViewRender, filter_components, heat_map};
+use crate::rays::{Batch, Sampling, build_batch, pixel_ray};
+use anyhow::{Context, Result, bail};
+use datasets::images::RgbImage;
+use prob_grid::{IsoMesh, MarchingCubesConfig, marching_cubes_with_progress};
+use rayon::prelude::*;
+use sdf_backbone::{Adam, Backbone, Checkpoint, NoSampleLoss, ParamLayout, RayInput, RayOutput, SampleLoss, adam_step, build};
+use std::time::Instant;
+use surface_losses::{RaySurface, SurfaceLossConfig};
+use view_sampler::{Estimator, EstimatorConfig, UniformSchedule, UpdateReport};
+
+/// Margin over the largest |∇S| measured at a grid update: the Lipschitz bound the backbone's
+/// field claims until the next update (each evaluation checks the claim and redoes itself when
+/// the field breaks it).
+const LIPSCHITZ_MARGIN: f32 = 1.25;
+
+/// What a checkpoint holds besides the parameters and Adam's moments.
+#[derive(Debug, Clone)]
+pub struct TrainState {
+    /// Iterations done.
+    pub step: u64,
+    /// Parameters.
+    pub params: Vec<f32>,
+    /// Optimiser state.
+    pub adam: Adam,
+    /// Parameters at the last grid update (a resumed run rebuilds the same grids).
+    pub grid_params: Vec<f32>,
+    /// The part of the run whose grids are built (`None` before the first update).
+    pub update_part: Option<u32>,
+    /// The Lipschitz bound the field claimed at the last update.
+    pub lipschitz: f32,
+    /// Training time spent (what a time budget counts).
+    pub train_seconds: f64,
+}
+
+/// What one iteration did.
+#[derive(Debug, Clone)]
+pub struct StepReport {
+    /// Iterations done after this one.
+    pub step: u64,
+    /// Progress after this iteration, in [0, 1].
+    pub progress: f64,
+    /// The batch loss.
+    pub loss: f32,
+    /// PSNR of the batch's rendered colours (composited) against their targets.
+    pub psnr_batch: f64,
+    /// The backbone's s before the step.
+    pub s: f64,
+    /// The learning rate of the MLPs this step.
+    pub lr: f64,
+    /// Active hash-grid levels (None for positional encoding).
+    pub levels: Option<usize>,
+    /// Seconds of the iteration (grid update included).
+    pub seconds: f64,
+    /// Seconds spent drawing and building rays.
+    pub ray_seconds: f64,
+    /// The grid update made at the start of this iteration, if any.
+    pub update: Option<UpdateReport>,
+    /// Guided rays in the batch.
+    pub guided_rays: usize,
+}
+
+/// Time spent by the iterations of this process (not restored from checkpoints).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Timing {
+    /// Iterations run.
+    pub steps: u64,
+    /// Seconds in iterations without grid updates.
+    pub step_seconds: f64,
+    /// Seconds drawing and building rays.
+    pub ray_seconds: f64,
+    /// Seconds in grid updates.
+    pub grid_seconds: f64,
+    /// Grid updates made.
+    pub grid_updates: u64,
+}
+
+/// A training run in memory (see the module docs).
+pub struct Trainer {
+    config: TrainConfig,
+    data: SceneData,
+    split: ViewSplit,
+    use_masks: bool,
+    backbone: Backbone,
+    layout: ParamLayout,
+    estimator: Estimator,
+    state: TrainState,
+    grads: Vec<f32>,
+    timing: Timing,
+    last_step_seconds: f64,
+}
+
+/// The surface losses as the backbone's per-ray hook.
+struct SurfaceHook<'a> {
+    config: SurfaceLossConfig,
+    rays: &'a [RaySurface],
+}
+
+impl SampleLoss for SurfaceHook<'_> {
+    fn ray_loss(&self, ray: usize, s: f64, t: &[f64], sdf: &[f64], w: &[f64], d_sdf: &mut [f64], d_w: &mut [f64]) -> f64 {
+        surface_losses::ray_loss(&self.config, &self.rays[ray], s, t, sdf, w, d_sdf, d_w).0
+    }
+}
+
+/// The configured backbone with its initial parameters.
+fn configured_backbone(config: &TrainConfig, use_masks: bool) -> (Backbone, Vec<f32>) {
+    let (mut backbone, mut params) = build(config.model.preset, config.model.init_radius, config.seed);
+    if config.model.learned_background {
+        backbone.add_learned_background(&mut params, config.seed + 4);
+    }
+    backbone.config.eikonal_weight = config.model.eikonal;
+    backbone.config.mask_weight = if use_masks { config.model.mask } else { 0.0 };
+    backbone.config.masked_color = use_masks;
+    backbone.config.background = config.model.background;
+    backbone.config.normals = config.model.normals;
+    (backbone, params)
+}
+
+/// The estimator's configuration from the trainer's.
+pub fn estimator_config(config: &TrainConfig) -> EstimatorConfig {
+    EstimatorConfig {
+        guided: config.sampler == SamplerKind::Guided,
+        scene: config.guide.scene.clone(),
+        camera: config.guide.camera.clone(),
+        interpolation: config.guide.interpolation,
+        schedule: UniformSchedule { fractions: config.guide.uniform_fractions.clone() },
+        fixed_s: (config.guide.fixed_s > 0.0).then_some(config.guide.fixed_s as f32),
+        skip_empty: config.render.skip_empty,
+        dilation: config.render.occupancy_dilation,
+    }
+}
+
+impl Trainer {
+    /// A fresh run: the configured backbone at its initial parameters, no grids yet.
+    pub fn new(config: TrainConfig, data: SceneData) -> Result<Trainer> {
+        config.validate()?;
+        let split = ViewSplit::new(&config, &data.scene);
+        let use_masks = uses_masks(&config, &data.scene);
+        let (backbone, params) = configured_backbone(&config, use_masks);
+        let layout = backbone.layout();
+        let cameras = split.train.iter().map(|&i| data.scene.views[i].camera).collect();
+        let estimator = Estimator::new(cameras, estimator_config(&config)).context("the guide's configuration")?;
+        let mut adam = Adam::new(params.len());
+        adam.epsilon = 1e-15;
+        let n = params.len();
+        let state = TrainState { step: 0, grid_params: params.clone(), params, adam, update_part: None, lipschitz: 1.5, train_seconds: 0.0 };
+        Ok(Trainer {
+            config,
+            data,
+            split,
+            use_masks,
+            backbone,
+            layout,
+            estimator,
+            state,
+            grads: vec![0.0; n],
+            timing: Timing::default(),
+            last_step_seconds: 0.0,
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &TrainConfig {
+        &self.config
+    }
+
+    /// The data.
+    pub fn data(&self) -> &SceneData {
+        &self.data
+    }
+
+    /// Training and held-out views.
+    pub fn split(&self) -> &ViewSplit {
+        &self.split
+    }
+
+    /// Whether the masks are used.
+    pub fn uses_masks(&self) -> bool {
+        self.use_masks
+    }
+
+    /// The backbone.
+    pub fn backbone(&self) -> &Backbone {
+        &self.backbone
+    }
+
+    /// The state (parameters, optimiser, step, …).
+    pub fn state(&self) -> &TrainState {
+        &self.state
+    }
+
+    /// The estimator (guide and occupancy of the last update).
+    pub fn estimator(&self) -> &Estimator {
+        &self.estimator
+    }
+
+    /// Time spent by this process's iterations.
+    pub fn timing(&self) -> Timing {
+        self.timing
+    }
+
+    /// The backbone's current logistic scale s.
+    pub fn s(&self) -> f64 {
+        self.backbone.scale(&self.state.params)
+    }
+
+    /// Fraction of the run done, in [0, 1]: steps done / steps, or training time / budget.
+    pub fn progress(&self) -> f64 {
+        self.progress_at(self.state.step, self.state.train_seconds)
+    }
+
+    fn progress_at(&self, step: u64, seconds: f64) -> f64 {
+        if self.config.timed() { (seconds / self.config.time_budget_s).min(1.0) } else { (step as f64 / self.config.steps as f64).min(1.0) }
+    }
+
+    /// Whether the run is over (its steps done or its time budget spent).
+    pub fn done(&self) -> bool {
+        if self.config.timed() { self.state.train_seconds >= self.config.time_budget_s } else { self.state.step >= self.config.steps }
+    }
+
+    /// Seconds of the budget left (time budgets), or an estimate from the mean iteration time.
+    pub fn seconds_left(&self) -> f64 {
+        if self.config.timed() {
+            (self.config.time_budget_s - self.state.train_seconds).max(0.0)
+        } else {
+            let per_step = if self.timing.steps > 0 { (self.timing.step_seconds + self.timing.grid_seconds) / self.timing.steps as f64 } else { 0.0 };
+            (self.config.steps.saturating_sub(self.state.step)) as f64 * per_step
+        }
+    }
+
+    /// Active hash-grid levels at `progress` (coarse-to-fine).
+    fn active_levels(&self, levels: usize, progress: f64) -> usize {
+        let ramp = if self.config.model.all_levels_at > 0.0 { (progress / self.config.model.all_levels_at).min(1.0) } else { 1.0 };
+        let start = self.config.model.initial_levels.min(levels);
+        start + ((levels - start) as f64 * ramp).floor() as usize
+    }
+
+    /// The part of the run whose grids should be in use at `progress`.
+    fn part_at(&self, progress: f64) -> u32 {
+        let updates = self.config.guide.updates;
+        ((progress * f64::from(updates)).floor() as u32).min(updates - 1)
+    }
+
+    /// Rebuilds the estimator's grids from the parameters of the last update.
+    fn rebuild_grids(&mut self) -> Result<UpdateReport> {
+        let s = self.backbone.scale(&self.state.grid_params) as f32;
+        let mut field = self.backbone.field(&self.state.grid_params);
+        field.lipschitz = self.state.lipschitz;
+        self.estimator.update(&field, s).context("the grid update")
+    }
+
+    /// One iteration (see the module docs).
+    pub fn step(&mut self) -> Result<StepReport> {
+        let start = Instant::now();
+        let step = self.state.step;
+        let progress = self.progress();
+        if let Some(levels) = self.backbone.levels() {
+            self.backbone.set_active_levels(self.active_levels(levels, progress));
+        }
+        let warmup = self.config.optim.schedule.warmup;
+        let ramp = if warmup > 0.0 { (progress / warmup).min(1.0) } else { 1.0 };
+        self.backbone.config.curvature_weight = self.config.model.curvature * ramp;
+
+        // Grid update at the start of each part of the run.
+        let mut update = None;
+        let part = self.part_at(progress);
+        if self.estimator.needs_updates() && self.state.update_part != Some(part) {
+            self.state.grid_params.copy_from_slice(&self.state.params);
+            self.state.update_part = Some(part);
+            let report = self.rebuild_grids()?;
+            self.state.lipschitz = (report.lipschitz.measured * LIPSCHITZ_MARGIN).max(1.0);
+            self.timing.grid_seconds += report.seconds;
+            self.timing.grid_updates += 1;
+            update = Some(report);
+        }
+        let t_step = Instant::now();
+        let s = self.s();
+        let batch = self.batch(step, progress, s);
+        let ray_seconds = t_step.elapsed().as_secs_f64();
+        let (loss, outputs) = self.gradient(&batch);
+        // The schedule's factor for a step that ends at the next progress point.
+        let progress_end = if self.config.timed() {
+            self.progress_at(step + 1, self.state.train_seconds + self.last_step_seconds)
+        } else {
+            self.progress_at(step + 1, 0.0)
+        };
+        let factor = self.config.optim.schedule.factor(progress_end);
+        let n = self.state.params.len();
+        let groups = [
+            (self.layout.encoding.clone(), self.config.optim.lr_grid as f32 * factor),
+            (self.layout.encoding.end..n, self.config.optim.lr as f32 * factor),
+        ];
+        let clip = (self.config.optim.clip_norm > 0.0).then_some(self.config.optim.clip_norm as f32);
+        adam_step(&mut self.state.adam, &mut self.state.params, &mut self.grads, &groups, clip);
+        if !loss.is_finite() {
+            bail!("the loss became {loss} at step {step}");
+        }
+        self.state.step += 1;
+        let step_seconds = t_step.elapsed().as_secs_f64();
+        let seconds = start.elapsed().as_secs_f64();
+        self.state.train_seconds += seconds;
+        self.last_step_seconds = seconds;
+        self.timing.steps += 1;
+        self.timing.step_seconds += step_seconds;
+        self.timing.ray_seconds += ray_seconds;
+        let mse =
+            batch.rays.iter().zip(&outputs).map(|(r, o)| (0..3).map(|k| f64::from(o.color[k] - r.target[k]).powi(2)).sum::<f64>() / 3.0).sum::<f64>()
+                / outputs.len().max(1) as f64;
+        Ok(StepReport {
+            step: self.state.step,
+            progress: self.progress(),
+            loss,
+            psnr_batch: -10.0 * mse.log10(),
+            s,
+            lr: self.config.optim.lr * f64::from(factor),
+            levels: self.backbone.levels().map(|l| self.active_levels(l, progress)),
+            seconds,
+            ray_seconds,
+            update,
+            guided_rays: batch.drawn.iter().filter(|d| d.guided).count(),
+        })
+    }
+
+    /// The loss of `batch` and its gradient (into the trainer's gradient buffer), with the
+    /// surface losses on guided runs; the parameters are not changed.
+    pub fn gradient(&mut self, batch: &Batch) -> (f32, Vec<RayOutput<f32>>) {
+        self.grads.fill(0.0);
+        let hook = SurfaceHook { config: self.config.surface, rays: &batch.surfaces };
+        let extra: &dyn SampleLoss =
+            if self.config.sampler == SamplerKind::Guided && self.config.surface.weight > 0.0 { &hook } else { &NoSampleLoss };
+        self.backbone.loss_parallel(&self.state.params, &batch.rays, &mut self.grads, self.config.render.chunk, extra)
+    }
+
+    /// The gradient of the last [`Self::gradient`] or [`Self::step`] (before Adam's clipping).
+    pub fn gradients(&self) -> &[f32] {
+        &self.grads
+    }
+
+    /// Replaces the parameters (e.g. another run's, to compare samplers on one model) and
+    /// rebuilds the grids from them.
+    pub fn set_parameters(&mut self, params: &[f32]) -> Result<()> {
+        if params.len() != self.state.params.len() {
+            bail!("{} parameters given, the model has {}", params.len(), self.state.params.len());
+        }
+        self.state.params.copy_from_slice(params);
+        self.state.grid_params.copy_from_slice(params);
+        if self.estimator.needs_updates() {
+            self.state.update_part = Some(self.part_at(self.progress()));
+            let report = self.rebuild_grids()?;
+            self.state.lipschitz = (report.lipschitz.measured * LIPSCHITZ_MARGIN).max(1.0);
+        }
+        Ok(())
+    }
+
+    /// Rebuilds the grids from another field at scale `s` (a known SDF, e.g. to check the guide
+    /// or to start from a prior); the next scheduled update returns to the backbone's SDF.
+    pub fn guide_from(&mut self, field: &dyn prob_grid::SdfField, s: f32) -> Result<UpdateReport> {
+        self.estimator.update(field, s).context("the grid update")
+    }
+
+    /// Rebuilds the grids from the current parameters now; returns the update's report.
+    pub fn update_grids(&mut self) -> Result<UpdateReport> {
+        self.state.grid_params.copy_from_slice(&self.state.params);
+        let report = self.rebuild_grids()?;
+        self.state.lipschitz = (report.lipschitz.measured * LIPSCHITZ_MARGIN).max(1.0);
+        Ok(report)
+    }
+
+    /// The rays of iteration `step` at `progress` and scale `s` (what [`Self::step`] trains on).
+    pub fn batch(&self, step: u64, progress: f64, s: f64) -> Batch {
+        let views: Vec<&datasets::View> = self.split.train.iter().map(|&i| &self.data.scene.views[i]).collect();
+        let drawn = self.estimator.draw(self.config.render.rays, progress, self.config.seed, step);
+        build_batch(&self.estimator, &views, self.use_masks, &self.backbone, &self.state.params, &self.sampling(), drawn, self.config.seed, step, s)
+    }
+
+    fn sampling(&self) -> Sampling {
+        let r = &self.config.render;
+        let guided = self.config.sampler == SamplerKind::Guided;
+        Sampling {
+            coarse: r.coarse,
+            fine: r.fine,
+            rounds: r.upsample_rounds,
+            upsample_s: r.upsample_s,
+            extra_points: if guided { self.config.guide.extra_points } else { 0 },
+            extra: self.config.guide.extra,
+        }
+    }
+
+    /// The state as a checkpoint: parameters, Adam, the grid parameters, and metadata (step,
+    /// the part of the grids, the Lipschitz claim, training time, the configuration).
+    pub fn checkpoint(&self) -> Checkpoint {
+        let mut c = Checkpoint::from_state(&self.state.params, &self.state.adam);
+        c.tensors.insert("grid_params".into(), self.state.grid_params.clone());
+        c.metadata.insert("step".into(), self.state.step.to_string());
+        c.metadata.insert("update_part".into(), self.state.update_part.map_or("none".into(), |p| p.to_string()));
+        c.metadata.insert("lipschitz".into(), self.state.lipschitz.to_string());
+        c.metadata.insert("train_seconds".into(), self.state.train_seconds.to_string());
+        c.metadata.insert("config".into(), self.config.to_toml());
+        c
+    }
+
+    /// Continues from `checkpoint`: it must come from a run of this very configuration (the
+    /// error names the keys that differ); the grids are rebuilt as they were.
+    pub fn restore(&mut self, checkpoint: &Checkpoint) -> Result<()> {
+        let meta = |key: &str| checkpoint.metadata.get(key).with_context(|| format!("the checkpoint has no {key:?} entry"));
+        let saved = TrainConfig::from_toml(meta("config")?).context("the checkpoint's configuration")?;
+        let changed = saved.differences(&self.config);
+        if !changed.is_empty() {
+            bail!("the configuration differs from the checkpoint's in: {} (a run resumes with its own configuration)", changed.join(", "));
+        }
+        let n = self.state.params.len();
+        let mut state = self.state.clone();
+        checkpoint.restore(&mut state.params, &mut state.adam)?;
+        state.grid_params.copy_from_slice(checkpoint.tensor("grid_params", n)?);
+        state.step = meta("step")?.parse().context("the checkpoint's step")?;
+        state.update_part = match meta("update_part")?.as_str() {
+            "none" => None,
+            p => Some(p.parse().context("the checkpoint's update_part")?),
+        };
+        state.lipschitz = meta("lipschitz")?.parse().context("the checkpoint's lipschitz")?;
+        state.train_seconds = meta("train_seconds")?.parse().context("the checkpoint's train_seconds")?;
+        self.state = state;
+        if let Some(levels) = self.backbone.levels() {
+            // The levels of the last iteration done.
+            let last = self.progress_at(self.state.step.saturating_sub(1), self.state.train_seconds);
+            self.backbone.set_active_levels(self.active_levels(levels, last));
+        }
+        if self.state.update_part.is_some() {
+            self.rebuild_grids()?;
+        }
+        Ok(())
+    }
+
+    /// Renders `rays` (forward only, parallel chunks).
+    pub fn render_rays(&self, rays: &[RayInput<f32>]) -> Vec<RayOutput<f32>> {
+        let params = &self.state.params;
+        rays.par_chunks(64).flat_map_iter(|c| self.backbone.loss(params, c, None, &NoSampleLoss).1).collect()
+    }
+
+    /// Renders view `view` of the scene at 1/`downscale` resolution (the estimator's coarse
+    /// samples without jitter, up-sampled), with its targets and mask.
+    pub fn render_view(&self, view: usize, downscale: u32) -> ViewRender {
+        let view = &self.data.scene.views[view];
+        let k = view.camera.intrinsics.downscaled(downscale, view.camera.pixel_centers);
+        let image = view.image.downscaled(downscale);
+        let mask = view.mask.as_ref().map(|m| m.downscaled(downscale));
+        let (width, height) = (image.width, image.height);
+        let camera = camera_geom::PinholeCamera { intrinsics: k, width, height, ..view.camera };
+        let r = &self.config.render;
+        let mut rays: Vec<RayInput<f32>> = (0..height)
+            .into_par_iter()
+            .flat_map_iter(|row| (0..width).map(move |col| (col, row)))
+            .map(|(col, row)| RayInput { target: image.get_f32(col, row), ..pixel_ray(&self.estimator, &camera, col, row, r.coarse, 0.5) })
+            .collect();
+        self.backbone.upsample(&self.state.params, &mut rays, r.fine, r.upsample_rounds, r.upsample_s);
+        let outputs = self.render_rays(&rays);
+        let target = rays.iter().map(|r| r.target).collect();
+        let mask = mask.map(|m| (0..height).flat_map(|r| (0..width).map(move |c| (c, r))).map(|(c, r)| m.get(c, r)).collect());
+        ViewRender { width, height, outputs, target, mask }
+    }
+
+    /// The pixel marginal of the guide for the training camera nearest in index to `view`.
+    pub fn pdf_heat_map(&self, view: usize) -> Option<RgbImage> {
+        let distributions = self.estimator.distributions();
+        if distributions.is_empty() {
+            return None;
+        }
+        let i = self.split.train.iter().position(|&v| v >= view).unwrap_or(0).min(distributions.len() - 1);
+        let (ru, rv, _) = distributions[i].resolution();
+        Some(heat_map(&distributions[i].pixel_marginal(), ru, rv, 4))
+    }
+
+    /// The zero level set of the current SDF (normalised frame) at `output.mesh_resolution`,
+    /// components filtered by `output.mesh_filter`; `progress(blocks done, blocks)`.
+    pub fn extract_mesh(&self, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<IsoMesh> {
+        Ok(self.extract_mesh_with_stats(progress)?.0)
+    }
+
+    /// [`Self::extract_mesh`] with (components found, components kept).
+    pub fn extract_mesh_with_stats(&self, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<(IsoMesh, usize, usize)> {
+        let mc = MarchingCubesConfig { resolution: self.config.output.mesh_resolution, block: 16, ..Default::default() };
+        let mut field = self.backbone.field(&self.state.params);
+        field.lipschitz = self.state.lipschitz;
+        let (mesh, _) = marching_cubes_with_progress(&field, &mc, progress)?;
+        Ok(self.filter_mesh(&mesh, self.config.output.mesh_filter))
+    }
+
+    /// `mesh` with its components filtered by `filter` (see [`MeshFilter`]): (mesh, found, kept).
+    pub fn filter_mesh(&self, mesh: &IsoMesh, filter: MeshFilter) -> (IsoMesh, usize, usize) {
+        filter_components(mesh, filter, &self.data.scene, &self.split.train, self.use_masks, self.config.output.min_component_area)
+    }
+
+    /// Vertex colours: each vertex rendered by a short ray coming to it along its normal.
+    pub fn vertex_colors(&self, mesh: &IsoMesh) -> Vec<[u8; 3]> {
+        let normals = prob_grid::vertex_normals(&mesh.vertices, &mesh.triangles);
+        let rays: Vec<RayInput<f32>> = mesh
+            .vertices
+            .iter()
+            .zip(&normals)
+            .map(|(p, n)| {
+                let n = if n.length() > 0.0 { *n } else { glam::Vec3::Z };
+                RayInput {
+                    origin: (*p + 0.05 * n).to_array(),
+                    direction: (-n).to_array(),
+                    depths: (0..=16).map(|i| i as f32 * 0.1 / 16.0).collect(),
+                    target: [0.0; 3],
+                    mask: None,
+                }
+            })
+            .collect();
+        self.render_rays(&rays).iter().map(|o| o.color.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)).collect()
+    }
+}

@@ -1,0 +1,169 @@
+//! Run folders under faults: resume with a changed configuration or a damaged checkpoint, failed
+//! runs that must leave no stray folder, write failures of each kind (through an injectable sink)
+//! that must keep the previous checkpoint, and `eval --run` values against the run's own.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use xtask::run::{AtomicFiles, Outcome, Sink, TrainArgs, checkpoint_path, train_with};
+
+/// A tiny guided run: 6 iterations on a 40 × 30 built-in scene, small grids and mesh.
+const TINY: &[&str] = &[
+    "steps=6",
+    "render.rays=32",
+    "render.coarse=8",
+    "render.fine=8",
+    "guide.extra_points=4",
+    "data.builtin.width=40",
+    "output.mesh_resolution=24",
+    "output.validate_every=0",
+    "output.checkpoint_every=2",
+    "output.eval_views=1",
+    "output.validate_downscale=4",
+    "guide.updates=3",
+    "guide.scene.resolution=16",
+    "guide.camera.ru=8",
+    "guide.camera.rv=8",
+    "guide.camera.rl=16",
+];
+
+fn xtask(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_xtask")).args(args).output().expect("xtask runs")
+}
+
+fn tiny_args(out: &Path) -> TrainArgs {
+    TrainArgs { out: out.to_path_buf(), overrides: TINY.iter().map(|s| s.to_string()).collect(), ..TrainArgs::default() }
+}
+
+#[test]
+fn resume_with_a_changed_configuration_or_a_damaged_checkpoint_is_refused_and_keeps_the_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let mut args: Vec<&str> = vec!["train", "--out", run.to_str().unwrap(), "--stop-at", "3"];
+    args.extend_from_slice(TINY);
+    assert_eq!(xtask(&args).status.code(), Some(130));
+    let ckpt = checkpoint_path(&run);
+    let original = std::fs::read(&ckpt).unwrap();
+    let resume = |extra: &[&str]| {
+        let mut a = vec!["train", "--resume", run.to_str().unwrap()];
+        a.extend_from_slice(extra);
+        let o = xtask(&a);
+        (o.status.success(), String::from_utf8_lossy(&o.stderr).to_string())
+    };
+    // Overrides on resume.
+    let (ok, err) = resume(&["steps=10"]);
+    assert!(!ok && err.contains("overrides"), "{err}");
+    // config.toml edited by hand: the keys that differ are named.
+    let config_path = run.join("config.toml");
+    let config = std::fs::read_to_string(&config_path).unwrap();
+    std::fs::write(&config_path, config.replace("steps = 6", "steps = 9")).unwrap();
+    let (ok, err) = resume(&[]);
+    assert!(!ok && err.contains("steps") && err.contains("differs"), "{err}");
+    std::fs::write(&config_path, &config).unwrap();
+    // A truncated and a corrupt checkpoint.
+    for damaged in [original[..original.len() / 2].to_vec(), original.iter().map(|b| b ^ 0x5a).collect::<Vec<u8>>()] {
+        std::fs::write(&ckpt, &damaged).unwrap();
+        let (ok, err) = resume(&[]);
+        assert!(!ok && err.contains("checkpoint.safetensors"), "{err}");
+        assert!(!err.contains("panicked"), "{err}");
+        assert!(std::fs::read(&ckpt).unwrap() == damaged, "the checkpoint was touched");
+    }
+    // The intact checkpoint resumes.
+    std::fs::write(&ckpt, &original).unwrap();
+    let (ok, err) = resume(&[]);
+    assert!(ok, "{err}");
+}
+
+#[test]
+fn a_failed_run_leaves_no_stray_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    // Bad data: fails before anything is created.
+    let out = dir.path().join("bad_data");
+    let o = xtask(&["train", "--out", out.to_str().unwrap(), "--data", "/nonexistent/scan"]);
+    assert!(!o.status.success() && !out.exists());
+    // A write that fails before the first checkpoint: the folder it created is removed.
+    let out = dir.path().join("failed_write");
+    struct FailConfig;
+    impl Sink for FailConfig {
+        fn write(&self, path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+            if path.ends_with("data.json") { Err(std::io::Error::other("disk full (injected)")) } else { AtomicFiles.write(path, bytes) }
+        }
+    }
+    let err = train_with(&tiny_args(&out), &AtomicBool::new(false), Arc::new(FailConfig)).expect_err("the run fails");
+    assert!(format!("{err:#}").contains("data.json") && format!("{err:#}").contains("disk full"), "{err:#}");
+    assert!(!out.exists(), "a stray run folder was left");
+    // A folder that existed before is never removed.
+    let existing = dir.path().join("existing");
+    std::fs::create_dir_all(&existing).unwrap();
+    std::fs::write(existing.join("notes.txt"), "mine").unwrap();
+    assert!(train_with(&tiny_args(&existing), &AtomicBool::new(false), Arc::new(FailConfig)).is_err());
+    assert_eq!(std::fs::read_to_string(existing.join("notes.txt")).unwrap(), "mine");
+}
+
+/// A sink that fails on the n-th write of files whose name contains `pattern`, and records what
+/// the checkpoint held before each write.
+struct FailNth {
+    run: PathBuf,
+    pattern: &'static str,
+    fail_at: usize,
+    count: AtomicUsize,
+    checkpoint_before_failure: Mutex<Option<Vec<u8>>>,
+}
+
+impl Sink for FailNth {
+    fn write(&self, path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+        if path.to_string_lossy().contains(self.pattern) {
+            let n = self.count.fetch_add(1, Ordering::SeqCst) + 1;
+            if n == self.fail_at {
+                let ckpt = std::fs::read(checkpoint_path(&self.run)).ok();
+                *self.checkpoint_before_failure.lock().unwrap() = ckpt;
+                return Err(std::io::Error::other("no space left on device (injected)"));
+            }
+        }
+        AtomicFiles.write(path, bytes)
+    }
+}
+
+#[test]
+fn write_failures_name_the_file_and_keep_the_previous_checkpoint() {
+    // (file pattern, which write of it fails): the second checkpoint, the mesh, a picture, the
+    // metrics.
+    for (pattern, fail_at) in [("checkpoint.safetensors", 2), ("mesh.ply", 1), ("pictures/", 1), ("metrics.json", 1)] {
+        let dir = tempfile::tempdir().unwrap();
+        let out: PathBuf = dir.path().join("run");
+        let sink = Arc::new(FailNth { run: out.clone(), pattern, fail_at, count: AtomicUsize::new(0), checkpoint_before_failure: Mutex::new(None) });
+        let result = train_with(&tiny_args(&out), &AtomicBool::new(false), sink.clone());
+        let err = result.err().unwrap_or_else(|| panic!("{pattern}: the run succeeded"));
+        let msg = format!("{err:#}");
+        assert!(msg.contains(pattern.trim_end_matches('/')) && msg.contains("no space left"), "{pattern}: {msg}");
+        // The checkpoint on disk is the one that was there before the failed write.
+        let before = sink.checkpoint_before_failure.lock().unwrap().clone();
+        let now = std::fs::read(checkpoint_path(&out)).ok();
+        assert!(now == before, "{pattern}: the previous checkpoint changed");
+        if pattern == "checkpoint.safetensors" {
+            assert!(now.is_some(), "the first checkpoint must survive the failure of the second");
+        }
+    }
+}
+
+#[test]
+fn eval_of_a_run_reproduces_the_runs_own_psnr() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let Outcome::Finished(summary) = train_with(&tiny_args(&out), &AtomicBool::new(false), Arc::new(AtomicFiles)).unwrap() else {
+        panic!("the run was stopped")
+    };
+    let o = xtask(&["eval", "--run", out.to_str().unwrap(), "--downscale", "4", "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let eval: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    // The run's metrics are on the first of its evaluation views at the same downscale.
+    let view = summary.metrics["psnr_views"][0].as_u64().unwrap();
+    let per_view = eval["per_view"].as_array().unwrap().iter().find(|p| p["view"].as_u64() == Some(view)).expect("the view is evaluated");
+    let (a, b) = (per_view["psnr"].as_f64().unwrap(), summary.metrics["psnr_per_view"][0]["whole"].as_f64().unwrap());
+    assert!((a - b).abs() < 1e-6, "eval --run gives {a} dB, the run {b} dB on view {view}");
+    let masked = per_view["psnr_masked"].as_f64().unwrap();
+    assert!(a.is_finite() && a > 5.0 && masked.is_finite() && masked > 5.0, "{per_view}");
+    // SSIM needs images larger than its window: none at this size.
+    assert!(eval["ssim"].is_null() || eval["ssim"].as_f64().is_some_and(|s| s > 0.0 && s <= 1.0), "{}", eval["ssim"]);
+}

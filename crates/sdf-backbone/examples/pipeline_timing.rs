@@ -5,6 +5,12 @@ use sdf_backbone::*;
 use std::time::Instant;
 
 fn main() {
+    if std::env::var("BREAKDOWN").is_ok() {
+        breakdown();
+        kernels();
+        softplus_speed();
+        return;
+    }
     let args: Vec<usize> = std::env::args().skip(1).filter_map(|a| a.parse().ok()).collect();
     let (n_rays, n_samples) = (args.first().copied().unwrap_or(512), args.get(1).copied().unwrap_or(64));
     let (pipeline, params) = build(Preset::NeuralangeloCpu, 0.5, 1);
@@ -25,7 +31,7 @@ fn main() {
     // Rays per work item (each has its own gradient buffer and goes through each network at once).
     let chunk = args.get(2).copied().unwrap_or(32);
     let _ = pipeline.loss_parallel(&params, &rays, &mut grads, chunk, &NoSampleLoss);
-    let steps = 3;
+    let steps = std::env::var("STEPS").ok().and_then(|s| s.parse().ok()).unwrap_or(3);
     let t = Instant::now();
     for _ in 0..steps {
         grads.fill(0.0);
@@ -38,4 +44,110 @@ fn main() {
         per_step,
         rayon::current_num_threads()
     );
+}
+
+/// Seconds per call of `f`, best of three after a warm-up.
+fn best<F: FnMut()>(mut f: F) -> f64 {
+    f();
+    (0..3)
+        .map(|_| {
+            let t = Instant::now();
+            f();
+            t.elapsed().as_secs_f64()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// The parts of a step on one thread: hash grid and MLPs, forward and backward, on the rows of
+/// one 32-ray work item of 128 samples (run with `BREAKDOWN=1`).
+#[allow(dead_code)]
+fn breakdown() {
+    let (pipeline, params) = build(Preset::NeuralangeloCpu, 0.5, 1);
+    let layout = pipeline.layout();
+    let rows = 32 * (5 * 128 + 1);
+    let x: Vec<f32> = (0..3 * rows).map(|i| ((i * 7919) % 2000) as f32 / 1000.0 - 1.0).collect();
+    let enc = &pipeline.sdf.a;
+    let (n_enc, enc_ctx) = (Module::<f32>::n_outputs(enc), Module::<f32>::ctx_per_row(enc));
+    let mut e = vec![0.0f32; rows * n_enc];
+    let mut ec = vec![0.0f32; rows * enc_ctx];
+    let pe = &params[layout.encoding.clone()];
+    let t_enc_f = best(|| enc.forward(pe, &x, &mut e, &mut ec));
+    let de = vec![1e-3f32; rows * n_enc];
+    let mut g = vec![0.0f32; params.len()];
+    let t_enc_b = best(|| enc.backward(pe, &x, &ec, &de, &mut g[layout.encoding.clone()], None));
+    let mlp = &pipeline.sdf.b;
+    let pm = &params[layout.sdf_mlp.clone()];
+    let mut y = vec![0.0f32; rows * 16];
+    let mut mc = vec![0.0f32; rows * Module::<f32>::ctx_per_row(mlp)];
+    let t_mlp_f = best(|| mlp.forward(pm, &e, &mut y, &mut mc));
+    let dy = vec![1e-3f32; rows * 16];
+    let mut de2 = vec![0.0f32; rows * n_enc];
+    let t_mlp_b = best(|| mlp.backward(pm, &e, &mc, &dy, &mut g[layout.sdf_mlp.clone()], Some(&mut de2)));
+    println!(
+        "one work item ({rows} SDF rows), one thread: hash grid forward {:.1} ms, backward {:.1} ms; SDF MLP forward {:.1} ms, backward {:.1} ms",
+        t_enc_f * 1e3,
+        t_enc_b * 1e3,
+        t_mlp_f * 1e3,
+        t_mlp_b * 1e3
+    );
+}
+
+/// The kernels alone on 20 512 rows: a 64 → 64 layer with and without softplus.
+#[allow(dead_code)]
+fn kernels() {
+    use sdf_backbone::kernels::{Strided, dense_forward, dispatch, gemm};
+    let rows = 20512;
+    let a: Vec<f32> = (0..rows * 64).map(|i| ((i * 7919) % 2000) as f32 / 1000.0 - 1.0).collect();
+    let wt: Vec<f32> = (0..64 * 64).map(|i| ((i * 31) % 100) as f32 / 100.0 - 0.5).collect();
+    let bias = vec![0.01f32; 64];
+    let mut y = vec![0.0f32; rows * 64];
+    let mut d = vec![0.0f32; rows * 64];
+    let flop = 2.0 * (rows * 64 * 64) as f64;
+    for act in [Activation::Identity, Activation::Relu, Activation::Softplus { beta: 100.0 }] {
+        let t = best(|| {
+            dispatch(
+                #[inline(always)]
+                || dense_forward(&a, 64, 64, &wt, &bias, 64, act, 1.0, &mut y, 64, 0, &mut d, rows),
+            )
+        });
+        println!("dense_forward 64 → 64, {act:?}: {:.2} ms = {:.1} GFLOP/s", t * 1e3, flop / t / 1e9);
+    }
+    let mut c = vec![0.0f32; rows * 64];
+    let t = best(|| {
+        dispatch(
+            #[inline(always)]
+            || gemm(&mut c, 64, Strided { data: &a, sm: 64, sk: 1 }, &wt, 64, rows, 64, 64, false),
+        )
+    });
+    println!("gemm rows × 64 · 64 × 64: {:.2} ms = {:.1} GFLOP/s", t * 1e3, flop / t / 1e9);
+    let mut dw = vec![0.0f32; 64 * 64];
+    let t = best(|| {
+        dispatch(
+            #[inline(always)]
+            || gemm(&mut dw, 64, Strided { data: &a, sm: 1, sk: 64 }, &a, 64, 64, 64, rows, false),
+        )
+    });
+    println!("gemm (dW) 64 × rows · rows × 64: {:.2} ms = {:.1} GFLOP/s", t * 1e3, flop / t / 1e9);
+}
+
+/// Softplus alone over an array, inside the dispatch.
+#[allow(dead_code)]
+fn softplus_speed() {
+    use sdf_backbone::kernels::dispatch;
+    let z: Vec<f32> = (0..1 << 20).map(|i| ((i * 7919) % 2000) as f32 / 1000.0 - 1.0).collect();
+    let mut y = vec![0.0f32; z.len()];
+    let mut d = vec![0.0f32; z.len()];
+    let t = best(|| {
+        dispatch(
+            #[inline(always)]
+            || {
+                for ((zi, yi), di) in z.iter().zip(y.iter_mut()).zip(d.iter_mut()) {
+                    let (a, b) = zi.softplus_with_derivative(100.0);
+                    *yi = a;
+                    *di = b;
+                }
+            },
+        )
+    });
+    println!("softplus over 2^20 values: {:.2} ns per value", t * 1e9 / z.len() as f64);
 }

@@ -223,7 +223,7 @@ pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
     // The paper-scale presets skip the fit (minutes on a CPU): their max error is ~0.1.
     match preset {
         Preset::NeuralangeloCpu => fit_sphere(&backbone.sdf, &mut params[..layout.sdf_mlp.end], radius, 200, seed + 3),
-        Preset::NeusCpu => fit_sphere(&backbone.sdf, &mut params[..layout.sdf_mlp.end], radius, 800, seed + 3),
+        Preset::NeusCpu => fit_sphere(&backbone.sdf, &mut params[..layout.sdf_mlp.end], radius, 1000, seed + 3),
         Preset::Neuralangelo | Preset::Neus => {}
     }
     backbone.color.init_default(&mut params[layout.color.clone()], seed + 2);

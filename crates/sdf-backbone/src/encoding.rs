@@ -170,7 +170,10 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
         let rows = input.len() / n_in;
         let n_out = n_in + n_enc;
         let enc_ctx = &ctx[..rows * self.encoding.ctx_per_row()];
-        let d_enc: Vec<R> = (0..rows).flat_map(|r| d_output[r * n_out + n_in..(r + 1) * n_out].iter().copied()).collect();
+        let mut d_enc = crate::scratch::Buf::<R>::zeroed(rows * n_enc);
+        for (dst, src) in d_enc.chunks_exact_mut(n_enc).zip(d_output.chunks_exact(n_out)) {
+            dst.copy_from_slice(&src[n_in..]);
+        }
         match d_input {
             Some(d_in) => {
                 self.encoding.backward(params, input, enc_ctx, &d_enc, d_params, Some(&mut *d_in));

@@ -9,6 +9,7 @@
 
 use crate::module::Module;
 use crate::real::Real;
+use crate::scratch::Buf;
 
 /// Hash-grid shape.
 #[derive(Debug, Clone, PartialEq)]
@@ -71,7 +72,7 @@ impl HashGrid {
         }
     }
 
-    #[inline]
+    #[inline(always)]
     fn vertex_index(&self, level: usize, v: [u32; 3]) -> usize {
         let n = self.resolutions[level] as usize + 1;
         if self.dense[level] {
@@ -83,7 +84,7 @@ impl HashGrid {
 
     /// For one point and level: the 8 vertex table indices, their trilinear weights and the
     /// weights' derivatives with respect to x (chain rule through p = (x + 1)/2 · N).
-    #[inline]
+    #[inline(always)]
     fn corners<R: Real>(&self, level: usize, x: &[R]) -> ([usize; 8], [R; 8], [[R; 3]; 8]) {
         let n = self.resolutions[level];
         let scale = R::of(n as f64 * 0.5);
@@ -99,9 +100,9 @@ impl HashGrid {
             }
             // The last cell is closed: p = N is its far face (frac = 1), never a cell N (whose
             // corners N + 1 would read another row of a dense table).
-            let c = p.to_f64().floor().min(f64::from(n) - 1.0);
-            cell[d] = c as u32;
-            frac[d] = p - R::of(c);
+            let c = p.floor().min(R::of(f64::from(n) - 1.0));
+            cell[d] = c.to_f64() as u32;
+            frac[d] = p - c;
         }
         let mut idx = [0usize; 8];
         let mut w = [R::ZERO; 8];
@@ -132,44 +133,171 @@ impl<R: Real> Module<R> for HashGrid {
         0
     }
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], _: &mut [R]) {
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || self.forward_rows(params, input, output),
+        );
+    }
+    fn backward(&self, params: &[R], input: &[R], _: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || self.backward_rows(params, input, d_output, d_params, d_input),
+        );
+    }
+}
+
+/// The 8 corners of the cell around `p` (one point) on a level of resolution `n`: table indices
+/// (dense `(n + 1)³` layout or spatial hash masked by `mask`) and trilinear weights. Written for
+/// vectorisation across points: no branches, no float → int conversion.
+#[inline(always)]
+fn corner_weights<R: Real, const DENSE: bool>(p: &[R], n: u32, mask: u32) -> ([u32; 8], [R; 8]) {
+    let scale = R::of(f64::from(n) * 0.5);
+    let (nf, last) = (R::of(f64::from(n)), R::of(f64::from(n) - 1.0));
+    let mut cell = [0u32; 3];
+    let mut fr = [R::ZERO; 3];
+    for d in 0..3 {
+        let q = ((p[d] + R::ONE) * scale).max(R::ZERO).min(nf);
+        // The last cell is closed: q = N is its far face (frac = 1).
+        let c = q.floor().min(last);
+        cell[d] = c.small_index();
+        fr[d] = q - c;
+    }
+    let n1 = n + 1;
+    let mut idx = [0u32; 8];
+    let mut w = [R::ZERO; 8];
+    for c in 0..8u32 {
+        let (bx, by, bz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
+        let (ix, iy, iz) = (cell[0] + bx, cell[1] + by, cell[2] + bz);
+        idx[c as usize] = if DENSE { ix + n1 * (iy + n1 * iz) } else { (ix ^ iy.wrapping_mul(2_654_435_761) ^ iz.wrapping_mul(805_459_861)) & mask };
+        let wx = if bx == 1 { fr[0] } else { R::ONE - fr[0] };
+        let wy = if by == 1 { fr[1] } else { R::ONE - fr[1] };
+        let wz = if bz == 1 { fr[2] } else { R::ONE - fr[2] };
+        w[c as usize] = wx * wy * wz;
+    }
+    (idx, w)
+}
+
+/// One level's features for every row into `out` (rows × F, level-major). Table reads go
+/// through `get` (out of range reads 0, which the indices never are): a bounds check that panics
+/// is an early exit, and loops with early exits do not vectorise.
+#[inline(always)]
+fn level_features<R: Real, const F: usize, const DENSE: bool>(table: &[R], n: u32, mask: u32, input: &[R], out: &mut [R]) {
+    for (p, o) in input.chunks_exact(3).zip(out.chunks_exact_mut(F)) {
+        let (idx, w) = corner_weights::<R, DENSE>(p, n, mask);
+        let mut acc = [R::ZERO; F];
+        for c in 0..8 {
+            let at = idx[c] as usize * F;
+            for k in 0..F {
+                acc[k] = w[c].mul_add(table.get(at + k).copied().unwrap_or(R::ZERO), acc[k]);
+            }
+        }
+        o.copy_from_slice(&acc);
+    }
+}
+
+/// One level's corner indices and weights for every row (rows × 8 each).
+#[inline(always)]
+fn level_corners<R: Real, const DENSE: bool>(n: u32, mask: u32, input: &[R], idx: &mut [u32], w: &mut [R]) {
+    for ((p, i), wr) in input.chunks_exact(3).zip(idx.chunks_exact_mut(8)).zip(w.chunks_exact_mut(8)) {
+        let (ci, cw) = corner_weights::<R, DENSE>(p, n, mask);
+        i.copy_from_slice(&ci);
+        wr.copy_from_slice(&cw);
+    }
+}
+
+impl HashGrid {
+    /// Level-major, one level's table (512 KB for the CPU preset) at a time, so that its
+    /// gathers and scatters stay in the cache; the rows of a level are vectorised (gathers).
+    #[inline(always)]
+    fn forward_rows<R: Real>(&self, params: &[R], input: &[R], output: &mut [R]) {
         let f = self.config.features;
         let n_out = self.config.levels * f;
-        for (x, y) in input.chunks_exact(3).zip(output.chunks_exact_mut(n_out)) {
-            y.fill(R::ZERO);
-            for level in 0..self.active_levels.min(self.config.levels) {
-                let (idx, w, _) = self.corners(level, x);
-                let base = level * self.table * f;
-                for c in 0..8 {
-                    let feature = &params[base + idx[c] * f..base + idx[c] * f + f];
-                    for k in 0..f {
-                        y[level * f + k] += w[c] * feature[k];
+        let rows = input.len() / 3;
+        output.fill(R::ZERO);
+        let mut level_out = Buf::<R>::zeroed(rows * f);
+        let mask = (self.table - 1) as u32;
+        for level in 0..self.active_levels.min(self.config.levels) {
+            let base = level * self.table * f;
+            let table = &params[base..base + self.table * f];
+            let (n, dense) = (self.resolutions[level], self.dense[level]);
+            macro_rules! run {
+                ($f:expr) => {
+                    if dense {
+                        level_features::<R, $f, true>(table, n, mask, input, &mut level_out)
+                    } else {
+                        level_features::<R, $f, false>(table, n, mask, input, &mut level_out)
+                    }
+                };
+            }
+            match f {
+                1 => run!(1),
+                2 => run!(2),
+                4 => run!(4),
+                8 => run!(8),
+                _ => {
+                    for (x, y) in input.chunks_exact(3).zip(level_out.chunks_exact_mut(f)) {
+                        let (idx, w, _) = self.corners(level, x);
+                        y.fill(R::ZERO);
+                        for c in 0..8 {
+                            for k in 0..f {
+                                y[k] = w[c].mul_add(table[idx[c] * f + k], y[k]);
+                            }
+                        }
                     }
                 }
             }
+            for (y, l) in output.chunks_exact_mut(n_out).zip(level_out.chunks_exact(f)) {
+                y[level * f..level * f + f].copy_from_slice(l);
+            }
         }
     }
-    fn backward(&self, params: &[R], input: &[R], _: &[R], d_output: &[R], d_params: &mut [R], mut d_input: Option<&mut [R]>) {
+
+    #[inline(always)]
+    fn backward_rows<R: Real>(&self, params: &[R], input: &[R], d_output: &[R], d_params: &mut [R], mut d_input: Option<&mut [R]>) {
         let f = self.config.features;
         let n_out = self.config.levels * f;
-        for (row, (x, dy)) in input.chunks_exact(3).zip(d_output.chunks_exact(n_out)).enumerate() {
-            let mut dx = [R::ZERO; 3];
-            for level in 0..self.active_levels.min(self.config.levels) {
-                let (idx, w, dw) = self.corners(level, x);
-                let base = level * self.table * f;
+        let rows = input.len() / 3;
+        if let Some(d_in) = d_input.as_deref_mut() {
+            d_in.fill(R::ZERO);
+        }
+        let mut idx = Buf::<u32>::zeroed(rows * 8);
+        let mut w = Buf::<R>::zeroed(rows * 8);
+        let mask = (self.table - 1) as u32;
+        for level in 0..self.active_levels.min(self.config.levels) {
+            let base = level * self.table * f;
+            let (n, dense) = (self.resolutions[level], self.dense[level]);
+            // Corners of every row (vectorised), then the scatter (sequential: rows share entries).
+            if dense {
+                level_corners::<R, true>(n, mask, input, &mut idx, &mut w);
+            } else {
+                level_corners::<R, false>(n, mask, input, &mut idx, &mut w);
+            }
+            let d_table = &mut d_params[base..base + self.table * f];
+            for ((ri, rw), dy) in idx.chunks_exact(8).zip(w.chunks_exact(8)).zip(d_output.chunks_exact(n_out)) {
+                let dy = &dy[level * f..level * f + f];
                 for c in 0..8 {
-                    let at = base + idx[c] * f;
-                    let mut g = R::ZERO;
+                    let at = ri[c] as usize * f;
                     for k in 0..f {
-                        d_params[at + k] += w[c] * dy[level * f + k];
-                        g += params[at + k] * dy[level * f + k];
-                    }
-                    for d in 0..3 {
-                        dx[d] += g * dw[c][d];
+                        d_table[at + k] = rw[c].mul_add(dy[k], d_table[at + k]);
                     }
                 }
             }
             if let Some(d_in) = d_input.as_deref_mut() {
-                d_in[3 * row..3 * row + 3].copy_from_slice(&dx);
+                let table = &params[base..base + self.table * f];
+                for (row, (x, dy)) in input.chunks_exact(3).zip(d_output.chunks_exact(n_out)).enumerate() {
+                    let dy = &dy[level * f..level * f + f];
+                    let (idx, _, dw) = self.corners(level, x);
+                    for c in 0..8 {
+                        let at = idx[c] * f;
+                        let mut g = R::ZERO;
+                        for k in 0..f {
+                            g += table[at + k] * dy[k];
+                        }
+                        for d in 0..3 {
+                            d_in[3 * row + d] += g * dw[c][d];
+                        }
+                    }
+                }
             }
         }
     }

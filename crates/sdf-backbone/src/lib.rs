@@ -25,12 +25,14 @@
 pub mod backbone;
 pub mod encoding;
 pub mod hashgrid;
+pub mod kernels;
 pub mod mlp;
 pub mod module;
 pub mod optim;
 pub mod pipeline;
 pub mod real;
 pub mod render;
+pub mod scratch;
 
 pub use backbone::{Backbone, BackboneError, BackboneField, Checkpoint, InputEncoding, ParamLayout, Preset, SdfNet, adam_step, build};
 pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};

@@ -1,9 +1,9 @@
 //! Dense layers with activations, an optional skip connection, and NeuS's geometric initialisation.
 
+use crate::kernels::{Strided, dense_forward, gemm, pad};
 use crate::module::{Activation, Module};
 use crate::real::Real;
-use ndarray::linalg::general_mat_mul;
-use ndarray::{ArrayView2, ArrayViewMut2};
+use crate::scratch::Buf;
 use rand::{SeedableRng, rngs::Xoshiro256PlusPlus};
 use rand_distr::{Distribution, Normal};
 
@@ -115,9 +115,9 @@ impl Mlp {
         let mut out = vec![0.0f32; rows * self.config.n_outputs];
         let mut ctx = vec![0.0f32; rows * per_row];
         Module::<f32>::forward(self, params, inputs, &mut out, &mut ctx);
-        // The context is layer-major: the output layer's input A is a rows × n_in block.
-        let a_start = rows * self.layers[..self.layers.len() - 1].iter().map(|(i, o, _)| i + o).sum::<usize>();
-        let value = |r: usize, k: usize| ctx[a_start + r * n_in + k];
+        // The context is layer-major: the output layer's input A is a rows × pad(n_in) block.
+        let a_start = self.last_input_offset(rows);
+        let value = |r: usize, k: usize| ctx[a_start + r * pad(n_in) + k];
         // Normal equations for [w, b]: (AᵀA + λI) θ = Aᵀy, in f64.
         let m = n_in + 1;
         let mut ata = vec![0.0f64; m * m];
@@ -150,11 +150,35 @@ impl Mlp {
         b[0] = theta[n_in] as f32;
     }
 
-    /// Context values per row: each layer's input and activation slope. Layout: layer-major, for
-    /// each layer a rows × n_in block (its input A) then a rows × n_out block that holds
-    /// Z = A Wᵀ + b during the forward pass and act'(Z) after it (for the backward pass).
+    /// Context values per row: per layer, its input A (padded to [`crate::kernels::LANE`] columns) and the
+    /// derivative of its activation act'(Z) (padded likewise). The layout is layer-major: for
+    /// each layer a rows × in_pad block, then a rows × out_pad block.
     fn ctx_layout(&self) -> usize {
-        self.layers.iter().map(|(i, o, _)| i + o).sum()
+        self.layers.iter().map(|(i, o, _)| pad(*i) + pad(*o)).sum()
+    }
+
+    /// Offset of the output layer's input block in a context of `rows` rows.
+    fn last_input_offset(&self, rows: usize) -> usize {
+        rows * self.layers[..self.layers.len() - 1].iter().map(|(i, o, _)| pad(*i) + pad(*o)).sum::<usize>()
+    }
+
+    /// Weights of layer `l` packed for the kernels: Wᵀ (n_in × out_pad), W (n_out × in_pad) and
+    /// the bias (out_pad), zero-padded.
+    fn packed<R: Real>(&self, params: &[R], l: usize) -> (Vec<R>, Vec<R>, Vec<R>) {
+        let (n_in, n_out, off) = self.layers[l];
+        let (ip, op) = (pad(n_in), pad(n_out));
+        let w = &params[off..off + n_in * n_out];
+        let mut wt = vec![R::ZERO; n_in * op];
+        let mut wp = vec![R::ZERO; n_out * ip];
+        for o in 0..n_out {
+            for i in 0..n_in {
+                wt[i * op + o] = w[o * n_in + i];
+                wp[o * ip + i] = w[o * n_in + i];
+            }
+        }
+        let mut bias = vec![R::ZERO; op];
+        bias[..n_out].copy_from_slice(&params[off + n_in * n_out..off + n_in * n_out + n_out]);
+        (wt, wp, bias)
     }
 }
 
@@ -180,57 +204,61 @@ impl<R: Real> Module<R> for Mlp {
             return;
         }
         let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
-        let mut at = 0;
-        for (l, &(n_in, n_out, off)) in self.layers.iter().enumerate() {
-            let (done, rest) = ctx.split_at_mut(at);
-            let (a, rest) = rest.split_at_mut(rows * n_in);
-            let z = &mut rest[..rows * n_out];
-            // The layer's input A.
-            if l == 0 {
-                a.copy_from_slice(input);
-            } else {
-                // A from the previous Z; the previous Z's slot then keeps act'(Z) for backward.
-                let prev_out = self.layers[l - 1].1;
-                let start = done.len() - rows * prev_out;
-                let z_prev = &mut done[start..];
-                let act = self.config.hidden_activation;
-                if self.config.skip == Some(l) {
-                    for r in 0..rows {
-                        for k in 0..prev_out {
-                            let (y, d) = act.apply_with_derivative(z_prev[r * prev_out + k]);
-                            a[r * n_in + k] = y * inv_sqrt2;
-                            z_prev[r * prev_out + k] = d;
+        let packed: Vec<(Vec<R>, Vec<R>, Vec<R>)> = (0..self.layers.len()).map(|l| self.packed(params, l)).collect();
+        // The first layer's input block: the input, padded.
+        let ip0 = pad(n_x);
+        for (dst, src) in ctx[..rows * ip0].chunks_exact_mut(ip0).zip(input.chunks_exact(n_x)) {
+            dst[..n_x].copy_from_slice(src);
+            dst[n_x..].fill(R::ZERO);
+        }
+        let last = self.layers.len() - 1;
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || {
+                let mut at = 0;
+                for (l, &(n_in, n_out, _)) in self.layers.iter().enumerate() {
+                    let (ip, op) = (pad(n_in), pad(n_out));
+                    let (wt, _, bias) = &packed[l];
+                    let (head, rest) = ctx[at..].split_at_mut(rows * ip);
+                    let (d, next) = rest.split_at_mut(rows * op);
+                    let a = &*head;
+                    let (act, scale) = if l == last {
+                        (self.config.output_activation, R::ONE)
+                    } else if self.config.skip == Some(l + 1) {
+                        (self.config.hidden_activation, inv_sqrt2)
+                    } else {
+                        (self.config.hidden_activation, R::ONE)
+                    };
+                    if l == last {
+                        // Into a padded temporary, then the unpadded output.
+                        let mut y = Buf::<R>::zeroed(rows * op);
+                        dense_forward(a, ip, n_in, wt, bias, op, act, scale, &mut y, op, 0, d, rows);
+                        for (o, yr) in output.chunks_exact_mut(n_y).zip(y.chunks_exact(op)) {
+                            o.copy_from_slice(&yr[..n_y]);
                         }
-                        for k in 0..n_x {
-                            a[r * n_in + prev_out + k] = input[r * n_x + k] * inv_sqrt2;
+                    } else {
+                        // Straight into the next layer's input block (its padding stays zero).
+                        let next_ip = pad(self.layers[l + 1].0);
+                        let y = &mut next[..rows * next_ip];
+                        dense_forward(a, ip, n_in, wt, bias, op, act, scale, y, next_ip, 0, d, rows);
+                        if self.config.skip == Some(l + 1) {
+                            // [h, x] / √2: the raw input after the previous layer's output.
+                            for (row, x) in y.chunks_exact_mut(next_ip).zip(input.chunks_exact(n_x)) {
+                                for k in 0..n_x {
+                                    row[n_out + k] = x[k] * inv_sqrt2;
+                                }
+                                row[n_out + n_x..].fill(R::ZERO);
+                            }
+                        } else {
+                            for row in y.chunks_exact_mut(next_ip) {
+                                row[op..].fill(R::ZERO);
+                            }
                         }
                     }
-                } else {
-                    for (ai, zi) in a.iter_mut().zip(z_prev.iter_mut()) {
-                        let (y, d) = act.apply_with_derivative(*zi);
-                        *ai = y;
-                        *zi = d;
-                    }
+                    at += rows * (ip + op);
                 }
-            }
-            // Z = A Wᵀ + b: one matrix product per layer for the whole batch.
-            let (wt, bias) = params[off..off + n_in * n_out + n_out].split_at(n_in * n_out);
-            for row in z.chunks_exact_mut(n_out) {
-                row.copy_from_slice(bias);
-            }
-            let av = ArrayView2::from_shape((rows, n_in), &*a).expect("A shape");
-            let wv = ArrayView2::from_shape((n_out, n_in), wt).expect("W shape");
-            let mut zv = ArrayViewMut2::from_shape((rows, n_out), z).expect("Z shape");
-            general_mat_mul(R::ONE, &av, &wv.t(), R::ONE, &mut zv);
-            at += rows * (n_in + n_out);
-        }
-        let z_last = &mut ctx[at - rows * n_y..at];
-        let act = self.config.output_activation;
-        for (o, z) in output.iter_mut().zip(z_last.iter_mut()) {
-            let (y, d) = act.apply_with_derivative(*z);
-            *o = y;
-            *z = d;
-        }
+            },
+        );
     }
 
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
@@ -241,70 +269,95 @@ impl<R: Real> Module<R> for Mlp {
             return;
         }
         let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
-        // Block offsets of each layer's A and Z in the context.
+        // Block offsets of each layer's A and act'(Z) in the context.
         let mut starts = Vec::with_capacity(self.layers.len());
         let mut at = 0;
         for &(n_in, n_out, _) in &self.layers {
-            starts.push((at, at + rows * n_in));
-            at += rows * (n_in + n_out);
+            starts.push((at, at + rows * pad(n_in)));
+            at += rows * (pad(n_in) + pad(n_out));
         }
-        let last = self.layers.len() - 1;
-        // The Z slots hold act'(Z) after the forward pass.
-        let d_last = &ctx[starts[last].1..starts[last].1 + rows * n_y];
-        let mut dz: Vec<R> = d_output.iter().zip(d_last).map(|(d, g)| *d * *g).collect();
         let mut d_input = d_input;
-        let mut d_skip: Vec<R> = Vec::new();
-        for l in (0..self.layers.len()).rev() {
-            let (n_in, n_out, off) = self.layers[l];
-            let a = &ctx[starts[l].0..starts[l].0 + rows * n_in];
-            let (dw, db) = d_params[off..off + n_in * n_out + n_out].split_at_mut(n_in * n_out);
-            let wt = &params[off..off + n_in * n_out];
-            let dzv = ArrayView2::from_shape((rows, n_out), &dz[..]).expect("dZ shape");
-            // dW += dZᵀ A; db += Σ_rows dZ.
-            let av = ArrayView2::from_shape((rows, n_in), a).expect("A shape");
-            let mut dwv = ArrayViewMut2::from_shape((n_out, n_in), dw).expect("dW shape");
-            general_mat_mul(R::ONE, &dzv.t(), &av, R::ONE, &mut dwv);
-            for row in dz.chunks_exact(n_out) {
-                for (b, d) in db.iter_mut().zip(row) {
-                    *b += *d;
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || {
+                // dY of the output layer, padded.
+                let op_last = pad(n_y);
+                let mut dy = Buf::<R>::zeroed(rows * op_last);
+                for (dst, src) in dy.chunks_exact_mut(op_last).zip(d_output.chunks_exact(n_y)) {
+                    dst[..n_y].copy_from_slice(src);
                 }
-            }
-            if l == 0 && d_input.is_none() {
-                break;
-            }
-            // dA = dZ W.
-            let mut da = vec![R::ZERO; rows * n_in];
-            let wv = ArrayView2::from_shape((n_out, n_in), wt).expect("W shape");
-            let mut dav = ArrayViewMut2::from_shape((rows, n_in), &mut da[..]).expect("dA shape");
-            general_mat_mul(R::ONE, &dzv, &wv, R::ZERO, &mut dav);
-            if l == 0 {
-                if let Some(d_in) = d_input.as_deref_mut() {
-                    d_in.copy_from_slice(&da);
-                    for (d, s) in d_in.iter_mut().zip(&d_skip) {
-                        *d += *s;
+                let mut d_skip: Option<Buf<R>> = None;
+                for l in (0..self.layers.len()).rev() {
+                    let (n_in, n_out, off) = self.layers[l];
+                    let (ip, op) = (pad(n_in), pad(n_out));
+                    let a = &ctx[starts[l].0..starts[l].0 + rows * ip];
+                    let slope = &ctx[starts[l].1..starts[l].1 + rows * op];
+                    // dZ = dY ⊙ act'(Z), in place.
+                    for (g, s) in dy.iter_mut().zip(slope) {
+                        *g *= *s;
                     }
-                }
-                break;
-            }
-            let prev_out = self.layers[l - 1].1;
-            if self.config.skip == Some(l) && d_input.is_some() {
-                // The input's share of the skip concatenation, added at layer 0.
-                d_skip = vec![R::ZERO; rows * n_x];
-                for r in 0..rows {
-                    for k in 0..n_x {
-                        d_skip[r * n_x + k] = da[r * n_in + prev_out + k] * inv_sqrt2;
+                    // dW += dZᵀ A, db += Σ dZ.
+                    let mut dw = Buf::<R>::zeroed(n_out * ip);
+                    gemm(&mut dw, ip, Strided { data: &dy, sm: 1, sk: op }, a, ip, n_out, ip, rows, false);
+                    let (dwp, dbp) = d_params[off..off + n_in * n_out + n_out].split_at_mut(n_in * n_out);
+                    for o in 0..n_out {
+                        for i in 0..n_in {
+                            dwp[o * n_in + i] += dw[o * ip + i];
+                        }
                     }
+                    let mut db = vec![R::ZERO; op];
+                    for row in dy.chunks_exact(op) {
+                        for (b, g) in db.iter_mut().zip(row) {
+                            *b += *g;
+                        }
+                    }
+                    for (b, g) in dbp.iter_mut().zip(&db) {
+                        *b += *g;
+                    }
+                    if l == 0 && d_input.is_none() {
+                        break;
+                    }
+                    // dA = dZ W.
+                    let (_, wp, _) = self.packed(params, l);
+                    let mut da = Buf::<R>::zeroed(rows * ip);
+                    gemm(&mut da, ip, Strided { data: &dy, sm: op, sk: 1 }, &wp, ip, rows, ip, n_out, false);
+                    if l == 0 {
+                        if let Some(d_in) = d_input.as_deref_mut() {
+                            for (r, (dst, src)) in d_in.chunks_exact_mut(n_x).zip(da.chunks_exact(ip)).enumerate() {
+                                dst.copy_from_slice(&src[..n_x]);
+                                if let Some(d_skip) = &d_skip {
+                                    for k in 0..n_x {
+                                        dst[k] += d_skip[r * n_x + k];
+                                    }
+                                }
+                            }
+                        }
+                        break;
+                    }
+                    let prev_out = self.layers[l - 1].1;
+                    let prev_op = pad(prev_out);
+                    let skip = self.config.skip == Some(l);
+                    if skip && d_input.is_some() {
+                        // The input's share of the skip concatenation, added at layer 0.
+                        let mut skip_grad = Buf::<R>::zeroed(rows * n_x);
+                        for (dst, src) in skip_grad.chunks_exact_mut(n_x).zip(da.chunks_exact(ip)) {
+                            for k in 0..n_x {
+                                dst[k] = src[prev_out + k] * inv_sqrt2;
+                            }
+                        }
+                        d_skip = Some(skip_grad);
+                    }
+                    let scale = if skip { inv_sqrt2 } else { R::ONE };
+                    let mut next = Buf::<R>::zeroed(rows * prev_op);
+                    for (dst, src) in next.chunks_exact_mut(prev_op).zip(da.chunks_exact(ip)) {
+                        for k in 0..prev_out {
+                            dst[k] = src[k] * scale;
+                        }
+                    }
+                    dy = next;
                 }
-            }
-            let scale = if self.config.skip == Some(l) { inv_sqrt2 } else { R::ONE };
-            let d_prev = &ctx[starts[l - 1].1..starts[l - 1].1 + rows * prev_out];
-            dz = vec![R::ZERO; rows * prev_out];
-            for r in 0..rows {
-                for k in 0..prev_out {
-                    dz[r * prev_out + k] = da[r * n_in + k] * scale * d_prev[r * prev_out + k];
-                }
-            }
-        }
+            },
+        );
     }
 }
 

@@ -147,7 +147,7 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         let (dpa, dpb) = d_params.split_at_mut(self.a.n_params());
         let (ca, rest) = ctx.split_at(rows * self.a.ctx_per_row());
         let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
-        let mut d_mid = vec![R::ZERO; mid.len()];
+        let mut d_mid = crate::scratch::Buf::<R>::zeroed(mid.len());
         self.b.backward(pb, mid, cb, d_output, dpb, Some(&mut d_mid));
         self.a.backward(pa, input, ca, &d_mid, dpa, d_input);
     }

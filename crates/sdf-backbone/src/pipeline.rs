@@ -28,6 +28,7 @@ use crate::mlp::Mlp;
 use crate::module::Module;
 use crate::real::Real;
 use crate::render::{render_ray, render_ray_backward};
+use crate::scratch::Buf;
 
 /// Colour loss.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -223,22 +224,34 @@ impl<S, C> Pipeline<S, C> {
         let m = R::of(rays.len() as f64);
         let norm = self.color_normaliser::<R>(rays);
         let chunk = chunk.max(1);
-        let parts: Vec<(R, Vec<R>, Vec<RayOutput<R>>)> = rays
+        let parts: Vec<(R, Buf<R>, Vec<RayOutput<R>>)> = rays
             .par_chunks(chunk)
             .enumerate()
             .map(|(i, c)| {
-                let mut g = vec![R::ZERO; n];
+                let mut g = Buf::<R>::zeroed(n);
                 let (l, o) = self.accumulate(params, c, i * chunk, Some(&mut g), m, norm, extra);
                 (l, g, o)
             })
             .collect();
         let mut loss = R::ZERO;
         let mut outputs = Vec::with_capacity(rays.len());
+        let mut grads = Vec::with_capacity(parts.len());
         for (l, g, o) in parts {
             loss += l;
-            d_params.par_iter_mut().zip(g.par_iter()).for_each(|(d, g)| *d += *g);
+            grads.push(g);
             outputs.extend(o);
         }
+        // Σ over chunks in chunk order, in parallel over the parameters.
+        d_params.par_chunks_mut(1 << 14).enumerate().for_each(|(block, d)| {
+            let (start, len) = (block << 14, d.len());
+            for g in &grads {
+                for (d, g) in d.iter_mut().zip(&g[start..start + len]) {
+                    *d += *g;
+                }
+            }
+        });
+        // Back to the workers' pools (not the calling thread's).
+        grads.into_par_iter().for_each(drop);
         (loss, outputs)
     }
 
@@ -342,31 +355,34 @@ impl<S, C> Pipeline<S, C> {
             sdf_rows += (np + 1) * n + 1;
             col_rows += n;
         }
-        let mut points = Vec::with_capacity(3 * sdf_rows);
+        let mut points = Buf::<R>::zeroed(3 * sdf_rows);
+        let mut at = 0;
         for ray in rays {
             let n = ray.depths.len() - 1;
-            let base = points.len();
+            let base = at;
             for &t in &ray.depths {
                 for k in 0..3 {
-                    points.push(ray.origin[k] + t * ray.direction[k]);
+                    points[at + k] = ray.origin[k] + t * ray.direction[k];
                 }
+                at += 3;
             }
             for i in 0..n {
                 for (offset, _) in probes {
                     for k in 0..3 {
-                        points.push(points[base + 3 * i + k] + R::of(offset[k]) * h);
+                        points[at + k] = points[base + 3 * i + k] + R::of(offset[k]) * h;
                     }
+                    at += 3;
                 }
             }
         }
-        let mut sdf_out = vec![R::ZERO; sdf_rows * n_out];
-        let mut sdf_ctx = vec![R::ZERO; sdf_rows * self.sdf.ctx_per_row()];
+        let mut sdf_out = Buf::<R>::zeroed(sdf_rows * n_out);
+        let mut sdf_ctx = Buf::<R>::zeroed(sdf_rows * self.sdf.ctx_per_row());
         self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
 
         // Normals and colour-network inputs [x, n, SH(d), features] of every interval.
         let mut normals: Vec<[R; 3]> = Vec::with_capacity(col_rows);
         let mut sh_all: Vec<[R; 16]> = Vec::with_capacity(rays.len());
-        let mut color_in = vec![R::ZERO; col_rows * c_in];
+        let mut color_in = Buf::<R>::zeroed(col_rows * c_in);
         for (r, ray) in rays.iter().enumerate() {
             let n = ray.depths.len() - 1;
             let (b, c0) = (sdf_at[r], col_at[r]);
@@ -390,8 +406,8 @@ impl<S, C> Pipeline<S, C> {
                 row[22..].copy_from_slice(&sdf_out[(b + i) * n_out + 1..(b + i + 1) * n_out]);
             }
         }
-        let mut colors_flat = vec![R::ZERO; col_rows * 3];
-        let mut color_ctx = vec![R::ZERO; col_rows * self.color.ctx_per_row()];
+        let mut colors_flat = Buf::<R>::zeroed(col_rows * 3);
+        let mut color_ctx = Buf::<R>::zeroed(col_rows * self.color.ctx_per_row());
         self.color.forward(p_col, &color_in, &mut colors_flat, &mut color_ctx);
         // Learned background of every ray.
         let mut bg_out = vec![R::ZERO; 3 * rays.len()];
@@ -407,10 +423,10 @@ impl<S, C> Pipeline<S, C> {
         let backward = d_params.is_some();
         let inv_m = R::ONE / m;
         // Per-row gradients gathered for one backward pass per network.
-        let mut d_colors_flat = if backward { vec![R::ZERO; col_rows * 3] } else { Vec::new() };
-        let mut d_sdf_direct = if backward { vec![R::ZERO; sdf_rows] } else { Vec::new() };
+        let mut d_colors_flat = Buf::<R>::zeroed(if backward { col_rows * 3 } else { 0 });
+        let mut d_sdf_direct = Buf::<R>::zeroed(if backward { sdf_rows } else { 0 });
         let mut d_normals_all = if backward { vec![[R::ZERO; 3]; col_rows] } else { Vec::new() };
-        let mut d_laplacian_all = if backward { vec![R::ZERO; col_rows] } else { Vec::new() };
+        let mut d_laplacian_all = Buf::<R>::zeroed(if backward { col_rows } else { 0 });
         let mut d_bg_all = if backward { vec![R::ZERO; 3 * rays.len()] } else { Vec::new() };
         let mut d_var = R::ZERO;
         for (r, ray) in rays.iter().enumerate() {
@@ -548,10 +564,10 @@ impl<S, C> Pipeline<S, C> {
             net.backward(p_bg, &sh_flat, &bg_ctx, &d_bg_all, &mut d_rest[1..], None);
         }
         // Colour network backward → ∂L/∂n, ∂L/∂features.
-        let mut d_color_in = vec![R::ZERO; col_rows * c_in];
+        let mut d_color_in = Buf::<R>::zeroed(col_rows * c_in);
         self.color.backward(p_col, &color_in, &color_ctx, &d_colors_flat, d_col_params, Some(&mut d_color_in));
         // ∂L/∂(SDF outputs) at every point.
-        let mut d_sdf_out = vec![R::ZERO; sdf_rows * n_out];
+        let mut d_sdf_out = Buf::<R>::zeroed(sdf_rows * n_out);
         for (r, ray) in rays.iter().enumerate() {
             let n = ray.depths.len() - 1;
             let (b, c0) = (sdf_at[r], col_at[r]);

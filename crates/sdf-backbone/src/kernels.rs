@@ -1,0 +1,234 @@
+//! Dense-layer kernels at the CPU's vector width, without `unsafe`: plain Rust loops over
+//! fixed-size tiles, compiled once per instruction set and chosen at run time by `pulp`
+//! (AVX-512 where the CPU has it, else AVX2 + FMA, else SSE2). The loops are written so that
+//! LLVM vectorises them: register tiles of `MR` rows × `W` columns (`W` a multiple of 16 floats,
+//! one AVX-512 register per 16), column counts padded to a multiple of [`LANE`] (zeros in the
+//! padding), fused multiply-adds.
+//!
+//! One micro-kernel serves every product of a layer: `C[m][0..n] (+)= Σₖ L(m, k) · B[k][0..n]`
+//! with L read through strides, so that the forward pass (L = A, B = Wᵀ), the input gradient
+//! (L = dZ, B = W) and the weight gradient (L = dZᵀ, B = A) are the same loop. The forward pass
+//! adds the bias and applies the activation (keeping its derivative) on the tile while it is in
+//! registers: one pass over the output.
+//!
+//! Everything is generic over [`Real`], so the f64 gradient checks run the very same code.
+
+use crate::module::Activation;
+use crate::real::Real;
+use pulp::{Arch, Simd, WithSimd};
+
+/// Column counts are padded to a multiple of this (16 f32 = one AVX-512 register).
+pub const LANE: usize = 16;
+
+/// `n` rounded up to a multiple of [`LANE`].
+#[inline]
+pub fn pad(n: usize) -> usize {
+    n.div_ceil(LANE) * LANE
+}
+
+/// Rows per register tile.
+const MR: usize = 4;
+
+/// Runs `f` compiled for the widest instruction set the CPU has. Pass the closure as
+/// `dispatch(#[inline(always)] || …)`: a closure that is not inlined into the dispatched function
+/// is compiled for the baseline instruction set only (measured on a 4 × 64 tile kernel: 0.9
+/// GFLOP/s instead of 108).
+#[inline(always)]
+pub fn dispatch<F: FnOnce()>(f: F) {
+    struct Run<F>(F);
+    impl<F: FnOnce()> WithSimd for Run<F> {
+        type Output = ();
+        #[inline(always)]
+        fn with_simd<S: Simd>(self, _: S) {
+            (self.0)()
+        }
+    }
+    Arch::new().dispatch(Run(f));
+}
+
+/// A strided read-only operand: element (m, k) at `data[m·sm + k·sk]`.
+#[derive(Clone, Copy)]
+pub struct Strided<'a, R> {
+    /// The values.
+    pub data: &'a [R],
+    /// Stride between m indices.
+    pub sm: usize,
+    /// Stride between k indices.
+    pub sk: usize,
+}
+
+/// One `MR × W` tile of `C = Σₖ L(m, k) B[k][n0..n0 + W]` starting at row `m0` (`mr ≤ MR` rows
+/// valid), added to `acc`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn tile<R: Real, const W: usize>(acc: &mut [[R; W]; MR], l: Strided<'_, R>, b: &[R], bs: usize, m0: usize, mr: usize, n0: usize, k: usize) {
+    let rows: [usize; MR] = std::array::from_fn(|i| (m0 + i.min(mr - 1)) * l.sm);
+    for kk in 0..k {
+        let brow: &[R; W] = b[kk * bs + n0..kk * bs + n0 + W].try_into().expect("tile width");
+        for i in 0..MR {
+            let x = l.data[rows[i] + kk * l.sk];
+            let a = &mut acc[i];
+            for j in 0..W {
+                a[j] = x.mul_add(brow[j], a[j]);
+            }
+        }
+    }
+}
+
+/// `C[m][0..n] = (accumulate ? C : 0) + Σ_{k<kk} L(m, k) · B[k][0..n]` for m < `m`; `n` a
+/// multiple of [`LANE`]; `B` and `C` row-major with strides `bs`, `cs`. Call inside
+/// [`dispatch`].
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub fn gemm<R: Real>(c: &mut [R], cs: usize, l: Strided<'_, R>, b: &[R], bs: usize, m: usize, n: usize, k: usize, accumulate: bool) {
+    debug_assert!(n.is_multiple_of(LANE));
+    let mut m0 = 0;
+    while m0 < m {
+        let mr = MR.min(m - m0);
+        let mut n0 = 0;
+        while n0 < n {
+            let w = (n - n0).min(4 * LANE);
+            macro_rules! run {
+                ($w:expr) => {{
+                    let mut acc = [[R::ZERO; $w]; MR];
+                    if accumulate {
+                        for i in 0..mr {
+                            acc[i].copy_from_slice(&c[(m0 + i) * cs + n0..(m0 + i) * cs + n0 + $w]);
+                        }
+                    }
+                    tile::<R, $w>(&mut acc, l, b, bs, m0, mr, n0, k);
+                    for i in 0..mr {
+                        c[(m0 + i) * cs + n0..(m0 + i) * cs + n0 + $w].copy_from_slice(&acc[i]);
+                    }
+                }};
+            }
+            match w {
+                64 => run!(64),
+                48 => run!(48),
+                32 => run!(32),
+                _ => run!(16),
+            }
+            n0 += w;
+        }
+        m0 += mr;
+    }
+}
+
+/// The forward pass of a dense layer on `rows` rows, fused: `Z = A Wᵀ + b`, then `Y = act(Z)·scale`
+/// into `y` (row stride `ys`, columns `y0..y0 + n_out_pad`) and `act'(Z)` into `d` (row stride
+/// `n_out_pad`). `a` is rows × `a_s` (the first `n_in` columns used); `wt` is the packed Wᵀ,
+/// `n_in` × `n_out_pad` (zero padding); `bias` has `n_out_pad` values. Call inside [`dispatch`].
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub fn dense_forward<R: Real>(
+    a: &[R],
+    a_s: usize,
+    n_in: usize,
+    wt: &[R],
+    bias: &[R],
+    n_out_pad: usize,
+    act: Activation,
+    scale: R,
+    y: &mut [R],
+    ys: usize,
+    y0: usize,
+    d: &mut [R],
+    rows: usize,
+) {
+    let l = Strided { data: a, sm: a_s, sk: 1 };
+    let mut m0 = 0;
+    while m0 < rows {
+        let mr = MR.min(rows - m0);
+        let mut n0 = 0;
+        while n0 < n_out_pad {
+            let w = (n_out_pad - n0).min(4 * LANE);
+            macro_rules! run {
+                ($w:expr) => {{
+                    let mut acc = [[R::ZERO; $w]; MR];
+                    let b: &[R; $w] = bias[n0..n0 + $w].try_into().expect("bias width");
+                    for row in acc.iter_mut() {
+                        *row = *b;
+                    }
+                    tile::<R, $w>(&mut acc, l, wt, n_out_pad, m0, mr, n0, n_in);
+                    for i in 0..mr {
+                        let (yr, dr) = (
+                            &mut y[(m0 + i) * ys + y0 + n0..(m0 + i) * ys + y0 + n0 + $w],
+                            &mut d[(m0 + i) * n_out_pad + n0..(m0 + i) * n_out_pad + n0 + $w],
+                        );
+                        activate::<R, $w>(&acc[i], act, scale, yr.try_into().expect("width"), dr.try_into().expect("width"));
+                    }
+                }};
+            }
+            match w {
+                64 => run!(64),
+                48 => run!(48),
+                32 => run!(32),
+                _ => run!(16),
+            }
+            n0 += w;
+        }
+        m0 += mr;
+    }
+}
+
+/// `y = act(z)·scale`, `d = act'(z)` on one tile row.
+#[inline(always)]
+fn activate<R: Real, const W: usize>(z: &[R; W], act: Activation, scale: R, y: &mut [R; W], d: &mut [R; W]) {
+    match act {
+        Activation::Identity => {
+            for j in 0..W {
+                y[j] = z[j] * scale;
+                d[j] = R::ONE;
+            }
+        }
+        Activation::Relu => {
+            for j in 0..W {
+                let positive = z[j] > R::ZERO;
+                y[j] = if positive { z[j] * scale } else { R::ZERO };
+                d[j] = if positive { R::ONE } else { R::ZERO };
+            }
+        }
+        Activation::Softplus { beta } => {
+            let b = R::of(beta);
+            for j in 0..W {
+                let (v, g) = z[j].softplus_with_derivative(b);
+                y[j] = v * scale;
+                d[j] = g;
+            }
+        }
+        Activation::Sigmoid => {
+            for j in 0..W {
+                let (v, g) = act.apply_with_derivative(z[j]);
+                y[j] = v * scale;
+                d[j] = g;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gemm_equals_the_naive_product_for_every_operand_layout() {
+        let (m, n, k) = (11usize, 48usize, 7usize);
+        let lv: Vec<f64> = (0..m * k).map(|i| ((i * 37) % 17) as f64 - 8.0).collect();
+        let b: Vec<f64> = (0..k * n).map(|i| ((i * 13) % 11) as f64 * 0.5 - 2.0).collect();
+        // L row-major (sm = k, sk = 1) and column-major (sm = 1, sk = m).
+        let lt: Vec<f64> = (0..k * m).map(|i| lv[(i % m) * k + i / m]).collect();
+        for (l, accumulate) in [(Strided { data: &lv[..], sm: k, sk: 1 }, false), (Strided { data: &lt[..], sm: 1, sk: m }, true)] {
+            let mut c = vec![1.0f64; m * n];
+            dispatch(
+                #[inline(always)]
+                || gemm(&mut c, n, l, &b, n, m, n, k, accumulate),
+            );
+            for i in 0..m {
+                for j in 0..n {
+                    let expected: f64 = (0..k).map(|kk| lv[i * k + kk] * b[kk * n + j]).sum::<f64>() + if accumulate { 1.0 } else { 0.0 };
+                    assert_eq!(c[i * n + j], expected, "({i}, {j})");
+                }
+            }
+        }
+    }
+}

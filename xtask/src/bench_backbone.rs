@@ -1,11 +1,37 @@
-//! `cargo xtask bench backbone`: training-step cost of each backbone preset, FLOP per sample and
-//! the rate achieved inside the MLPs against this machine's measured f32 matrix-product rate.
+//! `cargo xtask bench backbone`: the training step of each backbone preset (forward + backward +
+//! Adam on 512 rays × 128 samples), FLOP per sample, the rate inside the MLPs against the best
+//! f32 matrix product measured here, peak memory per preset (each preset in its own process),
+//! and, with `--peer PYTHON`, the PyTorch-CPU peer (`scripts/torch_peer.py`) of the default preset
+//! in the same run, with the ratio.
 
-use anyhow::Result;
+use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
-use sdf_backbone::{Backbone, Module, NoSampleLoss, NormalScheme, Preset, RayInput, batch_gradients, build};
-use serde_json::json;
+use sdf_backbone::kernels::{Strided, dispatch, gemm};
+use sdf_backbone::{Adam, Backbone, InputEncoding, Module, NoSampleLoss, NormalScheme, Preset, RayInput, adam_step, batch_gradients, build};
+use serde_json::{Value, json};
+use std::path::{Path, PathBuf};
 use std::time::Instant;
+
+/// Options of `cargo xtask bench backbone`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct BackboneArgs {
+    /// One JSON object per figure on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Only the 2-core presets (skip paper-scale NeuS and Neuralangelo).
+    #[arg(long)]
+    pub quick: bool,
+    /// Also run the PyTorch-CPU peer with this Python (e.g. `python3`; needs torch and numpy).
+    #[arg(long)]
+    pub peer: Option<PathBuf>,
+    /// Timed steps per figure.
+    #[arg(long, default_value_t = 3)]
+    pub reps: usize,
+    /// Run one preset in this process (the parent runs each preset this way, so that every
+    /// figure's peak memory is its own).
+    #[arg(long, hide = true)]
+    pub preset: Option<String>,
+}
 
 /// Multiply-adds of one row through an MLP.
 fn mlp_macs(mlp: &sdf_backbone::Mlp) -> f64 {
@@ -23,28 +49,61 @@ fn mlp_macs(mlp: &sdf_backbone::Mlp) -> f64 {
     macs
 }
 
-/// The f32 matrix-product rate of this machine: 256³ products with ndarray's `dot` (the
-/// matrixmultiply sgemm kernels), one independent product per thread, GFLOP/s over all threads.
-pub fn gemm_rate() -> f64 {
-    let n = 256;
+/// f32 matrix-product rates of this machine, GFLOP/s over all threads (one independent product
+/// per thread): `matrixmultiply` (ndarray's sgemm, AVX2 kernels) on 256³, and psneus's own
+/// runtime-dispatched tile kernel (AVX-512 here) on 256³ and on a layer's shape (16 384 rows ×
+/// 64 · 64 × 64).
+pub fn gemm_rates() -> Vec<(&'static str, f64)> {
     let threads = rayon::current_num_threads();
+    let time = |f: &(dyn Fn() + Sync)| {
+        (0..threads).into_par_iter().for_each(|_| f());
+        let t = Instant::now();
+        (0..threads).into_par_iter().for_each(|_| f());
+        t.elapsed().as_secs_f64()
+    };
+    let n = 256;
+    let reps = 40;
     let a = ndarray::Array2::<f32>::from_elem((n, n), 1.0);
     let b = ndarray::Array2::<f32>::from_elem((n, n), 0.5);
-    let reps = 40;
-    let run = || {
-        (0..threads).into_par_iter().for_each(|_| {
-            for _ in 0..reps {
-                std::hint::black_box(a.dot(&b));
-            }
-        })
-    };
-    run();
-    let t = Instant::now();
-    run();
-    let secs = t.elapsed().as_secs_f64();
-    2.0 * (n * n * n) as f64 * reps as f64 * threads as f64 / secs / 1e9
+    let mm = time(&|| {
+        for _ in 0..reps {
+            std::hint::black_box(a.dot(&b));
+        }
+    });
+    let cube = 2.0 * (n * n * n) as f64 * reps as f64 * threads as f64;
+    let av: Vec<f32> = (0..n * n).map(|i| (i % 7) as f32 * 0.1).collect();
+    let tile = time(&|| {
+        let mut c = vec![0.0f32; n * n];
+        for _ in 0..reps {
+            dispatch(
+                #[inline(always)]
+                || gemm(&mut c, n, Strided { data: &av, sm: n, sk: 1 }, &av, n, n, n, n, false),
+            );
+            std::hint::black_box(&c);
+        }
+    });
+    let rows = 16384;
+    let x: Vec<f32> = (0..rows * 64).map(|i| (i % 13) as f32 * 0.05).collect();
+    let w: Vec<f32> = (0..64 * 64).map(|i| (i % 5) as f32 * 0.1).collect();
+    let layer = time(&|| {
+        let mut c = vec![0.0f32; rows * 64];
+        for _ in 0..10 {
+            dispatch(
+                #[inline(always)]
+                || gemm(&mut c, 64, Strided { data: &x, sm: 64, sk: 1 }, &w, 64, rows, 64, 64, false),
+            );
+            std::hint::black_box(&c);
+        }
+    });
+    let layer_flop = 2.0 * (rows * 64 * 64) as f64 * 10.0 * threads as f64;
+    vec![
+        ("matrixmultiply sgemm 256³", cube / mm / 1e9),
+        ("psneus tile kernel 256³", cube / tile / 1e9),
+        ("psneus tile kernel 16384×64·64×64", layer_flop / layer / 1e9),
+    ]
 }
 
+/// The benchmark's rays: a fan around the object, `n_samples` intervals each.
 fn rays(n_rays: usize, n_samples: usize) -> Vec<RayInput<f32>> {
     (0..n_rays)
         .map(|r| {
@@ -61,18 +120,30 @@ fn rays(n_rays: usize, n_samples: usize) -> Vec<RayInput<f32>> {
         .collect()
 }
 
-fn time_step(backbone: &Backbone, params: &[f32], rays: &[RayInput<f32>], reps: usize) -> f64 {
-    let mut grads = vec![0.0f32; params.len()];
-    let _ = backbone.loss_parallel(params, rays, &mut grads, 32, &NoSampleLoss);
-    let t = Instant::now();
-    for _ in 0..reps {
+/// Seconds per training step: forward + backward of the whole loss + Adam (the trainer's
+/// parameter groups), the best of `reps` after a warm-up step.
+fn time_step(backbone: &Backbone, params: &mut [f32], rays: &[RayInput<f32>], reps: usize) -> f64 {
+    let n = params.len();
+    let layout = backbone.layout();
+    let mut grads = vec![0.0f32; n];
+    let mut adam = Adam::new(n);
+    let groups = [(layout.encoding.clone(), 1e-2f32), (layout.encoding.end..n, 5e-3)];
+    let mut step = |params: &mut [f32]| {
         grads.fill(0.0);
         let _ = backbone.loss_parallel(params, rays, &mut grads, 32, &NoSampleLoss);
-    }
-    t.elapsed().as_secs_f64() / reps as f64
+        adam_step(&mut adam, params, &mut grads, &groups, None);
+    };
+    step(params);
+    (0..reps.max(1))
+        .map(|_| {
+            let t = Instant::now();
+            step(params);
+            t.elapsed().as_secs_f64()
+        })
+        .fold(f64::INFINITY, f64::min)
 }
 
-/// Seconds for forward + backward of `mlp` over `rows` random rows (parallel chunks).
+/// Seconds for forward + backward of `mlp` over `rows` rows (parallel chunks of 1024 rows).
 fn time_mlp(mlp: &sdf_backbone::Mlp, params: &[f32], rows: usize) -> f64 {
     let n_in = Module::<f32>::n_inputs(mlp);
     let x: Vec<f32> = (0..rows * n_in).map(|i| ((i * 7919) % 1000) as f32 / 1000.0 - 0.5).collect();
@@ -95,79 +166,200 @@ fn peak_rss_mb() -> Option<f64> {
     Some(line.split_whitespace().nth(1)?.parse::<f64>().ok()? / 1024.0)
 }
 
-/// Runs the benchmark; `quick` skips the paper-scale presets.
-pub fn run(json: bool, quick: bool) -> Result<()> {
+/// Rays and samples per preset: the paper-scale ones run fewer rays (their steps take seconds).
+fn batch_of(preset: Preset) -> (usize, usize) {
+    match preset {
+        Preset::NeuralangeloCpu | Preset::NeusCpu => (512, 128),
+        Preset::Neus | Preset::Neuralangelo => (64, 128),
+    }
+}
+
+/// The figures of one preset (both normal schemes), in this process.
+fn preset_figures(preset: Preset, reps: usize, gemm_best: f64) -> Vec<Value> {
+    let (mut backbone, mut params) = build(preset, 0.5, 1);
+    let (n_rays, n_samples) = batch_of(preset);
+    let rays = rays(n_rays, n_samples);
+    let layout = backbone.layout();
+    let sdf_mlp = backbone.sdf.b.clone();
+    let (sdf_macs, color_macs) = (mlp_macs(&sdf_mlp), mlp_macs(&backbone.color));
+    let grid = match &backbone.sdf.a {
+        InputEncoding::HashGrid(g) => Some(g.encoding.config().clone()),
+        InputEncoding::Positional(_) => None,
+    };
+    let mut out = Vec::new();
+    for normals in [NormalScheme::Tetrahedral, NormalScheme::Central] {
+        backbone.config.normals = normals;
+        let probes = if normals == NormalScheme::Tetrahedral { 4 } else { 6 };
+        let step = time_step(&backbone, &mut params, &rays, reps);
+        let samples = (n_rays * n_samples) as f64;
+        // Forward 2·MACs, backward 4·MACs (input and weight gradients) per row.
+        let flop_per_sample = 6.0 * ((probes + 1) as f64 * sdf_macs + color_macs);
+        let sdf_rows = n_rays * ((probes + 1) * n_samples + 1);
+        let t_mlp = time_mlp(&sdf_mlp, &params[layout.sdf_mlp.clone()], sdf_rows)
+            + time_mlp(&backbone.color, &params[layout.color.clone()], n_rays * n_samples);
+        let mlp_gflops = flop_per_sample * samples / t_mlp / 1e9;
+        out.push(json!({
+            "figure": "backbone_step", "preset": preset.name(), "params": params.len(),
+            "levels": grid.as_ref().map(|g| g.levels), "features_per_level": grid.as_ref().map(|g| g.features),
+            "log2_table_size": grid.as_ref().map(|g| g.log2_table), "base_resolution": grid.as_ref().map(|g| g.base_resolution),
+            "max_resolution": grid.as_ref().map(|g| g.finest_resolution),
+            "sdf_hidden": sdf_mlp.config().width, "sdf_layers": sdf_mlp.config().hidden_layers,
+            "colour_hidden": backbone.color.config().width, "colour_layers": backbone.color.config().hidden_layers,
+            "normals": format!("{normals:?}").to_lowercase(), "rays": n_rays, "samples": n_samples,
+            "step_s": step, "samples_per_s": samples / step, "flop_per_sample": flop_per_sample,
+            "step_gflops": flop_per_sample * samples / step / 1e9, "mlp_s": t_mlp, "mlp_gflops": mlp_gflops,
+            "mlp_fraction_of_gemm": mlp_gflops / gemm_best, "gemm_gflops": gemm_best,
+            "threads": rayon::current_num_threads(),
+        }));
+    }
+    let rss = peak_rss_mb();
+    for f in &mut out {
+        f["peak_rss_mb"] = json!(rss);
+    }
+    out
+}
+
+/// Runs one preset in a child process (`--preset`), returning its JSON figures.
+fn child_figures(preset: Preset, reps: usize, gemm_best: f64) -> Result<Vec<Value>> {
+    let exe = std::env::current_exe().context("the xtask executable")?;
+    let out = std::process::Command::new(exe)
+        .args(["bench", "backbone", "--json", "--preset", preset.name(), "--reps", &reps.to_string()])
+        .env("PSNEUS_GEMM_GFLOPS", gemm_best.to_string())
+        .output()
+        .context("running the preset's child process")?;
+    if !out.status.success() {
+        bail!("the {} preset failed: {}", preset.name(), String::from_utf8_lossy(&out.stderr));
+    }
+    String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).with_context(|| format!("child output {l:?}"))).collect()
+}
+
+/// The peer's figures (`scripts/torch_peer.py`), with glibc's allocator tuned as its docs ask.
+fn peer_figures(python: &Path, rays: usize, samples: usize) -> Result<Vec<Value>> {
+    let threads = rayon::current_num_threads().to_string();
+    let out = std::process::Command::new(python)
+        .args(["scripts/torch_peer.py", "--threads", &threads, "--rays", &rays.to_string(), "--samples", &samples.to_string(), "--no-check"])
+        .env("MALLOC_MMAP_MAX_", "0")
+        .env("MALLOC_TRIM_THRESHOLD_", "100000000000")
+        .output()
+        .with_context(|| format!("running {} scripts/torch_peer.py (pip install torch numpy)", python.display()))?;
+    if !out.status.success() {
+        bail!("the peer failed: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    Ok(String::from_utf8_lossy(&out.stdout).lines().filter_map(|l| serde_json::from_str(l).ok()).collect())
+}
+
+fn number(v: &Value, key: &str) -> f64 {
+    v[key].as_f64().unwrap_or(f64::NAN)
+}
+
+fn print_row(f: &Value) {
+    println!(
+        "| {} | {} | {} × {} | {} | {:.3} | {:.0} | {:.2e} | {:.1} | {:.1} | {:.0} % | {:.0} |",
+        f["preset"].as_str().unwrap_or("?"),
+        f["params"],
+        f["rays"],
+        f["samples"],
+        f["normals"].as_str().unwrap_or("?"),
+        number(f, "step_s"),
+        number(f, "samples_per_s"),
+        number(f, "flop_per_sample"),
+        number(f, "step_gflops"),
+        number(f, "mlp_gflops"),
+        100.0 * number(f, "mlp_fraction_of_gemm"),
+        number(f, "peak_rss_mb"),
+    );
+}
+
+/// Runs the benchmark.
+pub fn run(args: &BackboneArgs) -> Result<()> {
+    if let Some(name) = &args.preset {
+        let preset: Preset = serde_json::from_value(json!(name)).with_context(|| format!("unknown preset {name:?}"))?;
+        let gemm_best: f64 = std::env::var("PSNEUS_GEMM_GFLOPS")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or_else(|| gemm_rates().iter().map(|g| g.1).fold(0.0, f64::max));
+        for f in preset_figures(preset, args.reps, gemm_best) {
+            println!("{f}");
+        }
+        return Ok(());
+    }
     let threads = rayon::current_num_threads();
-    let gemm = gemm_rate();
-    if json {
-        println!("{}", json!({"figure": "gemm_rate", "gflops": gemm, "threads": threads, "shape": "256x256x256 sgemm per thread (matrixmultiply)"}));
+    let rates = gemm_rates();
+    let gemm_best = rates.iter().map(|g| g.1).fold(0.0, f64::max);
+    if args.json {
+        for (name, gflops) in &rates {
+            println!("{}", json!({"figure": "gemm_rate", "kernel": name, "gflops": gflops, "threads": threads}));
+        }
     } else {
-        println!("f32 matrix product (matrixmultiply sgemm 256³, one per thread, {threads} threads): {gemm:.1} GFLOP/s");
-        println!("| preset | sizes | rays × samples | normals | step (s) | samples/s | FLOP/sample | GFLOP/s (step) | MLP GFLOP/s | MLP / GEMM |");
-        println!("|---|---|---|---|---|---|---|---|---|---|");
-    }
-    let mut presets = vec![(Preset::NeuralangeloCpu, 512, 128), (Preset::NeusCpu, 512, 128)];
-    // Paper-scale Neuralangelo is not timed: its 16 × 2²² × 8 hash tables are 537 M parameters
-    // (2.1 GB), and with Adam's moments and one dense gradient buffer per ray chunk a step needs
-    // ~10 GB (sparse per-thread gradient accumulation would fix that; not done).
-    if !quick {
-        presets.push((Preset::Neus, 64, 128));
-    }
-    for (preset, n_rays, n_samples) in presets {
-        let (mut backbone, params) = build(preset, 0.5, 1);
-        let rays = rays(n_rays, n_samples);
-        let layout = backbone.layout();
-        let sdf_mlp = &backbone.sdf.b;
-        let (sdf_macs, color_macs) = (mlp_macs(sdf_mlp), mlp_macs(&backbone.color));
-        let sizes = format!(
-            "{} params; SDF MLP {}×{}; colour MLP {}×{}{}",
-            params.len(),
-            sdf_mlp.config().hidden_layers,
-            sdf_mlp.config().width,
-            backbone.color.config().hidden_layers,
-            backbone.color.config().width,
-            match backbone.levels() {
-                Some(l) => format!("; hash grid {l} levels, {} table entries", layout.encoding.len()),
-                None => "; positional encoding".into(),
-            }
+        for (name, gflops) in &rates {
+            println!("f32 matrix product, {name}, one per thread, {threads} threads: {gflops:.1} GFLOP/s");
+        }
+        println!(
+            "| preset | parameters | rays × samples | normals | step (s) | samples/s | FLOP/sample | GFLOP/s (step) | MLP GFLOP/s | MLP / best GEMM | peak RSS (MB) |"
         );
-        for normals in [NormalScheme::Tetrahedral, NormalScheme::Central] {
-            backbone.config.normals = normals;
-            let probes = if normals == NormalScheme::Tetrahedral { 4 } else { 6 };
-            let reps = if n_rays >= 512 { 3 } else { 1 };
-            let step = time_step(&backbone, &params, &rays, reps);
-            let samples = (n_rays * n_samples) as f64;
-            // Forward 2·MACs, backward 4·MACs (input and weight gradients) per row.
-            let flop_per_sample = 6.0 * ((probes + 1) as f64 * sdf_macs + color_macs);
-            let sdf_rows = n_rays * ((probes + 1) * n_samples + 1);
-            let t_mlp = time_mlp(sdf_mlp, &params[layout.sdf_mlp.clone()], sdf_rows)
-                + time_mlp(&backbone.color, &params[layout.color.clone()], n_rays * n_samples);
-            let mlp_gflops = flop_per_sample * samples / t_mlp / 1e9;
-            let step_gflops = flop_per_sample * samples / step / 1e9;
-            let name = format!("{normals:?}").to_lowercase();
-            if json {
-                println!(
-                    "{}",
-                    json!({"figure": "backbone_step", "preset": preset.name(), "sizes": sizes, "rays": n_rays, "samples": n_samples, "normals": name,
-                        "step_s": step, "samples_per_s": samples / step, "flop_per_sample": flop_per_sample, "step_gflops": step_gflops,
-                        "mlp_s": t_mlp, "mlp_gflops": mlp_gflops, "mlp_fraction_of_gemm": mlp_gflops / gemm, "threads": threads})
-                );
+        println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    }
+    let mut presets = vec![Preset::NeuralangeloCpu, Preset::NeusCpu];
+    if !args.quick {
+        presets.extend([Preset::Neus, Preset::Neuralangelo]);
+    }
+    let mut default_steps = Vec::new();
+    for preset in presets {
+        match child_figures(preset, args.reps, gemm_best) {
+            Ok(figures) => {
+                for f in &figures {
+                    if args.json {
+                        println!("{f}");
+                    } else {
+                        print_row(f);
+                    }
+                    if preset == Preset::NeuralangeloCpu && f["normals"] == "tetrahedral" {
+                        default_steps.push(number(f, "step_s"));
+                    }
+                }
+            }
+            Err(e) if args.json => println!("{}", json!({"figure": "backbone_step", "preset": preset.name(), "error": format!("{e:#}")})),
+            Err(e) => println!("| {} | error: {e:#} |", preset.name()),
+        }
+    }
+    if let Some(python) = &args.peer {
+        let (rays, samples) = batch_of(Preset::NeuralangeloCpu);
+        let peer = peer_figures(python, rays, samples)?;
+        // Our default step again after the peer, so that both sides see the same machine state.
+        if let Ok(figures) = child_figures(Preset::NeuralangeloCpu, args.reps, gemm_best) {
+            default_steps.extend(figures.iter().filter(|f| f["normals"] == "tetrahedral").map(|f| number(f, "step_s")));
+        }
+        let ours = default_steps.iter().copied().fold(f64::INFINITY, f64::min);
+        let steps: Vec<&Value> = peer.iter().filter(|f| f["figure"] == "torch_step").collect();
+        let best = steps.iter().filter(|f| f["step_s"].is_number()).min_by(|a, b| number(a, "step_s").total_cmp(&number(b, "step_s")));
+        for f in &steps {
+            if args.json {
+                println!("{f}");
             } else {
                 println!(
-                    "| {} | {sizes} | {n_rays} × {n_samples} | {name} | {step:.3} | {:.0} | {:.2e} | {step_gflops:.1} | {mlp_gflops:.1} | {:.0} % |",
-                    preset.name(),
-                    samples / step,
-                    flop_per_sample,
-                    100.0 * mlp_gflops / gemm
+                    "PyTorch {} {} normals, {}: step {} s (median; min {} s), peak RSS {} MB",
+                    f["torch_version"].as_str().unwrap_or("?"),
+                    f["normals"].as_str().unwrap_or("?"),
+                    f["mode"].as_str().unwrap_or("?"),
+                    f["step_s"],
+                    f["step_min_s"],
+                    f["peak_rss_mb"]
                 );
             }
         }
-    }
-    let rss = peak_rss_mb();
-    if json {
-        println!("{}", json!({"figure": "peak_memory", "mb": rss}));
-    } else {
-        println!("peak resident memory: {:.0} MB", rss.unwrap_or(f64::NAN));
+        let best_s = best.map_or(f64::NAN, |b| number(b, "step_s"));
+        let ratio = json!({"figure": "peer_ratio", "ours_step_s": ours, "peer_best_step_s": best_s,
+            "peer_best": best.map(|b| format!("{} {}", b["normals"].as_str().unwrap_or("?"), b["mode"].as_str().unwrap_or("?"))),
+            "speedup": best_s / ours, "threads": threads});
+        if args.json {
+            println!("{ratio}");
+        } else {
+            println!(
+                "default preset, 512 × 128, tetrahedral: psneus {ours:.3} s per step; best PyTorch-CPU variant {best_s:.3} s ({}); psneus is {:.2}× faster",
+                ratio["peer_best"],
+                best_s / ours
+            );
+        }
     }
     Ok(())
 }

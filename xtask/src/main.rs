@@ -128,14 +128,7 @@ enum BenchKind {
     },
     /// Backbone presets: training-step time (512 rays × 128 samples), FLOP per sample, MLP rate
     /// against the measured f32 matrix-product rate, peak memory.
-    Backbone {
-        /// One JSON object per figure on stdout.
-        #[arg(long)]
-        json: bool,
-        /// Skip the paper-scale presets.
-        #[arg(long)]
-        quick: bool,
-    },
+    Backbone(bench_backbone::BackboneArgs),
     /// Probability update (F, s, dense vs sparse), draw throughput, accuracy vs cost.
     Sampler {
         /// DTU scan 24 folder (default ../shared/data/dtu_scan24; a golden DTU-like rig if absent).
@@ -173,7 +166,7 @@ fn main() -> Result<()> {
         Command::Eval(args) => eval::run(&args),
         Command::Compare(args) => compare::run(&args, &stop_signal()),
         Command::Bench { which: BenchKind::Sampler { data, json, quick } } => bench::sampler(data.as_deref(), json, quick),
-        Command::Bench { which: BenchKind::Backbone { json, quick } } => bench_backbone::run(json, quick),
+        Command::Bench { which: BenchKind::Backbone(args) } => bench_backbone::run(&args),
         Command::Bench { which: BenchKind::Overhead { run, iterations, json } } => bench_overhead::run(&run, iterations, json),
         Command::Cameras { data, ply } => cameras(&data, &ply),
         Command::Inspect { data } => inspect(&data),

@@ -78,6 +78,18 @@ impl<R: Real> Module<R> for InputEncoding {
             InputEncoding::Positional(p) => p.backward(params, input, ctx, d_output, d_params, d_input),
         }
     }
+    fn defers_gradient(&self) -> bool {
+        match self {
+            InputEncoding::HashGrid(g) => Module::<R>::defers_gradient(g),
+            InputEncoding::Positional(_) => false,
+        }
+    }
+    fn backward_parts(&self, params: &[R], parts: &[(&[R], &[R])], d_params: &mut [R]) {
+        match self {
+            InputEncoding::HashGrid(g) => g.backward_parts(params, parts, d_params),
+            InputEncoding::Positional(p) => p.backward_parts(params, parts, d_params),
+        }
+    }
 }
 
 /// The SDF network of every preset: encoding → MLP (first output: SDF; the rest: features).

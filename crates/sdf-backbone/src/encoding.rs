@@ -186,4 +186,24 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
             None => self.encoding.backward(params, input, enc_ctx, &d_enc, d_params, None),
         }
     }
+    fn defers_gradient(&self) -> bool {
+        self.encoding.defers_gradient()
+    }
+    fn backward_parts(&self, params: &[R], parts: &[(&[R], &[R])], d_params: &mut [R]) {
+        // The encoding's share of each part's output gradient (the raw input's columns dropped).
+        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
+        let n_out = n_in + n_enc;
+        let d_enc: Vec<crate::scratch::Buf<R>> = parts
+            .iter()
+            .map(|(_, d_output)| {
+                let mut d = crate::scratch::Buf::<R>::zeroed(d_output.len() / n_out * n_enc);
+                for (dst, src) in d.chunks_exact_mut(n_enc).zip(d_output.chunks_exact(n_out)) {
+                    dst.copy_from_slice(&src[n_in..]);
+                }
+                d
+            })
+            .collect();
+        let inner: Vec<(&[R], &[R])> = parts.iter().zip(&d_enc).map(|((input, _), d)| (*input, &d[..])).collect();
+        self.encoding.backward_parts(params, &inner, d_params);
+    }
 }

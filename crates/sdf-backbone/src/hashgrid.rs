@@ -58,6 +58,11 @@ impl HashGrid {
         HashGrid { config, resolutions, dense, table, active_levels: levels }
     }
 
+    /// The configuration.
+    pub fn config(&self) -> &HashGridConfig {
+        &self.config
+    }
+
     /// Resolution of each level.
     pub fn resolutions(&self) -> &[u32] {
         &self.resolutions
@@ -143,6 +148,26 @@ impl<R: Real> Module<R> for HashGrid {
             #[inline(always)]
             || self.backward_rows(params, input, d_output, d_params, d_input),
         );
+    }
+    fn defers_gradient(&self) -> bool {
+        true
+    }
+    /// In parallel over levels (each level's table is its own slice of the gradient), each
+    /// level taking the parts in order: deterministic for any thread count.
+    fn backward_parts(&self, _: &[R], parts: &[(&[R], &[R])], d_params: &mut [R]) {
+        use rayon::prelude::*;
+        let f = self.config.features;
+        let levels = self.active_levels.min(self.config.levels);
+        d_params.par_chunks_mut(self.table * f).take(levels).enumerate().for_each(|(level, d_table)| {
+            crate::kernels::dispatch(
+                #[inline(always)]
+                || {
+                    for (input, d_output) in parts {
+                        self.scatter_level(level, input, d_output, d_table);
+                    }
+                },
+            );
+        });
     }
 }
 
@@ -252,36 +277,43 @@ impl HashGrid {
         }
     }
 
+    /// Adds one level's table gradient for `rows` points: corners of every row (vectorised),
+    /// then the scatter (sequential: rows share entries).
+    #[inline(always)]
+    fn scatter_level<R: Real>(&self, level: usize, input: &[R], d_output: &[R], d_table: &mut [R]) {
+        let f = self.config.features;
+        let n_out = self.config.levels * f;
+        let rows = input.len() / 3;
+        let mut idx = Buf::<u32>::zeroed(rows * 8);
+        let mut w = Buf::<R>::zeroed(rows * 8);
+        let mask = (self.table - 1) as u32;
+        let (n, dense) = (self.resolutions[level], self.dense[level]);
+        if dense {
+            level_corners::<R, true>(n, mask, input, &mut idx, &mut w);
+        } else {
+            level_corners::<R, false>(n, mask, input, &mut idx, &mut w);
+        }
+        for ((ri, rw), dy) in idx.chunks_exact(8).zip(w.chunks_exact(8)).zip(d_output.chunks_exact(n_out)) {
+            let dy = &dy[level * f..level * f + f];
+            for c in 0..8 {
+                let at = ri[c] as usize * f;
+                for k in 0..f {
+                    d_table[at + k] = rw[c].mul_add(dy[k], d_table[at + k]);
+                }
+            }
+        }
+    }
+
     #[inline(always)]
     fn backward_rows<R: Real>(&self, params: &[R], input: &[R], d_output: &[R], d_params: &mut [R], mut d_input: Option<&mut [R]>) {
         let f = self.config.features;
         let n_out = self.config.levels * f;
-        let rows = input.len() / 3;
         if let Some(d_in) = d_input.as_deref_mut() {
             d_in.fill(R::ZERO);
         }
-        let mut idx = Buf::<u32>::zeroed(rows * 8);
-        let mut w = Buf::<R>::zeroed(rows * 8);
-        let mask = (self.table - 1) as u32;
         for level in 0..self.active_levels.min(self.config.levels) {
             let base = level * self.table * f;
-            let (n, dense) = (self.resolutions[level], self.dense[level]);
-            // Corners of every row (vectorised), then the scatter (sequential: rows share entries).
-            if dense {
-                level_corners::<R, true>(n, mask, input, &mut idx, &mut w);
-            } else {
-                level_corners::<R, false>(n, mask, input, &mut idx, &mut w);
-            }
-            let d_table = &mut d_params[base..base + self.table * f];
-            for ((ri, rw), dy) in idx.chunks_exact(8).zip(w.chunks_exact(8)).zip(d_output.chunks_exact(n_out)) {
-                let dy = &dy[level * f..level * f + f];
-                for c in 0..8 {
-                    let at = ri[c] as usize * f;
-                    for k in 0..f {
-                        d_table[at + k] = rw[c].mul_add(dy[k], d_table[at + k]);
-                    }
-                }
-            }
+            self.scatter_level(level, input, d_output, &mut d_params[base..base + self.table * f]);
             if let Some(d_in) = d_input.as_deref_mut() {
                 let table = &params[base..base + self.table * f];
                 for (row, (x, dy)) in input.chunks_exact(3).zip(d_output.chunks_exact(n_out)).enumerate() {

@@ -20,6 +20,45 @@ pub trait Module<R: Real>: Sync {
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]);
     /// Backward pass: adds ∂L/∂params into `d_params`, writes ∂L/∂input into `d_input` if given.
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>);
+
+    /// Whether this module's parameter gradient can be computed later from (input, d_output)
+    /// alone, with an empty context (a hash grid: its gradient is a scatter into large tables,
+    /// better done once per batch in order than per work item into a private copy).
+    fn defers_gradient(&self) -> bool {
+        false
+    }
+
+    /// The parameter gradient of several work items, `parts` = (input, d_output) each, added to
+    /// `d_params` in order (the same bits for any thread count). Default: one
+    /// [`Module::backward`] per part with an empty context (only for modules that
+    /// [`Module::defers_gradient`]).
+    fn backward_parts(&self, params: &[R], parts: &[(&[R], &[R])], d_params: &mut [R]) {
+        for (input, d_output) in parts {
+            self.backward(params, input, &[], d_output, d_params, None);
+        }
+    }
+
+    /// Leading parameters whose gradient [`Module::backward_deferring`] leaves out. Default 0.
+    fn deferred_params(&self) -> usize {
+        0
+    }
+
+    /// Values per row that [`Module::backward_deferring`] records for the deferred gradient.
+    fn deferred_width(&self) -> usize {
+        0
+    }
+
+    /// [`Module::backward`] without the gradient of the first [`Module::deferred_params`]
+    /// parameters: `d_params` covers the parameters after them, and what their gradient needs is
+    /// written to `deferred` (rows × [`Module::deferred_width`]) for
+    /// [`Module::apply_deferred`]. Default: the whole backward (nothing deferred).
+    fn backward_deferring(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], _deferred: &mut [R]) {
+        self.backward(params, input, ctx, d_output, d_params, None);
+    }
+
+    /// Adds the deferred gradients of several work items, `parts` = (input, deferred record) in
+    /// order, to `d_deferred` (the first [`Module::deferred_params`] parameters' gradient).
+    fn apply_deferred(&self, _params: &[R], _parts: &[(&[R], &[R])], _d_deferred: &mut [R]) {}
 }
 
 /// Element-wise activations.
@@ -150,6 +189,29 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         let mut d_mid = crate::scratch::Buf::<R>::zeroed(mid.len());
         self.b.backward(pb, mid, cb, d_output, dpb, Some(&mut d_mid));
         self.a.backward(pa, input, ca, &d_mid, dpa, d_input);
+    }
+    /// The first module's parameters are deferred when it [`Module::defers_gradient`].
+    fn deferred_params(&self) -> usize {
+        if self.a.defers_gradient() { self.a.n_params() } else { 0 }
+    }
+    fn deferred_width(&self) -> usize {
+        if self.a.defers_gradient() { self.a.n_outputs() } else { 0 }
+    }
+    fn backward_deferring(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], deferred: &mut [R]) {
+        if !self.a.defers_gradient() {
+            return self.backward(params, input, ctx, d_output, d_params, None);
+        }
+        let rows = input.len() / self.a.n_inputs();
+        let (_, pb) = params.split_at(self.a.n_params());
+        let (_, rest) = ctx.split_at(rows * self.a.ctx_per_row());
+        let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
+        // ∂L/∂(first module's outputs) is the record: its gradient is a's backward of it.
+        self.b.backward(pb, mid, cb, d_output, d_params, Some(deferred));
+    }
+    fn apply_deferred(&self, params: &[R], parts: &[(&[R], &[R])], d_deferred: &mut [R]) {
+        if self.a.defers_gradient() {
+            self.a.backward_parts(&params[..self.a.n_params()], parts, d_deferred);
+        }
     }
 }
 

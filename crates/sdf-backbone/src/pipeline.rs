@@ -117,6 +117,9 @@ pub struct RayInput<R> {
     pub mask: Option<R>,
 }
 
+/// A chunk's loss, gradient (all but the deferred parameters), outputs and deferred record.
+type Part<R> = (R, Buf<R>, Vec<RayOutput<R>>, Option<(Buf<R>, Buf<R>)>);
+
 /// Loss weights and numerics of the pipeline.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PipelineConfig {
@@ -191,7 +194,22 @@ impl<S, C> Pipeline<S, C> {
         C: Module<R>,
     {
         let norm = self.color_normaliser::<R>(rays);
-        self.accumulate(params, rays, 0, d_params, R::of(rays.len() as f64), norm, extra)
+        let m = R::of(rays.len() as f64);
+        match d_params {
+            None => {
+                let (loss, outputs, _) = self.accumulate(params, rays, 0, None, m, norm, extra);
+                (loss, outputs)
+            }
+            Some(d_params) => {
+                let n_def = self.sdf.deferred_params();
+                let (d_deferred, d_rest) = d_params.split_at_mut(n_def);
+                let (loss, outputs, deferred) = self.accumulate(params, rays, 0, Some(d_rest), m, norm, extra);
+                if let Some((points, record)) = &deferred {
+                    self.sdf.apply_deferred(&params[..self.sdf.n_params()], &[(&points[..], &record[..])], d_deferred);
+                }
+                (loss, outputs)
+            }
+        }
     }
 
     /// The colour loss's normaliser: the number of rays, or of foreground rays when the colour
@@ -224,25 +242,31 @@ impl<S, C> Pipeline<S, C> {
         let m = R::of(rays.len() as f64);
         let norm = self.color_normaliser::<R>(rays);
         let chunk = chunk.max(1);
-        let parts: Vec<(R, Buf<R>, Vec<RayOutput<R>>)> = rays
+        // Each chunk's gradient of every parameter but the SDF encoding's (a hash grid's tables,
+        // deferred: scattered once below, in chunk order, in parallel over its levels).
+        let n_def = self.sdf.deferred_params();
+        let parts: Vec<Part<R>> = rays
             .par_chunks(chunk)
             .enumerate()
             .map(|(i, c)| {
-                let mut g = Buf::<R>::zeroed(n);
-                let (l, o) = self.accumulate(params, c, i * chunk, Some(&mut g), m, norm, extra);
-                (l, g, o)
+                let mut g = Buf::<R>::zeroed(n - n_def);
+                let (l, o, deferred) = self.accumulate(params, c, i * chunk, Some(&mut g), m, norm, extra);
+                (l, g, o, deferred)
             })
             .collect();
         let mut loss = R::ZERO;
         let mut outputs = Vec::with_capacity(rays.len());
         let mut grads = Vec::with_capacity(parts.len());
-        for (l, g, o) in parts {
+        let mut deferred = Vec::with_capacity(parts.len());
+        for (l, g, o, d) in parts {
             loss += l;
             grads.push(g);
             outputs.extend(o);
+            deferred.extend(d);
         }
+        let (d_deferred, d_rest) = d_params.split_at_mut(n_def);
         // Σ over chunks in chunk order, in parallel over the parameters.
-        d_params.par_chunks_mut(1 << 14).enumerate().for_each(|(block, d)| {
+        d_rest.par_chunks_mut(1 << 14).enumerate().for_each(|(block, d)| {
             let (start, len) = (block << 14, d.len());
             for g in &grads {
                 for (d, g) in d.iter_mut().zip(&g[start..start + len]) {
@@ -250,6 +274,11 @@ impl<S, C> Pipeline<S, C> {
                 }
             }
         });
+        if n_def > 0 {
+            let records: Vec<(&[R], &[R])> = deferred.iter().map(|(p, r)| (&p[..], &r[..])).collect();
+            self.sdf.apply_deferred(&params[..self.sdf.n_params()], &records, d_deferred);
+        }
+        deferred.into_par_iter().for_each(drop);
         // Back to the workers' pools (not the calling thread's).
         grads.into_par_iter().for_each(drop);
         (loss, outputs)
@@ -312,7 +341,9 @@ impl<S, C> Pipeline<S, C> {
     }
 
     /// The loss of `rays` (the batch's rays from index `first`) divided by `m` (the whole batch's
-    /// ray count; the colour loss by `color_norm`), gradients added. All rays of the call go
+    /// ray count; the colour loss by `color_norm`), gradients added to `d_params`, which covers
+    /// every parameter after the SDF network's deferred ones ([`Module::deferred_params`]); their
+    /// gradient is returned as (points, record) for [`Module::apply_deferred`]. All rays of the call go
     /// through each network together (one matrix product per layer), the per-ray work in between.
     #[allow(clippy::too_many_arguments)]
     fn accumulate<R: Real>(
@@ -324,12 +355,13 @@ impl<S, C> Pipeline<S, C> {
         m: R,
         color_norm: R,
         extra: &dyn SampleLoss,
-    ) -> (R, Vec<RayOutput<R>>)
+    ) -> (R, Vec<RayOutput<R>>, Option<(Buf<R>, Buf<R>)>)
     where
         S: Module<R>,
         C: Module<R>,
     {
         let (n_sdf, n_col) = (self.sdf.n_params(), self.color.n_params());
+        let n_def = self.sdf.deferred_params();
         let (p_sdf, rest) = params.split_at(n_sdf);
         let (p_col, p_var) = rest.split_at(n_col);
         let (var, p_bg) = (p_var[0], &p_var[1..]);
@@ -556,8 +588,8 @@ impl<S, C> Pipeline<S, C> {
                 d_sdf_direct[b + i] = g.sdf[i] + R::of(d_sdf_extra[i]) * inv_m;
             }
         }
-        let Some(d_params) = d_params else { return (total, outputs) };
-        let (d_sdf_params, rest) = d_params.split_at_mut(n_sdf);
+        let Some(d_params) = d_params else { return (total, outputs, None) };
+        let (d_sdf_params, rest) = d_params.split_at_mut(n_sdf - n_def);
         let (d_col_params, d_rest) = rest.split_at_mut(n_col);
         d_rest[0] += d_var;
         if let Some(net) = &self.background {
@@ -590,8 +622,13 @@ impl<S, C> Pipeline<S, C> {
                 d_sdf_out[(b + i) * n_out] -= R::of(np as f64) * d_lap;
             }
         }
-        self.sdf.backward(p_sdf, &points, &sdf_ctx, &d_sdf_out, d_sdf_params, None);
-        (total, outputs)
+        if n_def == 0 {
+            self.sdf.backward(p_sdf, &points, &sdf_ctx, &d_sdf_out, d_sdf_params, None);
+            return (total, outputs, None);
+        }
+        let mut record = Buf::<R>::zeroed(sdf_rows * self.sdf.deferred_width());
+        self.sdf.backward_deferring(p_sdf, &points, &sdf_ctx, &d_sdf_out, d_sdf_params, &mut record);
+        (total, outputs, Some((points, record)))
     }
 }
 

@@ -117,8 +117,12 @@ pub struct RayInput<R> {
     pub mask: Option<R>,
 }
 
+/// A work item's deferred gradient record: its SDF points and the record
+/// ([`Module::apply_deferred`]).
+type Deferred<R> = Option<(Buf<R>, Buf<R>)>;
+
 /// A chunk's loss, gradient (all but the deferred parameters), outputs and deferred record.
-type Part<R> = (R, Buf<R>, Vec<RayOutput<R>>, Option<(Buf<R>, Buf<R>)>);
+type Part<R> = (R, Buf<R>, Vec<RayOutput<R>>, Deferred<R>);
 
 /// Loss weights and numerics of the pipeline.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -355,7 +359,7 @@ impl<S, C> Pipeline<S, C> {
         m: R,
         color_norm: R,
         extra: &dyn SampleLoss,
-    ) -> (R, Vec<RayOutput<R>>, Option<(Buf<R>, Buf<R>)>)
+    ) -> (R, Vec<RayOutput<R>>, Deferred<R>)
     where
         S: Module<R>,
         C: Module<R>,

@@ -13,7 +13,7 @@ use crate::outputs::{geometry_metrics, mesh_files, mesh_picture};
 use crate::progress::Progress;
 use crate::trainer::{StepReport, Trainer};
 use anyhow::{Context, Result, bail};
-use sdf_backbone::Checkpoint;
+use sdf_backbone::CheckpointReader;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -89,6 +89,14 @@ pub enum Outcome {
 pub trait Sink: Send + Sync {
     /// Writes `bytes` to `path` whole, or not at all.
     fn write(&self, path: &Path, bytes: &[u8]) -> std::io::Result<()>;
+
+    /// Writes what `fill` streams to `path` whole, or not at all. Default: collected in memory,
+    /// then [`Sink::write`].
+    fn write_with(&self, path: &Path, fill: &mut dyn FnMut(&mut dyn std::io::Write) -> std::io::Result<()>) -> std::io::Result<()> {
+        let mut bytes = Vec::new();
+        fill(&mut bytes)?;
+        self.write(path, &bytes)
+    }
 }
 
 /// Atomic writes to the file system (`datasets::io::write_atomic`).
@@ -97,7 +105,10 @@ pub struct AtomicFiles;
 
 impl Sink for AtomicFiles {
     fn write(&self, path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-        datasets::io::write_atomic(path, bytes).map_err(|e| match e {
+        self.write_with(path, &mut |w| w.write_all(bytes))
+    }
+    fn write_with(&self, path: &Path, fill: &mut dyn FnMut(&mut dyn std::io::Write) -> std::io::Result<()>) -> std::io::Result<()> {
+        datasets::io::write_atomic_with(path, fill).map_err(|e| match e {
             datasets::DatasetError::Io { source, .. } => source,
             other => std::io::Error::other(other.to_string()),
         })
@@ -129,6 +140,17 @@ impl RunFolder {
         self.sink.write(&path, bytes).with_context(|| format!("cannot write {}", path.display()))
     }
 
+    /// Writes `name` from what `fill` streams, whole; the error names the file and the cause.
+    pub fn write_with(&self, name: &str, fill: &mut dyn FnMut(&mut dyn std::io::Write) -> std::io::Result<()>) -> Result<()> {
+        let path = self.dir.join(name);
+        self.sink.write_with(&path, fill).with_context(|| format!("cannot write {}", path.display()))
+    }
+
+    /// Writes the trainer's checkpoint (streamed).
+    pub fn write_checkpoint(&self, trainer: &Trainer) -> Result<()> {
+        self.write_with("checkpoint.safetensors", &mut |w| trainer.write_checkpoint(w))
+    }
+
     /// Writes a PNG.
     pub fn write_png(&self, name: &str, image: &datasets::RgbImage) -> Result<()> {
         self.write(name, &image.png_bytes().with_context(|| format!("encoding {name}"))?)
@@ -148,8 +170,9 @@ pub fn checkpoint_path(dir: &Path) -> PathBuf {
     dir.join("checkpoint.safetensors")
 }
 
-/// A run folder's configuration, data path and checkpoint; errors name the file at fault.
-fn read_run_folder(dir: &Path) -> Result<(TrainConfig, Option<PathBuf>, Checkpoint)> {
+/// A run folder's trainer at its checkpoint (for `eval --run`, the benches, `--resume`); errors
+/// name the file at fault.
+pub fn open_run(dir: &Path) -> Result<Trainer> {
     let config_path = dir.join("config.toml");
     let text = std::fs::read_to_string(&config_path).with_context(|| format!("{} is not a run folder (no config.toml)", dir.display()))?;
     let config = TrainConfig::from_toml(&text).with_context(|| format!("{}", config_path.display()))?;
@@ -158,17 +181,13 @@ fn read_run_folder(dir: &Path) -> Result<(TrainConfig, Option<PathBuf>, Checkpoi
         serde_json::from_slice(&std::fs::read(&data_path).with_context(|| format!("{} is not a run folder (no data.json)", dir.display()))?)
             .with_context(|| format!("{} is not valid JSON", data_path.display()))?;
     let ckpt_path = checkpoint_path(dir);
-    let bytes = std::fs::read(&ckpt_path).with_context(|| format!("no checkpoint in {}", dir.display()))?;
-    let ckpt = Checkpoint::from_bytes(&bytes).with_context(|| format!("{} is truncated or corrupt", ckpt_path.display()))?;
-    Ok((config, data["path"].as_str().map(PathBuf::from), ckpt))
-}
-
-/// A run folder's trainer at its checkpoint (for `eval --run`, the benches, `--resume`).
-pub fn open_run(dir: &Path) -> Result<Trainer> {
-    let (config, data_path, ckpt) = read_run_folder(dir)?;
-    let data = SceneData::load(&config, data_path.as_deref())?;
+    let file = std::fs::File::open(&ckpt_path).with_context(|| format!("no checkpoint in {}", dir.display()))?;
+    let len = file.metadata().with_context(|| format!("{}", ckpt_path.display()))?.len();
+    let mut input = std::io::BufReader::new(file);
+    let reader = CheckpointReader::open(&mut input, len).with_context(|| format!("{} is truncated or corrupt", ckpt_path.display()))?;
+    let data = SceneData::load(&config, data["path"].as_str().map(Path::new))?;
     let mut trainer = Trainer::new(config, data)?;
-    trainer.restore(&ckpt).with_context(|| format!("restoring {}", checkpoint_path(dir).display()))?;
+    trainer.restore(&reader, &mut input).with_context(|| format!("restoring {}", ckpt_path.display()))?;
     Ok(trainer)
 }
 
@@ -248,7 +267,7 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: 
         let stopping = stop.load(Ordering::SeqCst) || args.stop_at == Some(step);
         let periodic = |every: u64| every > 0 && step.is_multiple_of(every) && !trainer.done();
         if periodic(config.output.checkpoint_every) || stopping {
-            folder.write("checkpoint.safetensors", &trainer.checkpoint().to_bytes()?)?;
+            folder.write_checkpoint(&trainer)?;
         }
         if periodic(config.output.validate_every) {
             validation_pictures(&trainer, folder, step)?;
@@ -267,7 +286,7 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: 
         }
     }
     progress.finish_phase();
-    folder.write("checkpoint.safetensors", &trainer.checkpoint().to_bytes()?)?;
+    folder.write_checkpoint(&trainer)?;
     let wall = start.elapsed().as_secs_f64() - measured_seconds;
     let mut summary = finish(&trainer, folder, &progress, wall)?;
     let t = trainer.timing();

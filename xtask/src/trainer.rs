@@ -1,5 +1,5 @@
 //! The trainer as a library: a [`Trainer`] built from a configuration and a scene, advanced one
-//! [`Trainer::step`] at a time, saved and restored as a [`Checkpoint`], and asked for renders, a
+//! [`Trainer::step`] at a time, saved and restored as a checkpoint, and asked for renders, a
 //! mesh and metrics. It owns no files and no terminal: the `train` command ([`crate::run`]) adds
 //! the run folder, the progress bar and the stop signal around it.
 //!
@@ -35,7 +35,7 @@ use anyhow::{Context, Result, bail};
 use datasets::images::RgbImage;
 use prob_grid::{IsoMesh, MarchingCubesConfig, marching_cubes_with_progress};
 use rayon::prelude::*;
-use sdf_backbone::{Adam, Backbone, Checkpoint, NoSampleLoss, ParamLayout, RayInput, RayOutput, SampleLoss, adam_step, build};
+use sdf_backbone::{Adam, Backbone, CheckpointReader, CheckpointWriter, NoSampleLoss, RayInput, RayOutput, SampleLoss, StepRates, build};
 use std::time::Instant;
 use surface_losses::{RaySurface, SurfaceLossConfig};
 use view_sampler::{Estimator, EstimatorConfig, UniformSchedule, UpdateReport};
@@ -54,8 +54,6 @@ pub struct TrainState {
     pub params: Vec<f32>,
     /// Optimiser state.
     pub adam: Adam,
-    /// Parameters at the last grid update (a resumed run rebuilds the same grids).
-    pub grid_params: Vec<f32>,
     /// The part of the run whose grids are built (`None` before the first update).
     pub update_part: Option<u32>,
     /// The Lipschitz bound the field claimed at the last update.
@@ -113,7 +111,6 @@ pub struct Trainer {
     split: ViewSplit,
     use_masks: bool,
     backbone: Backbone,
-    layout: ParamLayout,
     estimator: Estimator,
     state: TrainState,
     grads: Vec<f32>,
@@ -168,23 +165,20 @@ impl Trainer {
         let split = ViewSplit::new(&config, &data.scene);
         let use_masks = uses_masks(&config, &data.scene);
         let (backbone, params) = configured_backbone(&config, use_masks);
-        let layout = backbone.layout();
         let cameras = split.train.iter().map(|&i| data.scene.views[i].camera).collect();
         let estimator = Estimator::new(cameras, estimator_config(&config)).context("the guide's configuration")?;
         let mut adam = Adam::new(params.len());
         adam.epsilon = 1e-15;
-        let n = params.len();
-        let state = TrainState { step: 0, grid_params: params.clone(), params, adam, update_part: None, lipschitz: 1.5, train_seconds: 0.0 };
+        let state = TrainState { step: 0, params, adam, update_part: None, lipschitz: 1.5, train_seconds: 0.0 };
         Ok(Trainer {
             config,
             data,
             split,
             use_masks,
             backbone,
-            layout,
             estimator,
             state,
-            grads: vec![0.0; n],
+            grads: Vec::new(),
             timing: Timing::default(),
             last_step_seconds: 0.0,
         })
@@ -272,12 +266,15 @@ impl Trainer {
         ((progress * f64::from(updates)).floor() as u32).min(updates - 1)
     }
 
-    /// Rebuilds the estimator's grids from the parameters of the last update.
+    /// Rebuilds the estimator's grids from the current parameters; the Lipschitz bound the
+    /// field claims next time is the measured one with a margin.
     fn rebuild_grids(&mut self) -> Result<UpdateReport> {
-        let s = self.backbone.scale(&self.state.grid_params) as f32;
-        let mut field = self.backbone.field(&self.state.grid_params);
+        let s = self.backbone.scale(&self.state.params) as f32;
+        let mut field = self.backbone.field(&self.state.params);
         field.lipschitz = self.state.lipschitz;
-        self.estimator.update(&field, s).context("the grid update")
+        let report = self.estimator.update(&field, s).context("the grid update")?;
+        self.state.lipschitz = (report.lipschitz.measured * LIPSCHITZ_MARGIN).max(1.0);
+        Ok(report)
     }
 
     /// One iteration (see the module docs).
@@ -296,10 +293,8 @@ impl Trainer {
         let mut update = None;
         let part = self.part_at(progress);
         if self.estimator.needs_updates() && self.state.update_part != Some(part) {
-            self.state.grid_params.copy_from_slice(&self.state.params);
             self.state.update_part = Some(part);
             let report = self.rebuild_grids()?;
-            self.state.lipschitz = (report.lipschitz.measured * LIPSCHITZ_MARGIN).max(1.0);
             self.timing.grid_seconds += report.seconds;
             self.timing.grid_updates += 1;
             update = Some(report);
@@ -308,7 +303,6 @@ impl Trainer {
         let s = self.s();
         let batch = self.batch(step, progress, s);
         let ray_seconds = t_step.elapsed().as_secs_f64();
-        let (loss, outputs) = self.gradient(&batch);
         // The schedule's factor for a step that ends at the next progress point.
         let progress_end = if self.config.timed() {
             self.progress_at(step + 1, self.state.train_seconds + self.last_step_seconds)
@@ -316,13 +310,15 @@ impl Trainer {
             self.progress_at(step + 1, 0.0)
         };
         let factor = self.config.optim.schedule.factor(progress_end);
-        let n = self.state.params.len();
-        let groups = [
-            (self.layout.encoding.clone(), self.config.optim.lr_grid as f32 * factor),
-            (self.layout.encoding.end..n, self.config.optim.lr as f32 * factor),
-        ];
-        let clip = (self.config.optim.clip_norm > 0.0).then_some(self.config.optim.clip_norm as f32);
-        adam_step(&mut self.state.adam, &mut self.state.params, &mut self.grads, &groups, clip);
+        let rates = StepRates {
+            tables: self.config.optim.lr_grid as f32 * factor,
+            rest: self.config.optim.lr as f32 * factor,
+            clip_norm: (self.config.optim.clip_norm > 0.0).then_some(self.config.optim.clip_norm as f32),
+        };
+        let hook = SurfaceHook { config: self.config.surface, rays: &batch.surfaces };
+        let extra: &dyn SampleLoss = if self.surface_losses_on() { &hook } else { &NoSampleLoss };
+        let (loss, outputs) =
+            self.backbone.train_step(&mut self.state.params, &mut self.state.adam, &batch.rays, self.config.render.chunk, extra, rates);
         if !loss.is_finite() {
             bail!("the loss became {loss} at step {step}");
         }
@@ -355,14 +351,20 @@ impl Trainer {
     /// The loss of `batch` and its gradient (into the trainer's gradient buffer), with the
     /// surface losses on guided runs; the parameters are not changed.
     pub fn gradient(&mut self, batch: &Batch) -> (f32, Vec<RayOutput<f32>>) {
-        self.grads.fill(0.0);
+        self.grads.clear();
+        self.grads.resize(self.state.params.len(), 0.0);
         let hook = SurfaceHook { config: self.config.surface, rays: &batch.surfaces };
-        let extra: &dyn SampleLoss =
-            if self.config.sampler == SamplerKind::Guided && self.config.surface.weight > 0.0 { &hook } else { &NoSampleLoss };
+        let extra: &dyn SampleLoss = if self.surface_losses_on() { &hook } else { &NoSampleLoss };
         self.backbone.loss_parallel(&self.state.params, &batch.rays, &mut self.grads, self.config.render.chunk, extra)
     }
 
-    /// The gradient of the last [`Self::gradient`] or [`Self::step`] (before Adam's clipping).
+    /// Whether the surface losses apply: guided runs with a positive weight.
+    fn surface_losses_on(&self) -> bool {
+        self.config.sampler == SamplerKind::Guided && self.config.surface.weight > 0.0
+    }
+
+    /// The gradient of the last [`Self::gradient`] (steps do not keep one: the hash tables'
+    /// gradient is applied level by level).
     pub fn gradients(&self) -> &[f32] {
         &self.grads
     }
@@ -374,11 +376,9 @@ impl Trainer {
             bail!("{} parameters given, the model has {}", params.len(), self.state.params.len());
         }
         self.state.params.copy_from_slice(params);
-        self.state.grid_params.copy_from_slice(params);
         if self.estimator.needs_updates() {
             self.state.update_part = Some(self.part_at(self.progress()));
-            let report = self.rebuild_grids()?;
-            self.state.lipschitz = (report.lipschitz.measured * LIPSCHITZ_MARGIN).max(1.0);
+            self.rebuild_grids()?;
         }
         Ok(())
     }
@@ -391,10 +391,7 @@ impl Trainer {
 
     /// Rebuilds the grids from the current parameters now; returns the update's report.
     pub fn update_grids(&mut self) -> Result<UpdateReport> {
-        self.state.grid_params.copy_from_slice(&self.state.params);
-        let report = self.rebuild_grids()?;
-        self.state.lipschitz = (report.lipschitz.measured * LIPSCHITZ_MARGIN).max(1.0);
-        Ok(report)
+        self.rebuild_grids()
     }
 
     /// The rays of iteration `step` at `progress` and scale `s` (what [`Self::step`] trains on).
@@ -417,47 +414,68 @@ impl Trainer {
         }
     }
 
-    /// The state as a checkpoint: parameters, Adam, the grid parameters, and metadata (step,
-    /// the part of the grids, the Lipschitz claim, training time, the configuration).
-    pub fn checkpoint(&self) -> Checkpoint {
-        let mut c = Checkpoint::from_state(&self.state.params, &self.state.adam);
-        c.tensors.insert("grid_params".into(), self.state.grid_params.clone());
-        c.metadata.insert("step".into(), self.state.step.to_string());
-        c.metadata.insert("update_part".into(), self.state.update_part.map_or("none".into(), |p| p.to_string()));
-        c.metadata.insert("lipschitz".into(), self.state.lipschitz.to_string());
-        c.metadata.insert("train_seconds".into(), self.state.train_seconds.to_string());
-        c.metadata.insert("config".into(), self.config.to_toml());
-        c
+    /// Writes the state as a checkpoint (streamed: no copy of the parameters): parameters,
+    /// Adam's moments, the estimator's grids of the last update, and metadata (step, the part of
+    /// the grids, the Lipschitz claim, training time, the configuration).
+    pub fn write_checkpoint(&self, out: &mut dyn std::io::Write) -> std::io::Result<()> {
+        let guide = self.estimator.state();
+        let mut w = CheckpointWriter::with_state(&self.state.params, &self.state.adam);
+        let names: Vec<String> = (0..guide.grids.len()).map(|i| format!("guide.grid.{i}")).collect();
+        for (name, grid) in names.iter().zip(&guide.grids) {
+            w.tensor(name, grid);
+        }
+        if let Some(occupancy) = &guide.occupancy {
+            w.tensor("guide.occupancy", occupancy);
+        }
+        w.meta("step", self.state.step.to_string())
+            .meta("update_part", self.state.update_part.map_or("none".into(), |p| p.to_string()))
+            .meta("lipschitz", self.state.lipschitz.to_string())
+            .meta("train_seconds", self.state.train_seconds.to_string())
+            .meta("config", self.config.to_toml());
+        w.write_to(out)
     }
 
-    /// Continues from `checkpoint`: it must come from a run of this very configuration (the
-    /// error names the keys that differ); the grids are rebuilt as they were.
-    pub fn restore(&mut self, checkpoint: &Checkpoint) -> Result<()> {
-        let meta = |key: &str| checkpoint.metadata.get(key).with_context(|| format!("the checkpoint has no {key:?} entry"));
+    /// Continues from a checkpoint (`reader` over `input`): it must come from a run of this very
+    /// configuration (the error names the keys that differ); the grids come back as they were.
+    pub fn restore(&mut self, reader: &CheckpointReader, input: &mut (impl std::io::Read + std::io::Seek)) -> Result<()> {
+        let meta = |key: &str| reader.meta(key).with_context(|| format!("the checkpoint has no {key:?} entry"));
         let saved = TrainConfig::from_toml(meta("config")?).context("the checkpoint's configuration")?;
         let changed = saved.differences(&self.config);
         if !changed.is_empty() {
             bail!("the configuration differs from the checkpoint's in: {} (a run resumes with its own configuration)", changed.join(", "));
         }
-        let n = self.state.params.len();
-        let mut state = self.state.clone();
-        checkpoint.restore(&mut state.params, &mut state.adam)?;
-        state.grid_params.copy_from_slice(checkpoint.tensor("grid_params", n)?);
-        state.step = meta("step")?.parse().context("the checkpoint's step")?;
-        state.update_part = match meta("update_part")?.as_str() {
+        // Parse everything small before touching the state, then read the tensors in place.
+        let step = meta("step")?.parse().context("the checkpoint's step")?;
+        let update_part = match meta("update_part")? {
             "none" => None,
             p => Some(p.parse().context("the checkpoint's update_part")?),
         };
-        state.lipschitz = meta("lipschitz")?.parse().context("the checkpoint's lipschitz")?;
-        state.train_seconds = meta("train_seconds")?.parse().context("the checkpoint's train_seconds")?;
-        self.state = state;
+        let lipschitz = meta("lipschitz")?.parse().context("the checkpoint's lipschitz")?;
+        let train_seconds = meta("train_seconds")?.parse().context("the checkpoint's train_seconds")?;
+        let guide = if update_part.is_some() {
+            let mut grids = Vec::new();
+            while let Some(n) = reader.len(&format!("guide.grid.{}", grids.len())) {
+                let mut g = vec![0.0f32; n];
+                reader.read_into(input, &format!("guide.grid.{}", grids.len()), &mut g)?;
+                grids.push(g);
+            }
+            let occupancy = reader.len("guide.occupancy").map(|_| reader.read_vec(input, "guide.occupancy")).transpose()?;
+            Some(view_sampler::EstimatorState { grids, occupancy })
+        } else {
+            None
+        };
+        reader.restore_state(input, &mut self.state.params, &mut self.state.adam)?;
+        self.state.step = step;
+        self.state.update_part = update_part;
+        self.state.lipschitz = lipschitz;
+        self.state.train_seconds = train_seconds;
         if let Some(levels) = self.backbone.levels() {
             // The levels of the last iteration done.
             let last = self.progress_at(self.state.step.saturating_sub(1), self.state.train_seconds);
             self.backbone.set_active_levels(self.active_levels(levels, last));
         }
-        if self.state.update_part.is_some() {
-            self.rebuild_grids()?;
+        if let Some(guide) = &guide {
+            self.estimator.restore(guide).context("the checkpoint's grids")?;
         }
         Ok(())
     }

@@ -143,6 +143,13 @@ pub struct CameraGrid {
 }
 
 impl CameraGrid {
+    /// A grid of zeros for `camera` with `config`'s resolution and bounds.
+    pub fn empty(camera: &PinholeCamera, config: &CameraGridConfig) -> CameraGrid {
+        let bounds = camera.image_space_bounds(config.bound_center, config.bound_radius, config.depth_bounds, config.min_depth);
+        let (ru, rv, rl) = (config.ru, config.rv, config.rl);
+        CameraGrid { camera: *camera, bounds, ru, rv, rl, values: vec![0.0; ru * rv * rl], mass_outside: 0.0 }
+    }
+
     /// Index of cell (iu, iv, il).
     pub fn index(&self, iu: usize, iv: usize, il: usize) -> usize {
         (iu * self.rv + iv) * self.rl + il
@@ -174,9 +181,9 @@ impl CameraGrid {
 
 /// Projects the active cells into `camera`'s 3D image space and applies view dependency.
 pub fn reproject(active: &ActiveCells, camera: &PinholeCamera, config: &CameraGridConfig) -> CameraGrid {
-    let bounds = camera.image_space_bounds(config.bound_center, config.bound_radius, config.depth_bounds, config.min_depth);
+    let mut grid = CameraGrid::empty(camera, config);
+    let bounds = grid.bounds;
     let (ru, rv, rl) = (config.ru, config.rv, config.rl);
-    let mut grid = CameraGrid { camera: *camera, bounds, ru, rv, rl, values: vec![0.0; ru * rv * rl], mass_outside: 0.0 };
     let (du, dv, dl) = grid.cell_sizes();
 
     // f32 projection: R, t, K as f32; offsets relative to the grid origin.

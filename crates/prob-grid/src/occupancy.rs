@@ -77,6 +77,29 @@ impl Occupancy {
         Occupancy { resolution: r, bound_min: config.bound_min, cell, bits, occupied }
     }
 
+    /// One value per cell (x fastest): 1 occupied, 0 empty (for checkpoints).
+    pub fn to_values(&self) -> Vec<f32> {
+        let n = self.resolution.pow(3);
+        (0..n).map(|i| if self.bits[i / 64] & (1 << (i % 64)) != 0 { 1.0 } else { 0.0 }).collect()
+    }
+
+    /// The occupancy [`Self::to_values`] wrote, for `config`'s grid; `None` if the count differs.
+    pub fn from_values(config: &SceneGridConfig, values: &[f32]) -> Option<Occupancy> {
+        let n = config.resolution.pow(3);
+        if values.len() != n {
+            return None;
+        }
+        let mut bits = vec![0u64; n.div_ceil(64)];
+        let mut occupied = 0;
+        for (i, v) in values.iter().enumerate() {
+            if *v > 0.5 {
+                bits[i / 64] |= 1 << (i % 64);
+                occupied += 1;
+            }
+        }
+        Some(Occupancy { resolution: config.resolution, bound_min: config.bound_min, cell: config.cell_size(), bits, occupied })
+    }
+
     /// Cells per axis.
     pub fn resolution(&self) -> usize {
         self.resolution

@@ -11,7 +11,6 @@ use crate::optim::Adam;
 use crate::pipeline::{ColorLoss, NormalScheme, Pipeline, PipelineConfig};
 use crate::real::Real;
 use glam::Vec3;
-use std::collections::HashMap;
 use std::ops::Range;
 
 /// Errors of the backbone API.
@@ -84,10 +83,22 @@ impl<R: Real> Module<R> for InputEncoding {
             InputEncoding::Positional(_) => false,
         }
     }
-    fn backward_parts(&self, params: &[R], parts: &[(&[R], &[R])], d_params: &mut [R]) {
+    fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
         match self {
-            InputEncoding::HashGrid(g) => g.backward_parts(params, parts, d_params),
-            InputEncoding::Positional(p) => p.backward_parts(params, parts, d_params),
+            InputEncoding::HashGrid(g) => g.backward_parts(parts, d_params),
+            InputEncoding::Positional(p) => p.backward_parts(parts, d_params),
+        }
+    }
+    fn gradient_blocks(&self) -> usize {
+        match self {
+            InputEncoding::HashGrid(g) => Module::<R>::gradient_blocks(g),
+            InputEncoding::Positional(_) => 1,
+        }
+    }
+    fn backward_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
+        match self {
+            InputEncoding::HashGrid(g) => g.backward_parts_block(parts, block, d_block),
+            InputEncoding::Positional(p) => p.backward_parts_block(parts, block, d_block),
         }
     }
 }
@@ -358,6 +369,90 @@ impl prob_grid::SdfField for BackboneField<'_> {
     }
 }
 
+/// Learning rates and clipping of one training step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepRates {
+    /// Rate of the encoding's parameters (hash tables).
+    pub tables: f32,
+    /// Rate of everything else (MLPs, variance, background).
+    pub rest: f32,
+    /// Clip the gradient's global norm to this (None: off).
+    pub clip_norm: Option<f32>,
+}
+
+impl Backbone {
+    /// One training step on `rays`: the loss and its gradient ([`Pipeline::loss_parallel_split`]),
+    /// then Adam, the hash tables updated one level at a time from their deferred gradient (no
+    /// gradient buffer the size of the tables: paper-scale Neuralangelo's 537 M table entries
+    /// need only their parameters and Adam's moments). The same update as a dense gradient and
+    /// [`adam_step`] (tested); the same bits for any thread count. Returns the loss and the
+    /// per-ray outputs.
+    pub fn train_step(
+        &self,
+        params: &mut [f32],
+        adam: &mut Adam,
+        rays: &[crate::pipeline::RayInput<f32>],
+        chunk: usize,
+        extra: &dyn crate::pipeline::SampleLoss,
+        rates: StepRates,
+    ) -> (f32, Vec<crate::pipeline::RayOutput<f32>>) {
+        use rayon::prelude::*;
+        let layout = self.layout();
+        let n = params.len();
+        let n_def = Module::<f32>::deferred_params(&self.sdf);
+        debug_assert!(n_def == 0 || n_def == layout.encoding.len(), "the encoding's parameters are deferred whole");
+        let mut rest = crate::scratch::Buf::<f32>::zeroed(n - n_def);
+        let (loss, outputs, deferred) = self.loss_parallel_split(params, rays, &mut rest, chunk, extra);
+        let blocks = Module::<f32>::deferred_blocks(&self.sdf).max(1);
+        let block_len = n_def / blocks;
+        // The global norm for clipping (a first pass over the table blocks).
+        let mut scale = 1.0f32;
+        if let Some(max) = rates.clip_norm {
+            let tables: f64 = (0..if n_def > 0 { blocks } else { 0 })
+                .into_par_iter()
+                .map(|b| {
+                    let mut g = crate::scratch::Buf::<f32>::zeroed(block_len);
+                    deferred.apply_block(&self.sdf, b, &mut g);
+                    g.iter().map(|x| f64::from(*x) * f64::from(*x)).sum::<f64>()
+                })
+                .sum();
+            let norm = (tables + rest.iter().map(|x| f64::from(*x) * f64::from(*x)).sum::<f64>()).sqrt() as f32;
+            if norm > max && norm.is_finite() {
+                scale = max / norm;
+            }
+        }
+        if scale != 1.0 {
+            rest.iter_mut().for_each(|g| *g *= scale);
+        }
+        let step = adam.begin_step();
+        let (p_tables, p_rest) = params.split_at_mut(n_def);
+        let (m_tables, m_rest) = adam.m.split_at_mut(n_def);
+        let (v_tables, v_rest) = adam.v.split_at_mut(n_def);
+        // Parameters after the tables: the encoding's own (none when deferred) at the table rate.
+        let enc_rest = layout.encoding.len() - n_def;
+        let (pe, pr) = p_rest.split_at_mut(enc_rest);
+        let (me, mr) = m_rest.split_at_mut(enc_rest);
+        let (ve, vr) = v_rest.split_at_mut(enc_rest);
+        step.apply(pe, me, ve, &rest[..enc_rest], rates.tables);
+        step.apply(pr, mr, vr, &rest[enc_rest..], rates.rest);
+        if n_def > 0 {
+            // Each level: its gradient from the records (a scatter that reads no parameter), then
+            // Adam on that level alone.
+            p_tables.par_chunks_mut(block_len).zip(m_tables.par_chunks_mut(block_len)).zip(v_tables.par_chunks_mut(block_len)).enumerate().for_each(
+                |(b, ((p, m), v))| {
+                    let mut g = crate::scratch::Buf::<f32>::zeroed(block_len);
+                    deferred.apply_block(&self.sdf, b, &mut g);
+                    if scale != 1.0 {
+                        g.iter_mut().for_each(|x| *x *= scale);
+                    }
+                    step.apply(p, m, v, &g, rates.tables);
+                },
+            );
+        }
+        (loss, outputs)
+    }
+}
+
 /// Adam over parameter groups with their own learning rates and optional clipping of the
 /// gradient's global norm.
 pub fn adam_step(adam: &mut Adam, params: &mut [f32], grads: &mut [f32], groups: &[(Range<usize>, f32)], clip_norm: Option<f32>) {
@@ -369,79 +464,6 @@ pub fn adam_step(adam: &mut Adam, params: &mut [f32], grads: &mut [f32], groups:
         }
     }
     adam.update_groups(params, grads, groups);
-}
-
-/// A checkpoint: named f32 tensors and string metadata, stored as safetensors (readable from
-/// Python with `safetensors.numpy.load_file`).
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Checkpoint {
-    /// Tensors by name (1-D).
-    pub tensors: HashMap<String, Vec<f32>>,
-    /// Metadata (step, configuration, …).
-    pub metadata: HashMap<String, String>,
-}
-
-impl Checkpoint {
-    /// The model and optimiser state: `params`, `adam.m`, `adam.v`, metadata `adam_step`.
-    pub fn from_state(params: &[f32], adam: &Adam) -> Checkpoint {
-        let mut c = Checkpoint::default();
-        c.tensors.insert("params".into(), params.to_vec());
-        c.tensors.insert("adam.m".into(), adam.m.clone());
-        c.tensors.insert("adam.v".into(), adam.v.clone());
-        c.metadata.insert("adam_step".into(), adam.step.to_string());
-        c
-    }
-
-    /// A tensor of exactly `expected` values.
-    pub fn tensor(&self, name: &str, expected: usize) -> Result<&[f32], BackboneError> {
-        let t = self.tensors.get(name).ok_or_else(|| BackboneError::Checkpoint(format!("no tensor {name:?}")))?;
-        if t.len() != expected {
-            return Err(BackboneError::SizeMismatch { name: name.into(), found: t.len(), expected });
-        }
-        Ok(t)
-    }
-
-    /// Restores parameters and the optimiser (sizes must match the model).
-    pub fn restore(&self, params: &mut [f32], adam: &mut Adam) -> Result<(), BackboneError> {
-        params.copy_from_slice(self.tensor("params", params.len())?);
-        adam.m.copy_from_slice(self.tensor("adam.m", params.len())?);
-        adam.v.copy_from_slice(self.tensor("adam.v", params.len())?);
-        adam.step = self
-            .metadata
-            .get("adam_step")
-            .and_then(|s| s.parse().ok())
-            .ok_or_else(|| BackboneError::Checkpoint("missing or bad metadata adam_step".into()))?;
-        Ok(())
-    }
-
-    /// Serialises to safetensors bytes.
-    pub fn to_bytes(&self) -> Result<Vec<u8>, BackboneError> {
-        use safetensors::tensor::{Dtype, TensorView};
-        let mut names: Vec<&String> = self.tensors.keys().collect();
-        names.sort();
-        let bytes: Vec<(String, Vec<u8>)> =
-            names.iter().map(|n| ((*n).clone(), self.tensors[*n].iter().flat_map(|v| v.to_le_bytes()).collect())).collect();
-        let views: Vec<(String, TensorView<'_>)> = bytes
-            .iter()
-            .map(|(n, b)| TensorView::new(Dtype::F32, vec![b.len() / 4], b).map(|v| (n.clone(), v)))
-            .collect::<Result<_, _>>()
-            .map_err(|e| BackboneError::Checkpoint(e.to_string()))?;
-        safetensors::serialize(views, Some(self.metadata.clone())).map_err(|e| BackboneError::Checkpoint(e.to_string()))
-    }
-
-    /// Parses safetensors bytes (f32 tensors only).
-    pub fn from_bytes(bytes: &[u8]) -> Result<Checkpoint, BackboneError> {
-        let (_, meta) = safetensors::SafeTensors::read_metadata(bytes).map_err(|e| BackboneError::Checkpoint(e.to_string()))?;
-        let st = safetensors::SafeTensors::deserialize(bytes).map_err(|e| BackboneError::Checkpoint(e.to_string()))?;
-        let mut c = Checkpoint { metadata: meta.metadata().clone().unwrap_or_default(), ..Default::default() };
-        for (name, view) in st.tensors() {
-            if view.dtype() != safetensors::Dtype::F32 {
-                return Err(BackboneError::Checkpoint(format!("tensor {name:?} is {:?}, expected F32", view.dtype())));
-            }
-            c.tensors.insert(name, view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect());
-        }
-        Ok(c)
-    }
 }
 
 #[cfg(test)]
@@ -500,28 +522,39 @@ mod tests {
         }
     }
 
+    /// The fused step (tables updated level by level from their deferred gradient) is the dense
+    /// gradient + Adam, with and without clipping.
     #[test]
-    fn checkpoint_round_trips_parameters_optimiser_and_metadata() {
-        let (backbone, mut params) = build(Preset::NeuralangeloCpu, 0.5, 1);
-        let mut adam = Adam::new(params.len());
-        let mut grads: Vec<f32> = (0..params.len()).map(|i| ((i % 7) as f32 - 3.0) * 1e-3).collect();
+    fn train_step_equals_dense_gradient_and_adam() {
+        let (mut backbone, params) = build(Preset::NeuralangeloCpu, 0.5, 2);
+        backbone.set_active_levels(6);
+        let rays: Vec<crate::pipeline::RayInput<f32>> = (0..40)
+            .map(|r| {
+                let a = r as f32 * 0.05;
+                crate::pipeline::RayInput {
+                    origin: [3.0 * a.cos(), 3.0 * a.sin(), 0.2],
+                    direction: glam::Vec3::new(-a.cos(), -a.sin(), -0.05).normalize().to_array(),
+                    depths: (0..=24).map(|i| 2.0 + 2.0 * i as f32 / 24.0).collect(),
+                    target: [0.4, 0.5, 0.6],
+                    mask: Some(if r % 4 == 0 { 0.0 } else { 1.0 }),
+                }
+            })
+            .collect();
         let layout = backbone.layout();
         let n = params.len();
-        adam_step(&mut adam, &mut params, &mut grads, &[(layout.encoding.clone(), 1e-2), (layout.encoding.end..n, 1e-3)], Some(1.0));
-        let mut c = Checkpoint::from_state(&params, &adam);
-        c.metadata.insert("step".into(), "1".into());
-        let bytes = c.to_bytes().unwrap();
-        let back = Checkpoint::from_bytes(&bytes).unwrap();
-        assert_eq!(back, c);
-        let (mut p2, mut a2) = (vec![0.0; params.len()], Adam::new(params.len()));
-        back.restore(&mut p2, &mut a2).unwrap();
-        assert_eq!(p2, params);
-        assert_eq!((a2.m, a2.v, a2.step), (adam.m.clone(), adam.v.clone(), 1));
-        // A checkpoint of another model is refused with the sizes named.
-        let other = params.len() - 10;
-        let err = back.restore(&mut vec![0.0; other], &mut Adam::new(other)).unwrap_err();
-        assert!(err.to_string().contains("params"), "{err}");
-        assert!(Checkpoint::from_bytes(b"not a checkpoint").is_err());
+        for clip in [None, Some(1e-3)] {
+            let rates = StepRates { tables: 1e-2, rest: 5e-3, clip_norm: clip };
+            let (mut fused, mut adam_f) = (params.clone(), Adam::new(n));
+            let (lf, _) = backbone.train_step(&mut fused, &mut adam_f, &rays, 8, &crate::pipeline::NoSampleLoss, rates);
+            let (mut dense, mut adam_d) = (params.clone(), Adam::new(n));
+            let mut grads = vec![0.0f32; n];
+            let (ld, _) = backbone.loss_parallel(&dense, &rays, &mut grads, 8, &crate::pipeline::NoSampleLoss);
+            adam_step(&mut adam_d, &mut dense, &mut grads, &[(layout.encoding.clone(), 1e-2), (layout.encoding.end..n, 5e-3)], clip);
+            assert_eq!(lf, ld);
+            let worst = fused.iter().zip(&dense).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+            assert!(worst <= 1e-7, "clip {clip:?}: parameters differ by {worst}");
+            assert_eq!(adam_f.step, adam_d.step);
+        }
     }
 
     #[test]

@@ -189,11 +189,30 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
     fn defers_gradient(&self) -> bool {
         self.encoding.defers_gradient()
     }
-    fn backward_parts(&self, params: &[R], parts: &[(&[R], &[R])], d_params: &mut [R]) {
-        // The encoding's share of each part's output gradient (the raw input's columns dropped).
+    fn gradient_blocks(&self) -> usize {
+        self.encoding.gradient_blocks()
+    }
+    fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
+        let inner = self.encoding_parts(parts);
+        let inner: Vec<(&[R], &[R])> = parts.iter().zip(&inner).map(|((input, _), d)| (*input, &d[..])).collect();
+        self.encoding.backward_parts(&inner, d_params);
+    }
+    fn backward_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
+        let inner = self.encoding_parts(parts);
+        let inner: Vec<(&[R], &[R])> = parts.iter().zip(&inner).map(|((input, _), d)| (*input, &d[..])).collect();
+        self.encoding.backward_parts_block(&inner, block, d_block);
+    }
+}
+
+impl<M> WithInput<M> {
+    /// The encoding's share of each part's output gradient (the raw input's columns dropped).
+    fn encoding_parts<R: Real>(&self, parts: &[(&[R], &[R])]) -> Vec<crate::scratch::Buf<R>>
+    where
+        M: Module<R>,
+    {
         let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
         let n_out = n_in + n_enc;
-        let d_enc: Vec<crate::scratch::Buf<R>> = parts
+        parts
             .iter()
             .map(|(_, d_output)| {
                 let mut d = crate::scratch::Buf::<R>::zeroed(d_output.len() / n_out * n_enc);
@@ -202,8 +221,6 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
                 }
                 d
             })
-            .collect();
-        let inner: Vec<(&[R], &[R])> = parts.iter().zip(&d_enc).map(|((input, _), d)| (*input, &d[..])).collect();
-        self.encoding.backward_parts(params, &inner, d_params);
+            .collect()
     }
 }

@@ -154,20 +154,27 @@ impl<R: Real> Module<R> for HashGrid {
     }
     /// In parallel over levels (each level's table is its own slice of the gradient), each
     /// level taking the parts in order: deterministic for any thread count.
-    fn backward_parts(&self, _: &[R], parts: &[(&[R], &[R])], d_params: &mut [R]) {
+    fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
         use rayon::prelude::*;
         let f = self.config.features;
-        let levels = self.active_levels.min(self.config.levels);
-        d_params.par_chunks_mut(self.table * f).take(levels).enumerate().for_each(|(level, d_table)| {
-            crate::kernels::dispatch(
-                #[inline(always)]
-                || {
-                    for (input, d_output) in parts {
-                        self.scatter_level(level, input, d_output, d_table);
-                    }
-                },
-            );
-        });
+        d_params.par_chunks_mut(self.table * f).enumerate().for_each(|(level, d_table)| self.backward_parts_block(parts, level, d_table));
+    }
+    /// One level's table.
+    fn gradient_blocks(&self) -> usize {
+        self.config.levels
+    }
+    fn backward_parts_block(&self, parts: &[(&[R], &[R])], level: usize, d_table: &mut [R]) {
+        if level >= self.active_levels.min(self.config.levels) {
+            return;
+        }
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || {
+                for (input, d_output) in parts {
+                    self.scatter_level(level, input, d_output, d_table);
+                }
+            },
+        );
     }
 }
 

@@ -23,6 +23,7 @@
 #![deny(missing_docs)]
 
 pub mod backbone;
+pub mod checkpoint;
 pub mod encoding;
 pub mod hashgrid;
 pub mod kernels;
@@ -34,14 +35,16 @@ pub mod real;
 pub mod render;
 pub mod scratch;
 
-pub use backbone::{Backbone, BackboneError, BackboneField, Checkpoint, InputEncoding, ParamLayout, Preset, SdfNet, adam_step, build};
+pub use backbone::{Backbone, BackboneError, BackboneField, InputEncoding, ParamLayout, Preset, SdfNet, StepRates, adam_step, build};
+pub use checkpoint::{CheckpointReader, CheckpointWriter};
 pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};
 pub use hashgrid::{HashGrid, HashGridConfig};
 pub use mlp::{Mlp, MlpConfig};
 pub use module::{Activation, Chain, Module, batch_gradients};
-pub use optim::{Adam, Decay, LrSchedule, WarmupCosine, WarmupStep};
+pub use optim::{Adam, AdamStep, Decay, LrSchedule, WarmupCosine, WarmupStep};
 pub use pipeline::{
-    ColorLoss, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, interval_weights, scale_from_variance,
+    ColorLoss, DeferredGradient, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, interval_weights,
+    scale_from_variance,
 };
 pub use real::Real;
 pub use render::{RayGradients, RayRender, merge_sorted, render_ray, render_ray_backward, sample_intervals};

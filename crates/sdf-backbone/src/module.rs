@@ -22,19 +22,35 @@ pub trait Module<R: Real>: Sync {
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>);
 
     /// Whether this module's parameter gradient can be computed later from (input, d_output)
-    /// alone, with an empty context (a hash grid: its gradient is a scatter into large tables,
-    /// better done once per batch in order than per work item into a private copy).
+    /// alone, without a context or the parameter values (a hash grid: its gradient is a scatter
+    /// into large tables, better done once per batch in order than per work item into a private
+    /// copy).
     fn defers_gradient(&self) -> bool {
         false
     }
 
     /// The parameter gradient of several work items, `parts` = (input, d_output) each, added to
     /// `d_params` in order (the same bits for any thread count). Default: one
-    /// [`Module::backward`] per part with an empty context (only for modules that
+    /// [`Module::backward`] per part with empty parameters and context (only for modules that
     /// [`Module::defers_gradient`]).
-    fn backward_parts(&self, params: &[R], parts: &[(&[R], &[R])], d_params: &mut [R]) {
+    fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
         for (input, d_output) in parts {
-            self.backward(params, input, &[], d_output, d_params, None);
+            self.backward(&[], input, &[], d_output, d_params, None);
+        }
+    }
+
+    /// Independent blocks of this module's parameters for [`Module::backward_parts_block`]
+    /// (a hash grid: its levels). Default 1.
+    fn gradient_blocks(&self) -> usize {
+        1
+    }
+
+    /// [`Module::backward_parts`] for one block of equal-sized parameter blocks: `d_block` is that
+    /// block's gradient (so blocks can be done in parallel, or one at a time into a small buffer).
+    /// Default: the one block, the whole gradient.
+    fn backward_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
+        if block == 0 {
+            self.backward_parts(parts, d_block);
         }
     }
 
@@ -58,7 +74,19 @@ pub trait Module<R: Real>: Sync {
 
     /// Adds the deferred gradients of several work items, `parts` = (input, deferred record) in
     /// order, to `d_deferred` (the first [`Module::deferred_params`] parameters' gradient).
-    fn apply_deferred(&self, _params: &[R], _parts: &[(&[R], &[R])], _d_deferred: &mut [R]) {}
+    fn apply_deferred(&self, _parts: &[(&[R], &[R])], _d_deferred: &mut [R]) {}
+
+    /// Blocks of the deferred parameters (equal-sized) for [`Module::apply_deferred_block`].
+    fn deferred_blocks(&self) -> usize {
+        1
+    }
+
+    /// [`Module::apply_deferred`] for one block of the deferred parameters into `d_block`.
+    fn apply_deferred_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
+        if block == 0 {
+            self.apply_deferred(parts, d_block);
+        }
+    }
 }
 
 /// Element-wise activations.
@@ -208,9 +236,17 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         // ∂L/∂(first module's outputs) is the record: its gradient is a's backward of it.
         self.b.backward(pb, mid, cb, d_output, d_params, Some(deferred));
     }
-    fn apply_deferred(&self, params: &[R], parts: &[(&[R], &[R])], d_deferred: &mut [R]) {
+    fn apply_deferred(&self, parts: &[(&[R], &[R])], d_deferred: &mut [R]) {
         if self.a.defers_gradient() {
-            self.a.backward_parts(&params[..self.a.n_params()], parts, d_deferred);
+            self.a.backward_parts(parts, d_deferred);
+        }
+    }
+    fn deferred_blocks(&self) -> usize {
+        self.a.gradient_blocks()
+    }
+    fn apply_deferred_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
+        if self.a.defers_gradient() {
+            self.a.backward_parts_block(parts, block, d_block);
         }
     }
 }

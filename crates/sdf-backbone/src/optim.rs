@@ -37,19 +37,55 @@ impl Adam {
     pub fn update_groups(&mut self, params: &mut [f32], grads: &[f32], groups: &[(std::ops::Range<usize>, f32)]) {
         assert_eq!(params.len(), self.m.len(), "Adam: parameter count changed");
         assert_eq!(grads.len(), self.m.len(), "Adam: gradient count differs");
+        let step = self.begin_step();
+        for (range, lr) in groups {
+            let r = range.clone();
+            step.apply(&mut params[r.clone()], &mut self.m[r.clone()], &mut self.v[r.clone()], &grads[r], *lr);
+        }
+    }
+
+    /// Starts a step: advances the step count (bias corrections). Apply the returned
+    /// [`AdamStep`] to every part of the parameters once, in any order or in parallel.
+    pub fn begin_step(&mut self) -> AdamStep {
         self.step += 1;
         let t = self.step as i32;
-        let c1 = 1.0 / (1.0 - self.beta1.powi(t));
-        let c2 = 1.0 / (1.0 - self.beta2.powi(t));
-        for (range, lr) in groups {
-            for i in range.clone() {
-                let g = grads[i];
-                self.m[i] = self.beta1 * self.m[i] + (1.0 - self.beta1) * g;
-                self.v[i] = self.beta2 * self.v[i] + (1.0 - self.beta2) * g * g;
-                let update = (self.m[i] * c1) / ((self.v[i] * c2).sqrt() + self.epsilon);
-                params[i] -= lr * (update + self.weight_decay * params[i]);
-            }
+        AdamStep {
+            beta1: self.beta1,
+            beta2: self.beta2,
+            epsilon: self.epsilon,
+            weight_decay: self.weight_decay,
+            c1: 1.0 / (1.0 - self.beta1.powi(t)),
+            c2: 1.0 / (1.0 - self.beta2.powi(t)),
         }
+    }
+}
+
+/// One Adam step's constants, to apply to parts of the parameters (with their moments).
+#[derive(Debug, Clone, Copy)]
+pub struct AdamStep {
+    beta1: f32,
+    beta2: f32,
+    epsilon: f32,
+    weight_decay: f32,
+    c1: f32,
+    c2: f32,
+}
+
+impl AdamStep {
+    /// Updates `params` (and their moments `m`, `v`) from `grads` with rate `lr` (vectorised).
+    pub fn apply(&self, params: &mut [f32], m: &mut [f32], v: &mut [f32], grads: &[f32], lr: f32) {
+        let s = *self;
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || {
+                for (((p, m), v), g) in params.iter_mut().zip(m.iter_mut()).zip(v.iter_mut()).zip(grads) {
+                    *m = s.beta1 * *m + (1.0 - s.beta1) * g;
+                    *v = s.beta2 * *v + (1.0 - s.beta2) * g * g;
+                    let update = (*m * s.c1) / ((*v * s.c2).sqrt() + s.epsilon);
+                    *p -= lr * (update + s.weight_decay * *p);
+                }
+            },
+        );
     }
 }
 

@@ -121,6 +121,32 @@ pub struct RayInput<R> {
 /// ([`Module::apply_deferred`]).
 type Deferred<R> = Option<(Buf<R>, Buf<R>)>;
 
+/// The deferred gradient of a batch: each work item's SDF points and record, in order.
+pub struct DeferredGradient<R: Real> {
+    records: Vec<(Buf<R>, Buf<R>)>,
+}
+
+impl<R: Real> DeferredGradient<R> {
+    /// (points, record) per work item, in order.
+    pub fn parts(&self) -> Vec<(&[R], &[R])> {
+        self.records.iter().map(|(p, r)| (&p[..], &r[..])).collect()
+    }
+
+    /// Adds block `block` of the deferred gradient of `net` to `d_block`
+    /// ([`Module::apply_deferred_block`]).
+    pub fn apply_block<M: Module<R>>(&self, net: &M, block: usize, d_block: &mut [R]) {
+        net.apply_deferred_block(&self.parts(), block, d_block);
+    }
+}
+
+impl<R: Real> Drop for DeferredGradient<R> {
+    fn drop(&mut self) {
+        use rayon::prelude::*;
+        // Back to the workers' pools (not the calling thread's).
+        std::mem::take(&mut self.records).into_par_iter().for_each(drop);
+    }
+}
+
 /// A chunk's loss, gradient (all but the deferred parameters), outputs and deferred record.
 type Part<R> = (R, Buf<R>, Vec<RayOutput<R>>, Deferred<R>);
 
@@ -209,7 +235,7 @@ impl<S, C> Pipeline<S, C> {
                 let (d_deferred, d_rest) = d_params.split_at_mut(n_def);
                 let (loss, outputs, deferred) = self.accumulate(params, rays, 0, Some(d_rest), m, norm, extra);
                 if let Some((points, record)) = &deferred {
-                    self.sdf.apply_deferred(&params[..self.sdf.n_params()], &[(&points[..], &record[..])], d_deferred);
+                    self.sdf.apply_deferred(&[(&points[..], &record[..])], d_deferred);
                 }
                 (loss, outputs)
             }
@@ -241,19 +267,41 @@ impl<S, C> Pipeline<S, C> {
         S: Module<R> + Sync,
         C: Module<R> + Sync,
     {
+        let n_def = self.sdf.deferred_params();
+        let (d_deferred, d_rest) = d_params.split_at_mut(n_def);
+        let (loss, outputs, deferred) = self.loss_parallel_split(params, rays, d_rest, chunk, extra);
+        if n_def > 0 {
+            self.sdf.apply_deferred(&deferred.parts(), d_deferred);
+        }
+        (loss, outputs)
+    }
+
+    /// [`Self::loss_parallel`] with the SDF network's deferred parameters (a hash grid's tables,
+    /// [`Module::deferred_params`], the first ones) left out: `d_rest` is the gradient of the
+    /// parameters after them, and their own gradient comes back as records to apply (whole, or one
+    /// block at a time with [`DeferredGradient::apply_block`]).
+    pub fn loss_parallel_split<R: Real>(
+        &self,
+        params: &[R],
+        rays: &[RayInput<R>],
+        d_rest: &mut [R],
+        chunk: usize,
+        extra: &dyn SampleLoss,
+    ) -> (R, Vec<RayOutput<R>>, DeferredGradient<R>)
+    where
+        S: Module<R> + Sync,
+        C: Module<R> + Sync,
+    {
         use rayon::prelude::*;
-        let n = d_params.len();
+        let n_rest = d_rest.len();
         let m = R::of(rays.len() as f64);
         let norm = self.color_normaliser::<R>(rays);
         let chunk = chunk.max(1);
-        // Each chunk's gradient of every parameter but the SDF encoding's (a hash grid's tables,
-        // deferred: scattered once below, in chunk order, in parallel over its levels).
-        let n_def = self.sdf.deferred_params();
         let parts: Vec<Part<R>> = rays
             .par_chunks(chunk)
             .enumerate()
             .map(|(i, c)| {
-                let mut g = Buf::<R>::zeroed(n - n_def);
+                let mut g = Buf::<R>::zeroed(n_rest);
                 let (l, o, deferred) = self.accumulate(params, c, i * chunk, Some(&mut g), m, norm, extra);
                 (l, g, o, deferred)
             })
@@ -261,14 +309,13 @@ impl<S, C> Pipeline<S, C> {
         let mut loss = R::ZERO;
         let mut outputs = Vec::with_capacity(rays.len());
         let mut grads = Vec::with_capacity(parts.len());
-        let mut deferred = Vec::with_capacity(parts.len());
+        let mut records = Vec::with_capacity(parts.len());
         for (l, g, o, d) in parts {
             loss += l;
             grads.push(g);
             outputs.extend(o);
-            deferred.extend(d);
+            records.extend(d);
         }
-        let (d_deferred, d_rest) = d_params.split_at_mut(n_def);
         // Σ over chunks in chunk order, in parallel over the parameters.
         d_rest.par_chunks_mut(1 << 14).enumerate().for_each(|(block, d)| {
             let (start, len) = (block << 14, d.len());
@@ -278,14 +325,9 @@ impl<S, C> Pipeline<S, C> {
                 }
             }
         });
-        if n_def > 0 {
-            let records: Vec<(&[R], &[R])> = deferred.iter().map(|(p, r)| (&p[..], &r[..])).collect();
-            self.sdf.apply_deferred(&params[..self.sdf.n_params()], &records, d_deferred);
-        }
-        deferred.into_par_iter().for_each(drop);
         // Back to the workers' pools (not the calling thread's).
         grads.into_par_iter().for_each(drop);
-        (loss, outputs)
+        (loss, outputs, DeferredGradient { records })
     }
 
     /// SDF values (first output of the SDF network) at `points` (xyz rows), in parallel chunks.

@@ -85,7 +85,19 @@ pub struct Estimator {
     cameras: Vec<PinholeCamera>,
     config: EstimatorConfig,
     sampler: Option<ViewSampler>,
+    /// The camera grids' values of the last update (guided), for [`Estimator::state`].
+    grids: Vec<Vec<f32>>,
     occupancy: Option<Occupancy>,
+}
+
+/// What an estimator's last update built, to save and restore exactly (a resumed run draws the
+/// same rays as an uninterrupted one): the camera grids' values and the occupancy.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct EstimatorState {
+    /// Per camera, its grid's values (guided; empty otherwise).
+    pub grids: Vec<Vec<f32>>,
+    /// The occupancy, one value per scene-grid cell ([`Occupancy::to_values`]), if skipping.
+    pub occupancy: Option<Vec<f32>>,
 }
 
 /// NeuS's near/far: the sphere of radius 1 around the origin, measured from the ray's closest
@@ -108,7 +120,7 @@ impl Estimator {
         if let Some(s) = config.fixed_s.filter(|s| !(s.is_finite() && *s > 0.0)) {
             return Err(GridError::InvalidConfig { what: "fixed s", message: format!("{s} (must be finite and > 0)") });
         }
-        Ok(Estimator { cameras, config, sampler: None, occupancy: None })
+        Ok(Estimator { cameras, config, sampler: None, grids: Vec::new(), occupancy: None })
     }
 
     /// The configuration.
@@ -170,11 +182,51 @@ impl Estimator {
         if self.config.guided {
             let grids: Vec<CameraGrid> = self.cameras.par_iter().map(|c| reproject(&active, c, &self.config.camera)).collect();
             report.empty_cameras = grids.iter().enumerate().filter(|(_, g)| !(g.total() > 0.0)).map(|(i, _)| i).collect();
-            let config = SamplerConfig { interpolation: self.config.interpolation, schedule: self.config.schedule.clone() };
-            self.sampler = Some(ViewSampler::new(grids, config));
+            self.grids = grids.iter().map(|g| g.values.clone()).collect();
+            self.build_sampler(grids);
         }
         report.seconds = t.elapsed().as_secs_f64();
         Ok(report)
+    }
+
+    fn build_sampler(&mut self, grids: Vec<CameraGrid>) {
+        let config = SamplerConfig { interpolation: self.config.interpolation, schedule: self.config.schedule.clone() };
+        self.sampler = Some(ViewSampler::new(grids, config));
+    }
+
+    /// What the last update built ([`EstimatorState`]).
+    pub fn state(&self) -> EstimatorState {
+        EstimatorState { grids: self.grids.clone(), occupancy: self.occupancy.as_ref().map(Occupancy::to_values) }
+    }
+
+    /// Restores what [`Self::state`] saved (same cameras and configuration).
+    pub fn restore(&mut self, state: &EstimatorState) -> Result<(), GridError> {
+        let bad = |message: String| GridError::InvalidConfig { what: "estimator state", message };
+        if self.config.guided {
+            if state.grids.len() != self.cameras.len() {
+                return Err(bad(format!("{} camera grids for {} cameras", state.grids.len(), self.cameras.len())));
+            }
+            let grids: Vec<CameraGrid> = self
+                .cameras
+                .iter()
+                .zip(&state.grids)
+                .map(|(c, values)| {
+                    let mut g = CameraGrid::empty(c, &self.config.camera);
+                    if values.len() != g.values.len() {
+                        return Err(bad(format!("a camera grid of {} values, expected {}", values.len(), g.values.len())));
+                    }
+                    g.values.copy_from_slice(values);
+                    Ok(g)
+                })
+                .collect::<Result<_, _>>()?;
+            self.grids = state.grids.clone();
+            self.build_sampler(grids);
+        }
+        if self.config.skip_empty {
+            let values = state.occupancy.as_deref().ok_or_else(|| bad("no occupancy".into()))?;
+            self.occupancy = Some(Occupancy::from_values(&self.config.scene, values).ok_or_else(|| bad("an occupancy of another size".into()))?);
+        }
+        Ok(())
     }
 
     /// Draws `n` rays at training `progress` ∈ [0, 1]: guided and uniform by the schedule with

@@ -39,8 +39,8 @@ pub enum MeshFilter {
     All,
     /// Only the largest (by triangle count).
     Largest,
-    /// Every component the views support: with masks, a component whose vertices lie inside the
-    /// visual hull (in the foreground of ≥ 90 % of the training views that see them in frame);
+    /// The largest component and every other the views support: with masks, a component whose
+    /// vertices lie inside the visual hull (in the foreground of ≥ 90 % of the training views that see them in frame);
     /// without masks, a component of at least `output.min_component_area` of the mesh's area.
     Supported,
 }
@@ -217,7 +217,8 @@ pub struct OutputConfig {
     pub mesh_resolution: u32,
     /// Which connected components of the mesh are kept.
     pub mesh_filter: MeshFilter,
-    /// `supported` without masks: the smallest component kept, as a fraction of the mesh's area.
+    /// `supported` without masks: the smallest component kept, as a fraction of the mesh's area
+    /// (by area alone a small real part cannot be told from a floater: 0 keeps everything).
     pub min_component_area: f64,
     /// Mesh formats: any of ply, obj, glb.
     pub mesh_formats: Vec<MeshFormat>,

@@ -22,6 +22,7 @@ pub mod config;
 pub mod data;
 pub mod draw;
 pub mod eval;
+pub mod memory;
 pub mod outputs;
 pub mod progress;
 pub mod rays;

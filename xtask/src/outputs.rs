@@ -80,7 +80,8 @@ pub fn heat_map(marginal: &[f64], ru: usize, rv: usize, zoom: u32) -> RgbImage {
 }
 
 /// Which connected components of `mesh` (normalised frame) to keep, by `filter`: `supported`
-/// keeps, with masks, the components whose vertices lie in the visual hull (a vertex is in it
+/// keeps the largest component always (it is never a floater) and, with masks, the components
+/// whose vertices lie in the visual hull (a vertex is in it
 /// when ≥ 90 % of the training views that see it in frame have it in their foreground, the mask
 /// dilated by 2 pixels; a component is kept when ≥ half of up to 200 of its vertices are), and
 /// without masks the components of at least `min_area` of the mesh's area. Returns the kept mesh
@@ -142,6 +143,15 @@ pub fn filter_components(
             areas.iter().map(|a| *a >= min_area * total).collect()
         }
     };
+    let mut keep = keep;
+    if filter == MeshFilter::Supported && count > 0 {
+        let mut triangles = vec![0usize; count];
+        for &l in &labels {
+            triangles[l as usize] += 1;
+        }
+        let largest = (0..count).max_by_key(|&c| (triangles[c], std::cmp::Reverse(c))).expect("count > 0");
+        keep[largest] = true;
+    }
     let kept = keep.iter().filter(|k| **k).count();
     (mesh.select_components(&labels, &keep), count, kept)
 }

@@ -56,7 +56,11 @@ impl Progress {
 
     /// A post-training phase (`mesh`, `eval`) at `done` of `total` items, with its ETA.
     pub fn phase(&self, name: &str, done: usize, total: usize) {
-        let unit = if name == "mesh" { "blocks" } else { "views" };
+        let unit = match name {
+            "mesh" => "blocks",
+            "eval" => "views",
+            _ => "",
+        };
         let elapsed = match self.phase_start.lock() {
             Ok(mut p) => {
                 if p.0 != name {

@@ -9,6 +9,7 @@
 
 use crate::config::{SamplerKind, TrainConfig, parse_duration};
 use crate::data::SceneData;
+use crate::memory::{self, MemoryEstimate};
 use crate::outputs::{geometry_metrics, mesh_files, mesh_picture};
 use crate::progress::Progress;
 use crate::trainer::{StepReport, Trainer};
@@ -53,6 +54,10 @@ pub struct TrainArgs {
     /// Print one JSON summary line at the end.
     #[arg(long)]
     pub json: bool,
+    /// The memory limit (e.g. `8G`); by default the memory the system has available. A run whose
+    /// estimated peak exceeds it is refused before it starts, with what to change.
+    #[arg(long)]
+    pub max_memory: Option<String>,
     /// Configuration overrides `key=value` (e.g. `steps=500 guide.scene.partition=1`).
     pub overrides: Vec<String>,
 }
@@ -170,9 +175,8 @@ pub fn checkpoint_path(dir: &Path) -> PathBuf {
     dir.join("checkpoint.safetensors")
 }
 
-/// A run folder's trainer at its checkpoint (for `eval --run`, the benches, `--resume`); errors
-/// name the file at fault.
-pub fn open_run(dir: &Path) -> Result<Trainer> {
+/// A run folder's configuration and data path; errors name the file at fault.
+pub fn read_run_config(dir: &Path) -> Result<(TrainConfig, Option<PathBuf>)> {
     let config_path = dir.join("config.toml");
     let text = std::fs::read_to_string(&config_path).with_context(|| format!("{} is not a run folder (no config.toml)", dir.display()))?;
     let config = TrainConfig::from_toml(&text).with_context(|| format!("{}", config_path.display()))?;
@@ -180,15 +184,58 @@ pub fn open_run(dir: &Path) -> Result<Trainer> {
     let data: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&data_path).with_context(|| format!("{} is not a run folder (no data.json)", dir.display()))?)
             .with_context(|| format!("{} is not valid JSON", data_path.display()))?;
+    Ok((config, data["path"].as_str().map(PathBuf::from)))
+}
+
+/// A run folder's trainer at its checkpoint (for `eval --run`, the benches, `--resume`).
+pub fn open_run(dir: &Path) -> Result<Trainer> {
+    let (config, data_path) = read_run_config(dir)?;
+    let data = SceneData::load(&config, data_path.as_deref())?;
+    restore_run(dir, config, data)
+}
+
+/// The trainer of `config` on `data` at the checkpoint of run folder `dir`.
+fn restore_run(dir: &Path, config: TrainConfig, data: SceneData) -> Result<Trainer> {
     let ckpt_path = checkpoint_path(dir);
     let file = std::fs::File::open(&ckpt_path).with_context(|| format!("no checkpoint in {}", dir.display()))?;
     let len = file.metadata().with_context(|| format!("{}", ckpt_path.display()))?.len();
     let mut input = std::io::BufReader::new(file);
     let reader = CheckpointReader::open(&mut input, len).with_context(|| format!("{} is truncated or corrupt", ckpt_path.display()))?;
-    let data = SceneData::load(&config, data["path"].as_str().map(Path::new))?;
     let mut trainer = Trainer::new(config, data)?;
     trainer.restore(&reader, &mut input).with_context(|| format!("restoring {}", ckpt_path.display()))?;
     Ok(trainer)
+}
+
+/// The memory model of `config` on `data`, printed beside the memory available; an error naming
+/// what to change when the peak exceeds `max_memory` (default: the memory available).
+pub fn check_memory(config: &TrainConfig, data: &SceneData, max_memory: Option<f64>) -> Result<MemoryEstimate> {
+    let mut backbone = sdf_backbone::architecture(config.model.preset);
+    backbone.config.normals = config.model.normals;
+    if config.model.learned_background {
+        backbone.add_learned_background(&mut Vec::new(), 0);
+    }
+    let n_params = backbone.n_params::<f32>();
+    let estimate = memory::estimate(config, &backbone, n_params, data.scene.views.len(), data.scene.pixel_bytes(), rayon::current_num_threads());
+    let available = memory::available_bytes();
+    let limit = max_memory.or(available);
+    eprintln!(
+        "memory: {}; {}",
+        estimate.describe(),
+        match (available, max_memory) {
+            (_, Some(m)) => format!("limit {:.2} GB (--max-memory)", m / 1e9),
+            (Some(a), None) => format!("{:.2} GB available", a / 1e9),
+            (None, None) => "available memory unknown".into(),
+        }
+    );
+    if let Some(limit) = limit.filter(|l| estimate.peak() > *l) {
+        bail!(
+            "this run needs about {:.2} GB and {:.2} GB is the limit: lower {} (or raise the limit with --max-memory)",
+            estimate.peak() / 1e9,
+            limit / 1e9,
+            estimate.advice(config)
+        );
+    }
+    Ok(estimate)
 }
 
 /// The configuration of a fresh run from the command line.
@@ -213,19 +260,25 @@ pub fn train(args: &TrainArgs, stop: &AtomicBool) -> Result<Outcome> {
 
 /// [`train`] with the files going through `sink`.
 pub fn train_with(args: &TrainArgs, stop: &AtomicBool, sink: Arc<dyn Sink>) -> Result<Outcome> {
-    // Everything that can fail on input fails before the run folder exists.
-    let (trainer, dir) = if let Some(dir) = &args.resume {
+    // Everything that can fail on input fails before the run folder exists, and the memory is
+    // checked before anything large is allocated.
+    let max_memory = args.max_memory.as_deref().map(memory::parse_size).transpose()?;
+    let (trainer, dir, estimate) = if let Some(dir) = &args.resume {
         if !args.overrides.is_empty() {
             bail!("--resume continues a run with its own configuration; overrides ({}) are not allowed", args.overrides.join(" "));
         }
-        (open_run(dir)?, dir.clone())
+        let (config, data_path) = read_run_config(dir)?;
+        let data = SceneData::load(&config, data_path.as_deref())?;
+        let estimate = check_memory(&config, &data, max_memory)?;
+        (restore_run(dir, config, data)?, dir.clone(), estimate)
     } else {
         let config = fresh_config(args)?;
         let data = SceneData::load(&config, args.data.as_deref())?;
-        (Trainer::new(config, data)?, args.out.clone())
+        let estimate = check_memory(&config, &data, max_memory)?;
+        (Trainer::new(config, data)?, args.out.clone(), estimate)
     };
     let (folder, created) = RunFolder::create(&dir, sink)?;
-    let result = run_folder(trainer, &folder, args, stop);
+    let result = run_folder(trainer, &folder, args, stop, &estimate);
     if result.is_err() && created && !checkpoint_path(&dir).exists() {
         // Nothing worth keeping was made: leave no stray folder.
         let _ = std::fs::remove_dir_all(&dir);
@@ -233,7 +286,7 @@ pub fn train_with(args: &TrainArgs, stop: &AtomicBool, sink: Arc<dyn Sink>) -> R
     result
 }
 
-fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: &AtomicBool) -> Result<Outcome> {
+fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: &AtomicBool, estimate: &MemoryEstimate) -> Result<Outcome> {
     let config = trainer.config().clone();
     if args.resume.is_none() {
         folder.write("config.toml", config.to_toml().as_bytes())?;
@@ -286,9 +339,15 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: 
         }
     }
     progress.finish_phase();
+    let t = Instant::now();
+    progress.phase("checkpoint", 0, 1);
     folder.write_checkpoint(&trainer)?;
+    progress.phase("checkpoint", 1, 1);
+    let checkpoint_seconds = t.elapsed().as_secs_f64();
     let wall = start.elapsed().as_secs_f64() - measured_seconds;
-    let mut summary = finish(&trainer, folder, &progress, wall)?;
+    let mut summary = finish(&trainer, folder, &progress, wall, estimate)?;
+    summary.metrics["checkpoint_s"] = json!(checkpoint_seconds);
+    folder.write("metrics.json", serde_json::to_string_pretty(&summary.metrics)?.as_bytes())?;
     let t = trainer.timing();
     history.push(json!({"step": trainer.state().step, "chamfer": summary.metrics["chamfer"], "f_score": summary.metrics["f_score"], "psnr": summary.metrics["psnr"], "psnr_masked": summary.metrics["psnr_masked"], "time_s": t.step_seconds + t.grid_seconds}));
     summary.history = history;
@@ -371,11 +430,13 @@ fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
 }
 
 /// Final pictures, mesh, metrics and summary.
-fn finish(trainer: &Trainer, folder: &RunFolder, progress: &Progress, train_wall: f64) -> Result<RunSummary> {
+fn finish(trainer: &Trainer, folder: &RunFolder, progress: &Progress, train_wall: f64, estimate: &MemoryEstimate) -> Result<RunSummary> {
     let config = trainer.config();
     let scene = &trainer.data().scene;
     let split = trainer.split();
     let step = trainer.state().step;
+    // Each phase's scratch buffers differ in size: the resident size is the largest phase's.
+    sdf_backbone::scratch::release_all();
     validation_pictures(trainer, folder, step)?;
     // Image metrics on the held-out views (all views when none are held out).
     let candidates = split.evaluation_views();
@@ -389,6 +450,7 @@ fn finish(trainer: &Trainer, folder: &RunFolder, progress: &Progress, train_wall
     let held = image_metrics(trainer, &eval_views, config.output.validate_downscale, &|i, _| progress.phase("eval", i, n_renders));
     let fit = image_metrics(trainer, &fit_views, config.output.validate_downscale, &|i, _| progress.phase("eval", eval_views.len() + i, n_renders));
     let eval_seconds = t.elapsed().as_secs_f64();
+    sdf_backbone::scratch::release_all();
     let psnr = mean(held.iter().map(|p| p.0)).unwrap_or(f64::NAN);
     let psnr_masked = mean(held.iter().filter_map(|p| p.1));
     let ssim = mean(held.iter().filter_map(|p| p.2));
@@ -457,6 +519,8 @@ fn finish(trainer: &Trainer, folder: &RunFolder, progress: &Progress, train_wall
         "mesh_s": mesh_seconds,
         "geometry_s": geometry_seconds,
         "threads": rayon::current_num_threads(),
+        "memory_estimate_bytes": estimate.peak(),
+        "peak_rss_bytes": memory::peak_rss_bytes(),
     });
     folder.write("metrics.json", serde_json::to_string_pretty(&metrics)?.as_bytes())?;
     eprintln!(

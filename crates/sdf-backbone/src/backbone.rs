@@ -169,6 +169,15 @@ pub struct ParamLayout {
 /// v = 0.3 (NeuS: s = e³ ≈ 20). Coarse-to-fine starts with all levels active (see
 /// [`Backbone::set_active_levels`]).
 pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
+    let backbone = architecture(preset);
+    let width = backbone.sdf.b.config().width;
+    let n_enc = Module::<f32>::n_outputs(&backbone.sdf.a);
+    init_parameters(backbone, preset, radius, seed, width, n_enc)
+}
+
+/// A preset's networks without parameters (sizes, layouts, memory estimates); [`build`] adds
+/// initialised parameters.
+pub fn architecture(preset: Preset) -> Backbone {
     let (encoding, width, layers, features, color_width, color_layers) = match preset {
         Preset::NeuralangeloCpu => {
             (InputEncoding::HashGrid(WithInput { encoding: HashGrid::new(HashGridConfig::neuralangelo_cpu()) }), 64, 2, 15, 64, 2)
@@ -209,7 +218,7 @@ pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
         InputEncoding::HashGrid(g) => g.encoding.resolutions().last().copied().unwrap_or(256),
         InputEncoding::Positional(_) => 512,
     };
-    let backbone = Pipeline {
+    Pipeline {
         sdf: Chain { a: encoding, b: sdf_mlp },
         color,
         background: None,
@@ -223,7 +232,11 @@ pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
             background: [0.0; 3],
             masked_color: false,
         },
-    };
+    }
+}
+
+/// Initial parameters of `backbone` (see [`build`]).
+fn init_parameters(backbone: Backbone, preset: Preset, radius: f64, seed: u64, width: usize, n_enc: usize) -> (Backbone, Vec<f32>) {
     let layout = backbone.layout();
     let mut params = vec![0.0f32; layout.variance + 1];
     if let InputEncoding::HashGrid(g) = &backbone.sdf.a {

@@ -35,7 +35,7 @@ pub mod real;
 pub mod render;
 pub mod scratch;
 
-pub use backbone::{Backbone, BackboneError, BackboneField, InputEncoding, ParamLayout, Preset, SdfNet, StepRates, adam_step, build};
+pub use backbone::{Backbone, BackboneError, BackboneField, InputEncoding, ParamLayout, Preset, SdfNet, StepRates, adam_step, architecture, build};
 pub use checkpoint::{CheckpointReader, CheckpointWriter};
 pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};
 pub use hashgrid::{HashGrid, HashGridConfig};

@@ -29,6 +29,21 @@ pooled!(f32);
 pooled!(f64);
 pooled!(u32);
 
+/// Empties the calling thread's pools (every precision), returning their memory.
+pub fn release_thread() {
+    f32::with_pool(Vec::clear);
+    f64::with_pool(Vec::clear);
+    u32::with_pool(Vec::clear);
+}
+
+/// Empties the pools of every rayon worker thread and the calling thread: call between phases
+/// whose buffers differ in size (training, evaluation renders, meshing), so that the resident
+/// size is the largest phase's, not their sum.
+pub fn release_all() {
+    rayon::broadcast(|_| release_thread());
+    release_thread();
+}
+
 /// What a [`Buf`] can hold.
 pub trait Element: Pooled + Copy + Default {}
 impl Element for f32 {}

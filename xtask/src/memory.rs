@@ -1,0 +1,160 @@
+//! A memory model of a run, computed before it starts: what stays resident (parameters, Adam's
+//! moments, images, the guide's grids) and the largest working set of a phase (a training step,
+//! the evaluation renders, meshing), in bytes, with the knobs each part depends on. The runner
+//! prints it beside the machine's available memory and refuses a run that cannot fit, naming the
+//! knobs that would make it fit (`--max-memory` overrides the limit).
+//!
+//! The model counts what the code allocates: a training step keeps, for every work item of the
+//! batch, its gradient of the parameters after the hash tables and its deferred table-gradient
+//! record until the batch is summed, and each thread holds one work item's buffers (the SDF and
+//! colour networks' contexts and gradients, reused across work items); the table update holds
+//! one level's gradient per thread. Checked against measured peaks in
+//! `xtask/tests/memory.rs` (within 25 %).
+
+use crate::config::TrainConfig;
+use sdf_backbone::{Backbone, Module, NormalScheme};
+
+/// Bytes of f32.
+const F32: f64 = 4.0;
+/// The process without any data: code, libraries, thread stacks, allocator overhead.
+const BASE: f64 = 40e6;
+
+/// The parts of a run's peak memory, in bytes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MemoryEstimate {
+    /// Parameters and Adam's two moments.
+    pub parameters: f64,
+    /// Images and masks.
+    pub images: f64,
+    /// The guide's camera grids, samplers and scene-grid evaluation.
+    pub guide: f64,
+    /// A training step's working set.
+    pub step: f64,
+    /// The evaluation renders' working set.
+    pub evaluation: f64,
+    /// Meshing's working set.
+    pub meshing: f64,
+}
+
+impl MemoryEstimate {
+    /// The estimated peak: everything resident, the training step's working set, and the larger
+    /// of the evaluation's and meshing's. The step's buffers go back to the allocator between
+    /// phases but glibc keeps freed blocks below its (adaptive, ≤ 32 MB) mmap threshold in its
+    /// per-thread arenas, so the resident size does not fall back: measured, the post-training
+    /// phases add to the step's working set rather than replace it.
+    pub fn peak(&self) -> f64 {
+        BASE + self.parameters + self.images + self.guide + self.step + self.evaluation.max(self.meshing)
+    }
+
+    /// One line per part for people.
+    pub fn describe(&self) -> String {
+        let gb = |b: f64| b / 1e9;
+        format!(
+            "parameters + Adam {:.2} GB, images {:.2} GB, guide {:.2} GB, training step {:.2} GB, evaluation {:.2} GB, meshing {:.2} GB: peak ≈ {:.2} GB",
+            gb(self.parameters),
+            gb(self.images),
+            gb(self.guide),
+            gb(self.step),
+            gb(self.evaluation),
+            gb(self.meshing),
+            gb(self.peak())
+        )
+    }
+
+    /// What to change to bring the peak under `limit`, largest part first.
+    pub fn advice(&self, config: &TrainConfig) -> String {
+        let mut parts = [
+            (self.parameters, format!("model.preset (now {}; neuralangelo-cpu needs ~13 MB)", config.model.preset.name())),
+            (
+                self.step,
+                format!("render.rays (now {}), render.chunk (now {}), or fewer threads (RAYON_NUM_THREADS)", config.render.rays, config.render.chunk),
+            ),
+            (self.images, format!("data.downscale (now {})", config.data.downscale)),
+            (self.meshing, format!("output.mesh_resolution (now {})", config.output.mesh_resolution)),
+            (self.guide, format!("guide.camera.ru/rv/rl (now {}×{}×{})", config.guide.camera.ru, config.guide.camera.rv, config.guide.camera.rl)),
+        ];
+        parts.sort_by(|a, b| b.0.total_cmp(&a.0));
+        parts.iter().map(|(b, knob)| format!("{knob}: {:.2} GB", b / 1e9)).collect::<Vec<_>>().join("; ")
+    }
+}
+
+/// Bytes of one work item's forward + backward buffers for `rays` rays of `samples` intervals.
+fn work_item_bytes(backbone: &Backbone, rays: usize, samples: usize, backward: bool) -> f64 {
+    let probes = match backbone.config.normals {
+        NormalScheme::Tetrahedral => 4,
+        NormalScheme::Central => 6,
+    };
+    let sdf_rows = (rays * ((probes + 1) * samples + 1)) as f64;
+    let col_rows = (rays * samples) as f64;
+    let sdf_out = Module::<f32>::n_outputs(&backbone.sdf) as f64;
+    let sdf_ctx = Module::<f32>::ctx_per_row(&backbone.sdf) as f64;
+    let col_in = Module::<f32>::n_inputs(&backbone.color) as f64;
+    let col_ctx = Module::<f32>::ctx_per_row(&backbone.color) as f64;
+    let width = backbone.sdf.b.config().width as f64;
+    // Forward: points, outputs, contexts; backward: output gradients, the layers' temporaries
+    // (dZ, dA), the colour input gradient.
+    let forward = sdf_rows * (3.0 + sdf_out + sdf_ctx) + col_rows * (2.0 * col_in + col_ctx + 6.0);
+    let backward = if backward { sdf_rows * (sdf_out + 3.0 * width + 8.0) + col_rows * (col_in + 3.0 * width) } else { 0.0 };
+    F32 * (forward + backward)
+}
+
+/// The memory model of `config` with `backbone` on a scene of `views` views and `pixel_bytes`
+/// of images, with `threads` worker threads.
+pub fn estimate(config: &TrainConfig, backbone: &Backbone, n_params: usize, views: usize, pixel_bytes: usize, threads: usize) -> MemoryEstimate {
+    let t = threads.max(1) as f64;
+    let n = n_params as f64;
+    let tables = backbone.layout().encoding.len() as f64;
+    let samples = config.render.coarse + config.render.fine;
+    let chunks = config.render.rays.div_ceil(config.render.chunk) as f64;
+    let probes = if backbone.config.normals == NormalScheme::Tetrahedral { 4 } else { 6 };
+    let rows_per_chunk = (config.render.chunk * ((probes + 1) * samples + 1)) as f64;
+    let record = Module::<f32>::deferred_width(&backbone.sdf) as f64 + 3.0;
+    let levels = backbone.levels().unwrap_or(1) as f64;
+    // Every work item's gradient (without the tables) and table record live until the sum.
+    let batch = chunks * F32 * ((n - tables) + rows_per_chunk * record);
+    let step = batch + t * work_item_bytes(backbone, config.render.chunk, samples, true) + t * F32 * tables / levels + F32 * (n - tables);
+    // Evaluation renders: work items of 64 rays, forward only, one per thread.
+    let evaluation = t * work_item_bytes(backbone, 64, samples, false);
+    // Meshing: a block of 17³ corners per thread through the SDF network (chunks of 1024
+    // rows), and the mesh (~ 12 triangles per surface cell of the resolution's shell).
+    let mesh_res = f64::from(config.output.mesh_resolution);
+    let sdf_ctx = Module::<f32>::ctx_per_row(&backbone.sdf) as f64;
+    let meshing = t * F32 * 1024.0 * (sdf_ctx + 32.0) + mesh_res * mesh_res * 6.0 * 40.0;
+    let cells = (config.guide.camera.ru * config.guide.camera.rv * config.guide.camera.rl) as f64;
+    let guided = config.sampler == crate::config::SamplerKind::Guided;
+    let scene_cells = (config.guide.scene.resolution as f64).powi(3);
+    let guide = if guided { views as f64 * cells * F32 * 3.0 } else { 0.0 } + scene_cells * 20.0;
+    MemoryEstimate { parameters: 3.0 * F32 * n, images: pixel_bytes as f64, guide, step, evaluation, meshing }
+}
+
+/// The memory the kernel says is available for new work (`MemAvailable`), in bytes.
+pub fn available_bytes() -> Option<f64> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = info.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    Some(line.split_whitespace().nth(1)?.parse::<f64>().ok()? * 1024.0)
+}
+
+/// This process's peak resident memory (`VmHWM`), in bytes.
+pub fn peak_rss_bytes() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    Some(line.split_whitespace().nth(1)?.parse::<f64>().ok()? * 1024.0)
+}
+
+/// Parses a size such as `8G`, `512M`, `2.5GB` into bytes.
+pub fn parse_size(text: &str) -> anyhow::Result<f64> {
+    let t = text.trim().to_ascii_uppercase();
+    let t = t.trim_end_matches('B');
+    let (number, scale) = match t.chars().last() {
+        Some('K') => (&t[..t.len() - 1], 1e3),
+        Some('M') => (&t[..t.len() - 1], 1e6),
+        Some('G') => (&t[..t.len() - 1], 1e9),
+        Some('T') => (&t[..t.len() - 1], 1e12),
+        _ => (t, 1.0),
+    };
+    let value: f64 = number.trim().parse().map_err(|_| anyhow::anyhow!("{text:?} is not a size (e.g. 8G, 512M)"))?;
+    if !(value.is_finite() && value > 0.0) {
+        anyhow::bail!("{text:?}: a size must be positive");
+    }
+    Ok(value * scale)
+}

@@ -306,27 +306,20 @@ impl Backbone {
         let n_enc = Module::<f32>::n_params(&self.sdf.a);
         let n_sdf = n_enc + Module::<f32>::n_params(&self.sdf.b);
         let n_col = n_sdf + Module::<f32>::n_params(&self.color);
-        let n_bg = self.background.as_ref().map_or(0, Module::<f32>::n_params);
+        let n_bg = self.background.as_ref().map_or(0, crate::background::BackgroundModel::n_params);
         ParamLayout { encoding: 0..n_enc, sdf_mlp: n_enc..n_sdf, color: n_sdf..n_col, variance: n_col, background: n_col + 1..n_col + 1 + n_bg }
     }
 
-    /// Adds a learned background (SH₄(direction) → 1 × 32 ReLU → RGB sigmoid, He init, output
-    /// bias 0: grey) and its parameters at the end of `params`.
+    /// Adds a learned background (NeRF++'s inverted sphere: 16 samples per ray beyond the bound,
+    /// PE with 4 frequencies, MLP 2 × 64; [`crate::background::BackgroundModel`]) and its
+    /// parameters at the end of `params`.
     pub fn add_learned_background(&mut self, params: &mut Vec<f32>, seed: u64) {
-        let net = Mlp::new(MlpConfig {
-            n_inputs: 16,
-            width: 32,
-            hidden_layers: 1,
-            n_outputs: 3,
-            skip: None,
-            hidden_activation: Activation::Relu,
-            output_activation: Activation::Sigmoid,
-        });
-        let mut p = vec![0.0f32; Module::<f32>::n_params(&net)];
-        net.init_default(&mut p, seed);
+        let model = crate::background::BackgroundModel::new(16, 4, 64, 2);
+        let mut p = vec![0.0f32; model.n_params()];
+        model.init(&mut p, seed);
         params.truncate(self.layout().variance + 1);
         params.extend_from_slice(&p);
-        self.background = Some(net);
+        self.background = Some(model);
     }
 
     /// The logistic scale s of these parameters ([`crate::pipeline::scale_from_variance`]).

@@ -23,6 +23,7 @@
 #![deny(missing_docs)]
 
 pub mod backbone;
+pub mod background;
 pub mod checkpoint;
 pub mod encoding;
 pub mod hashgrid;
@@ -36,6 +37,7 @@ pub mod render;
 pub mod scratch;
 
 pub use backbone::{Backbone, BackboneError, BackboneField, InputEncoding, ParamLayout, Preset, SdfNet, StepRates, adam_step, architecture, build};
+pub use background::BackgroundModel;
 pub use checkpoint::{CheckpointReader, CheckpointWriter};
 pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};
 pub use hashgrid::{HashGrid, HashGridConfig};

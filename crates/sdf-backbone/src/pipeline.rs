@@ -23,8 +23,8 @@
 //! becomes ±1/2h on the six neighbour evaluations) → SDF network at all 7n + 1 points.
 //! Everything is generic over [`Real`] so that the whole pipeline is gradient-checked in f64.
 
+use crate::background::BackgroundModel;
 use crate::encoding::SphericalHarmonics;
-use crate::mlp::Mlp;
 use crate::module::Module;
 use crate::real::Real;
 use crate::render::{render_ray, render_ray_backward};
@@ -184,11 +184,9 @@ pub struct Pipeline<S, C> {
     pub sdf: S,
     /// Colour network: 3 + 3 + 16 + F inputs → 3 outputs (sigmoid).
     pub color: C,
-    /// Learned background for unmasked captures: SH₄(direction) (16 inputs) → RGB (sigmoid),
-    /// composited behind the surface instead of `config.background`. A colour per direction
-    /// (an environment at infinity): it cannot show parallax, so a background near the object
-    /// (DTU's table and walls) is still modelled as geometry inside the bound.
-    pub background: Option<Mlp>,
+    /// Learned background for unmasked captures (NeRF++'s inverted sphere outside the bound,
+    /// [`BackgroundModel`]), composited behind the surface instead of `config.background`.
+    pub background: Option<BackgroundModel>,
     /// Configuration.
     pub config: PipelineConfig,
 }
@@ -213,7 +211,7 @@ impl<S, C> Pipeline<S, C> {
         S: Module<R>,
         C: Module<R>,
     {
-        self.sdf.n_params() + self.color.n_params() + 1 + self.background.as_ref().map_or(0, Module::<R>::n_params)
+        self.sdf.n_params() + self.color.n_params() + 1 + self.background.as_ref().map_or(0, BackgroundModel::n_params)
     }
 
     /// Loss of a batch (averaged over rays) and, if `d_params` is given, its gradient added into
@@ -488,13 +486,11 @@ impl<S, C> Pipeline<S, C> {
         let mut color_ctx = Buf::<R>::zeroed(col_rows * self.color.ctx_per_row());
         self.color.forward(p_col, &color_in, &mut colors_flat, &mut color_ctx);
         // Learned background of every ray.
-        let mut bg_out = vec![R::ZERO; 3 * rays.len()];
-        let mut bg_ctx = Vec::new();
-        let sh_flat: Vec<R> = sh_all.iter().flatten().copied().collect();
-        if let Some(net) = &self.background {
-            bg_ctx = vec![R::ZERO; rays.len() * Module::<R>::ctx_per_row(net)];
-            net.forward(p_bg, &sh_flat, &mut bg_out, &mut bg_ctx);
-        }
+        let bg_pass = self.background.as_ref().map(|model| {
+            let origins: Vec<[R; 3]> = rays.iter().map(|r| r.origin).collect();
+            let directions: Vec<[R; 3]> = rays.iter().map(|r| r.direction).collect();
+            model.forward(p_bg, &origins, &directions, &sh_all)
+        });
 
         let mut total = R::ZERO;
         let mut outputs = Vec::with_capacity(rays.len());
@@ -505,7 +501,7 @@ impl<S, C> Pipeline<S, C> {
         let mut d_sdf_direct = Buf::<R>::zeroed(if backward { sdf_rows } else { 0 });
         let mut d_normals_all = if backward { vec![[R::ZERO; 3]; col_rows] } else { Vec::new() };
         let mut d_laplacian_all = Buf::<R>::zeroed(if backward { col_rows } else { 0 });
-        let mut d_bg_all = if backward { vec![R::ZERO; 3 * rays.len()] } else { Vec::new() };
+        let mut d_bg_all = vec![[R::ZERO; 3]; if backward { rays.len() } else { 0 }];
         let mut d_var = R::ZERO;
         for (r, ray) in rays.iter().enumerate() {
             let n = ray.depths.len() - 1;
@@ -515,8 +511,8 @@ impl<S, C> Pipeline<S, C> {
             let colors: Vec<[R; 3]> = colors_flat[3 * c0..3 * (c0 + n)].chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
             let nrms = &normals[c0..c0 + n];
             let r_out = render_ray(&sdf_values, &ray.depths, &colors, s);
-            let background = match &self.background {
-                Some(_) => [bg_out[3 * r], bg_out[3 * r + 1], bg_out[3 * r + 2]],
+            let background = match &bg_pass {
+                Some(pass) => pass.colors[r],
                 None => fixed_background,
             };
             let composited: [R; 3] = [0, 1, 2].map(|k| r_out.color[k] + (R::ONE - r_out.opacity) * background[k]);
@@ -624,7 +620,7 @@ impl<S, C> Pipeline<S, C> {
             d_var += g.s * scale_derivative(s);
             if !masked {
                 for k in 0..3 {
-                    d_bg_all[3 * r + k] = d_color[k] * (R::ONE - r_out.opacity) * inv_m;
+                    d_bg_all[r][k] = d_color[k] * (R::ONE - r_out.opacity) * inv_m;
                 }
             }
             for (i, c) in g.colors.iter().enumerate() {
@@ -638,8 +634,8 @@ impl<S, C> Pipeline<S, C> {
         let (d_sdf_params, rest) = d_params.split_at_mut(n_sdf - n_def);
         let (d_col_params, d_rest) = rest.split_at_mut(n_col);
         d_rest[0] += d_var;
-        if let Some(net) = &self.background {
-            net.backward(p_bg, &sh_flat, &bg_ctx, &d_bg_all, &mut d_rest[1..], None);
+        if let (Some(model), Some(pass)) = (&self.background, &bg_pass) {
+            model.backward(p_bg, pass, &d_bg_all, &mut d_rest[1..]);
         }
         // Colour network backward → ∂L/∂n, ∂L/∂features.
         let mut d_color_in = Buf::<R>::zeroed(col_rows * c_in);

@@ -387,16 +387,19 @@ fn whole_pipeline_gradients_match_finite_differences() {
             sdf: Chain { a: pe, b: sdf_mlp },
             color,
             // The learned background on one of the two variants.
-            background: (normals == NormalScheme::Tetrahedral).then(|| {
-                Mlp::new(MlpConfig {
-                    n_inputs: 16,
+            // The learned background (NeRF++) on one of the variants: 5 samples beyond the bound.
+            background: (normals == NormalScheme::Tetrahedral).then(|| BackgroundModel {
+                net: Mlp::new(MlpConfig {
+                    n_inputs: 4 + 8 + 16,
                     width: 4,
                     hidden_layers: 1,
-                    n_outputs: 3,
+                    n_outputs: 4,
                     skip: None,
                     hidden_activation: Activation::Softplus { beta: 10.0 },
-                    output_activation: Activation::Sigmoid,
-                })
+                    output_activation: Activation::Identity,
+                }),
+                samples: 5,
+                frequencies: 1,
             }),
             config: PipelineConfig {
                 // h = 1e-2: the Laplacian divides by h², and with h = 1e-3 the finite differences

@@ -24,7 +24,7 @@ pub fn run(run_dir: &Path, iterations: u64, json_out: bool) -> Result<()> {
     }
     let (mut t_uniform, mut t_guided) = (0.0, 0.0);
     let s = guided.s();
-    let total_steps = guided.config().steps;
+    let iterations_done = guided.state().step.max(1);
     // Warm-up pair, then alternate which sampler goes first.
     for i in 0..=iterations {
         let mut times = [0.0; 2];
@@ -32,8 +32,8 @@ pub fn run(run_dir: &Path, iterations: u64, json_out: bool) -> Result<()> {
             let which = (k + i as usize) % 2; // 0 uniform, 1 guided
             let trainer = if which == 0 { &mut uniform } else { &mut guided };
             // Iterations spread over the run, so the uniform/guided mix follows its schedule.
-            let step = i * total_steps / (iterations + 1);
-            let progress = step as f64 / total_steps as f64;
+            let progress = i as f64 / (iterations + 1) as f64;
+            let step = (progress * iterations_done as f64) as u64;
             let t = Instant::now();
             let batch = trainer.batch(step, progress, s);
             let _ = trainer.gradient(&batch);
@@ -45,7 +45,8 @@ pub fn run(run_dir: &Path, iterations: u64, json_out: bool) -> Result<()> {
         }
     }
     let config = guided.config();
-    let per_iteration_update = update_seconds / (config.steps as f64 / f64::from(config.guide.updates));
+    // The run's grid updates spread over the iterations it did.
+    let per_iteration_update = update_seconds * f64::from(config.guide.updates) / iterations_done as f64;
     let overhead = (t_guided + per_iteration_update) / t_uniform - 1.0;
     let result = json!({
         "figure": "sampler_overhead", "run": run_dir.display().to_string(), "iterations": iterations,

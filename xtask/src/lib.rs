@@ -10,22 +10,23 @@
 //! - [`run`]: the `train` command — run folder, log, pictures, checkpoints, resume, stop
 //!   signal, final mesh and metrics; [`run::open_run`] reopens a run folder.
 //! - [`outputs`], [`progress`], [`draw`]: renders, panels, mesh files and filters, progress.
-//! - [`eval`], [`compare`], [`sample`], [`bench`], [`bench_backbone`], [`bench_overhead`]: the
-//!   other commands.
+//! - [`eval`], [`trade`], [`sample`], [`bench`], [`bench_backbone`], [`bench_overhead`]: the
+//!   other commands; [`memory`]: the memory model; [`plot`]: labelled plots.
 #![deny(missing_docs)]
 
 pub mod bench;
 pub mod bench_backbone;
 pub mod bench_overhead;
-pub mod compare;
 pub mod config;
 pub mod data;
 pub mod draw;
 pub mod eval;
 pub mod memory;
 pub mod outputs;
+pub mod plot;
 pub mod progress;
 pub mod rays;
 pub mod run;
 pub mod sample;
+pub mod trade;
 pub mod trainer;

@@ -12,7 +12,7 @@ use std::path::PathBuf;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use xtask::{bench, bench_backbone, bench_overhead, compare, eval, run, sample};
+use xtask::{bench, bench_backbone, bench_overhead, eval, run, sample, trade};
 
 #[derive(Parser)]
 #[command(name = "xtask", about = "psneus: neural implicit surfaces with a probability-guided sampler")]
@@ -62,8 +62,9 @@ enum Command {
     /// Evaluate a mesh against ground truth (DTU-protocol Chamfer, F-score), or a run's model on
     /// its held-out views (PSNR, SSIM).
     Eval(eval::EvalArgs),
-    /// Train uniform and guided with the same seed, rays and samples; table and plot.
-    Compare(compare::CompareArgs),
+    /// What each minute of CPU buys: variants (uniform, guided, ablations) trained to the same
+    /// wall-time budgets over seeds and scenes; table (mean ± std) and plots.
+    Trade(trade::TradeArgs),
     /// The guided sampler on a dataset with an analytic or mesh field: heat maps of the pixel
     /// marginal with the drawn pixels, depth profiles, and a JSON summary.
     Sample(sample::SampleArgs),
@@ -164,7 +165,7 @@ fn main() -> Result<()> {
             run::Outcome::Stopped { .. } => std::process::exit(130),
         },
         Command::Eval(args) => eval::run(&args),
-        Command::Compare(args) => compare::run(&args, &stop_signal()),
+        Command::Trade(args) => trade::run(&args, &stop_signal()),
         Command::Bench { which: BenchKind::Sampler { data, json, quick } } => bench::sampler(data.as_deref(), json, quick),
         Command::Bench { which: BenchKind::Backbone(args) } => bench_backbone::run(&args),
         Command::Bench { which: BenchKind::Overhead { run, iterations, json } } => bench_overhead::run(&run, iterations, json),

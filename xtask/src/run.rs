@@ -11,6 +11,7 @@ use crate::config::{SamplerKind, TrainConfig, parse_duration};
 use crate::data::SceneData;
 use crate::memory::{self, MemoryEstimate};
 use crate::outputs::{geometry_metrics, mesh_files, mesh_picture};
+use crate::plot::{Panel, Series, render};
 use crate::progress::Progress;
 use crate::trainer::{StepReport, Trainer};
 use anyhow::{Context, Result, bail};
@@ -345,6 +346,7 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: 
     progress.phase("checkpoint", 1, 1);
     let checkpoint_seconds = t.elapsed().as_secs_f64();
     let wall = start.elapsed().as_secs_f64() - measured_seconds;
+    curves(folder)?;
     let mut summary = finish(&trainer, folder, &progress, wall, estimate)?;
     summary.metrics["checkpoint_s"] = json!(checkpoint_seconds);
     folder.write("metrics.json", serde_json::to_string_pretty(&summary.metrics)?.as_bytes())?;
@@ -355,6 +357,52 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: 
         println!("{}", serde_json::to_string(&summary)?);
     }
     Ok(Outcome::Finished(Box::new(summary)))
+}
+
+/// `pictures/curves.png` from the run's log: loss, batch PSNR and s against iterations and
+/// against training time, and, when the run logged metrics (`output.metrics_every`), Chamfer and
+/// held-out PSNR.
+fn curves(folder: &RunFolder) -> Result<()> {
+    let text = std::fs::read_to_string(folder.dir().join("log.jsonl")).unwrap_or_default();
+    let records: Vec<serde_json::Value> = text.lines().filter_map(|l| serde_json::from_str(l).ok()).collect();
+    let steps: Vec<&serde_json::Value> = records.iter().filter(|r| r["loss"].is_number()).collect();
+    let evals: Vec<&serde_json::Value> = records.iter().filter(|r| r["eval"] == true).collect();
+    if steps.len() < 2 {
+        return Ok(());
+    }
+    let series = |rows: &[&serde_json::Value], x: &str, y: &str, label: &str, color: [f32; 3]| Series {
+        label: label.into(),
+        color,
+        points: rows.iter().filter_map(|r| Some((r[x].as_f64()?, r[y].as_f64()?, None))).collect(),
+    };
+    let mut panels = Vec::new();
+    for (key, label, color) in [
+        ("loss", "training loss", [0.2, 0.35, 0.85]),
+        ("psnr_batch", "batch PSNR (dB)", [0.85, 0.15, 0.15]),
+        ("s", "logistic scale s (1 / length)", [0.15, 0.6, 0.25]),
+    ] {
+        for (x, x_label) in [("step", "iteration"), ("train_s", "training time (s)")] {
+            panels.push(Panel {
+                title: format!("{label} against {}", if x == "step" { "iterations" } else { "time" }),
+                x_label: x_label.into(),
+                y_label: label.into(),
+                series: vec![series(&steps, x, key, label, color)],
+                markers: Vec::new(),
+            });
+        }
+    }
+    if !evals.is_empty() {
+        for (key, label) in [("chamfer", "Chamfer (normalised units)"), ("psnr", "held-out PSNR (dB)")] {
+            panels.push(Panel {
+                title: format!("{label} against iterations"),
+                x_label: "iteration".into(),
+                y_label: label.into(),
+                series: vec![series(&evals, "step", key, label, [0.6, 0.3, 0.7])],
+                markers: Vec::new(),
+            });
+        }
+    }
+    folder.write_png("pictures/curves.png", &render(&panels, 2, (420, 300))?)
 }
 
 fn log_step(folder: &RunFolder, progress: &Progress, trainer: &Trainer, report: &StepReport) -> Result<()> {

@@ -1,7 +1,8 @@
 //! `cargo xtask sample`: the guided sampler on a dataset with an analytic or mesh field, as
 //! pictures (pixel-marginal heat maps with the drawn pixels, depth profiles) and a JSON summary.
 
-use crate::draw::{colormap, plot, put};
+use crate::draw::{colormap, put};
+use crate::plot::{Panel, Series, render};
 use anyhow::{Context, Result, bail};
 use datasets::golden::mesh_io::load_mesh;
 use datasets::{LoadOptions, Scene, load_scene};
@@ -149,25 +150,30 @@ pub fn run(args: &SampleArgs) -> Result<()> {
         let mut pixels: Vec<DVec2> = rays.iter().filter(|r| r.camera as usize == c).filter(in_mask).take(3).map(|r| r.pixel_coords).collect();
         pixels.push(DVec2::new(view.camera.intrinsics.cx, view.camera.intrinsics.cy));
         let colours = [[0.85, 0.2, 0.2], [0.2, 0.45, 0.85], [0.15, 0.6, 0.25], [0.5, 0.5, 0.5]];
-        let mut series = Vec::new();
-        let mut markers = Vec::new();
-        for (p, rgb) in pixels.iter().zip(colours) {
-            let points: Vec<(f64, f64)> = (0..512)
+        let mut panel = Panel {
+            title: format!("p̃(λ | u, v), view {}", view.name),
+            x_label: "depth λ along the optical axis (normalised units)".into(),
+            y_label: "p̃(λ | u, v) (per unit depth)".into(),
+            ..Default::default()
+        };
+        for (i, (p, rgb)) in pixels.iter().zip(colours).enumerate() {
+            let points: Vec<(f64, f64, Option<f64>)> = (0..512)
                 .map(|k| {
                     let depth = b.depth[0] + (k as f64 + 0.5) / 512.0 * (b.depth[1] - b.depth[0]);
-                    (depth, dist.pdf_depth(*p, depth))
+                    (depth, dist.pdf_depth(*p, depth), None)
                 })
                 .collect();
-            series.push((rgb, points));
+            let what = if i + 1 == pixels.len() { "principal point" } else { "drawn pixel" };
+            panel.series.push(Series { label: format!("{what} ({:.0}, {:.0})", p.x, p.y), color: rgb, points });
             if let (Some(depth), Some((col, row))) = (&depths[c], view.camera.nearest_pixel(*p)) {
                 let d = depth[(row * view.camera.width + col) as usize];
                 if d > 0.0 {
-                    markers.push((d as f64, rgb));
+                    panel.markers.push((d as f64, rgb, format!("true depth ({:.0}, {:.0})", p.x, p.y)));
                 }
             }
         }
         let profile_path = args.out.join(format!("profile_{}.png", view.name));
-        plot(640, 280, &series, &markers).save_png(&profile_path)?;
+        render(&[panel], 1, (720, 360))?.save_png(&profile_path)?;
         written.push(serde_json::json!({"view": view.name, "heatmap": heat_path, "depth_profile": profile_path}));
     }
 

@@ -71,7 +71,7 @@ pub struct StepReport {
     pub progress: f64,
     /// The batch loss.
     pub loss: f32,
-    /// PSNR of the batch's rendered colours (composited) against their targets.
+    /// PSNR of the batch's rendered colours against their targets (foreground rays with masks).
     pub psnr_batch: f64,
     /// The backbone's s before the step.
     pub s: f64,
@@ -330,9 +330,15 @@ impl Trainer {
         self.timing.steps += 1;
         self.timing.step_seconds += step_seconds;
         self.timing.ray_seconds += ray_seconds;
-        let mse =
-            batch.rays.iter().zip(&outputs).map(|(r, o)| (0..3).map(|k| f64::from(o.color[k] - r.target[k]).powi(2)).sum::<f64>() / 3.0).sum::<f64>()
-                / outputs.len().max(1) as f64;
+        // Over the foreground rays when masks are used (the backdrop is not learnt then).
+        let (sum, count) = batch
+            .rays
+            .iter()
+            .zip(&outputs)
+            .filter(|(r, _)| r.mask.is_none_or(|m| m >= 0.5))
+            .map(|(r, o)| (0..3).map(|k| f64::from(o.color[k] - r.target[k]).powi(2)).sum::<f64>() / 3.0)
+            .fold((0.0, 0usize), |(s, n), e| (s + e, n + 1));
+        let mse = sum / count.max(1) as f64;
         Ok(StepReport {
             step: self.state.step,
             progress: self.progress(),

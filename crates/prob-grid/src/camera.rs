@@ -5,13 +5,13 @@
 //! sub-cell centre is projected with `f` and its mass added to the cell it lands in (the paper's
 //! Riemann sum, supp. C.2).
 //!
-//! **Weighting (NOTES §1).** The change of variables gives `p_U = p_X·λ²` for densities, so *mass*
+//! **Weighting (docs/DECISIONS.md §1).** The change of variables gives `p_U = p_X·λ²` for densities, so *mass*
 //! is invariant. The paper sums `η⁻²·p` instead ([`Weighting::InverseSquareDepth`], default, as
 //! printed): that is proportional to the average *world density* in the U-cell (depth-neutral).
 //! [`Weighting::MassPreserving`] sums the masses: the U-cell's true probability, which favours far
 //! pixels (a far pixel's frustum holds more world volume).
 //!
-//! **View dependency (Sec. 4.3, NOTES §3).** Along each (u, v) column, sorted by depth, with
+//! **View dependency (Sec. 4.3; docs/DECISIONS.md §3).** Along each (u, v) column, sorted by depth, with
 //! `σ̄_i` the average world density (NeuS's naive σ = φ_s(S), 1/length) of cell i and `δ_i` the
 //! ray length through it:
 //! - [`ViewDependency::Quadrature`] (default): `p̃_i = p_i · T_i · (1 − e^{−τ_i})/τ_i` with

@@ -9,7 +9,7 @@
 //! draws (camera, pixel, λ̃) samples. The crate also extracts meshes from any field
 //! ([`marching_cubes`]: block-wise, shared vertices, blocks skipped by the Lipschitz bound).
 //!
-//! # Choices (NOTES.md) and what they cost
+//! # Choices (docs/DECISIONS.md) and what they cost
 //! - **Cell density** ([`CellDensity`]): the paper's φ_s at the cell centre aliases when the
 //!   logistic shell is thinner than a cell (s·cell ≳ 10); the default averages φ_s over the
 //!   cell's SDF range, so the grid's mass is right for any s in 1e-3…1e7. Same cost.

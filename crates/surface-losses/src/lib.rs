@@ -1,4 +1,4 @@
-//! The surface losses of the paper (Sec. 4.5, NOTES §6) and the extra ray points around the
+//! The surface losses of the paper (Sec. 4.5; docs/DECISIONS.md §6) and the extra ray points around the
 //! sampled depth λ̃.
 //!
 //! Per ray, with sample depths t₀ < … < tₙ, SDF values S₀ … Sₙ and rendering weights w₀ … wₙ₋₁

@@ -5,7 +5,7 @@
 //! its pdf; `pdf` evaluates the same density and `invert` maps a value back to the uniform
 //! numbers (round trips are tested).
 //!
-//! **Interpolation (Sec. 4.4, NOTES §4).** ũ is drawn from the piecewise-constant marginal over
+//! **Interpolation (Sec. 4.4; docs/DECISIONS.md §4).** ũ is drawn from the piecewise-constant marginal over
 //! the R_u columns. With [`Interpolation::Linear`] (default, the paper's choice), p̃(v | ũ) mixes
 //! the two u-columns whose centres bracket ũ with linear weights, and p̃(λ | ũ, ṽ) mixes the four
 //! (u, v)-columns around (ũ, ṽ) with bilinear weights. Mixtures of piecewise-constant densities

@@ -10,7 +10,7 @@
 //!   80 % in the later quarters of training).
 //!
 //! # Choices
-//! - Continuous (ũ, ṽ) is snapped to the nearest pixel centre for the colour target (NOTES §4);
+//! - Continuous (ũ, ṽ) is snapped to the nearest pixel centre for the colour target (docs/DECISIONS.md §4);
 //!   the continuous coordinates and the pdf are returned too.
 //! - A camera whose grid has no mass falls back to uniform pixels and depths
 //!   ([`CameraDistribution::is_uniform_fallback`], listed by [`ViewSampler::fallback_cameras`]).
@@ -52,7 +52,7 @@ use rayon::prelude::*;
 pub const CHUNK: usize = 256;
 
 /// Fraction of uniform rays as training progresses: `fractions[i]` for progress in
-/// `[i/n, (i+1)/n)`. The paper: 0.2, 0.4, 0.6, 0.8 (NOTES §5: quarters of the run).
+/// `[i/n, (i+1)/n)`. The paper: 0.2, 0.4, 0.6, 0.8 (docs/DECISIONS.md §5: equal parts of the run).
 #[derive(Debug, Clone, PartialEq)]
 pub struct UniformSchedule {
     /// Uniform fraction per equal part of the run.

@@ -1,0 +1,255 @@
+//! `cargo xtask trade`: what each minute of CPU buys with each sampler (or any variant of the
+//! configuration), measured: every variant trained to the same wall-time budgets, over several
+//! seeds and scenes; a table of Chamfer, accuracy, completeness, F-score and PSNR (masked where
+//! the scene has masks) as mean ± std, the iterations each variant fits in the budget (the
+//! run-level cost of guidance: grid updates and surface losses included), and a plot of each
+//! metric against wall time with error bars.
+//!
+//! Runs are folders `OUT/SCENE/VARIANT/bBUDGET/sSEED`; a run whose `metrics.json` exists is not
+//! run again, so an interrupted table resumes where it stopped. The paper's ablation is the same
+//! command with one budget and variants of the guided configuration (`--variant NAME:key=v,…`).
+
+use crate::config::parse_duration;
+use crate::plot::{Panel, Point, Series, render};
+use crate::run::{Outcome, TrainArgs, train};
+use anyhow::{Context, Result, bail};
+use datasets::io::write_atomic;
+use serde_json::{Value, json};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+/// Options of `cargo xtask trade`.
+#[derive(clap::Args, Debug)]
+pub struct TradeArgs {
+    /// Dataset folders (repeat); each is a scene.
+    #[arg(long)]
+    pub data: Vec<PathBuf>,
+    /// Built-in scenes by shape (repeat): composite, multipart, …. Default: composite when no
+    /// --data is given.
+    #[arg(long)]
+    pub scene: Vec<String>,
+    /// Wall-time budgets (repeat): 60s, 2m, …
+    #[arg(long, default_value = "60s")]
+    pub budget: Vec<String>,
+    /// Seeds 0 … n − 1.
+    #[arg(long, default_value_t = 3)]
+    pub seeds: u64,
+    /// Variants (repeat) `NAME` or `NAME:key=value,key=value`; `uniform` and `guided` alone
+    /// mean the samplers. Default: uniform and guided.
+    #[arg(long)]
+    pub variant: Vec<String>,
+    /// Output folder.
+    #[arg(long, default_value = "out/trade")]
+    pub out: PathBuf,
+    /// Only aggregate the runs already in the folder (no training).
+    #[arg(long)]
+    pub report_only: bool,
+    /// Overrides `key=value` shared by every run.
+    pub overrides: Vec<String>,
+}
+
+/// A named set of overrides.
+#[derive(Debug, Clone)]
+struct Variant {
+    name: String,
+    overrides: Vec<String>,
+}
+
+fn parse_variant(text: &str) -> Variant {
+    let (name, rest) = text.split_once(':').unwrap_or((text, ""));
+    let mut overrides: Vec<String> = rest.split(',').map(str::trim).filter(|s| !s.is_empty()).map(String::from).collect();
+    if rest.is_empty() && (name == "uniform" || name == "guided") {
+        overrides.push(format!("sampler={name}"));
+    }
+    Variant { name: name.to_string(), overrides }
+}
+
+/// A scene of the table: a folder or a built-in shape.
+#[derive(Debug, Clone)]
+enum SceneSpec {
+    Folder(PathBuf),
+    Builtin(String),
+}
+
+impl SceneSpec {
+    fn name(&self) -> String {
+        match self {
+            SceneSpec::Folder(p) => p.file_name().map_or("data".into(), |n| n.to_string_lossy().into_owned()),
+            SceneSpec::Builtin(s) => format!("builtin-{s}"),
+        }
+    }
+}
+
+/// The metrics a table reports, with labels for tables and plots.
+const METRICS: [(&str, &str, bool); 6] = [
+    ("chamfer", "Chamfer (normalised units) ↓", false),
+    ("accuracy", "accuracy (normalised units) ↓", false),
+    ("completeness", "completeness (normalised units) ↓", false),
+    ("f_score", "F-score at τ = 0.01 ↑", true),
+    ("psnr_masked", "PSNR inside the masks (dB) ↑", true),
+    ("psnr", "PSNR, whole image (dB) ↑", true),
+];
+
+/// Mean and sample standard deviation.
+fn mean_std(v: &[f64]) -> Option<(f64, f64)> {
+    if v.is_empty() {
+        return None;
+    }
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let var = if v.len() > 1 { v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0) } else { 0.0 };
+    Some((mean, var.sqrt()))
+}
+
+fn read_metrics(dir: &Path) -> Option<Value> {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).ok()?).ok()
+}
+
+/// Runs the table (or only reports it).
+pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
+    let mut scenes: Vec<SceneSpec> = args.data.iter().cloned().map(SceneSpec::Folder).collect();
+    scenes.extend(args.scene.iter().cloned().map(SceneSpec::Builtin));
+    if scenes.is_empty() {
+        scenes.push(SceneSpec::Builtin("composite".into()));
+    }
+    let variants: Vec<Variant> = if args.variant.is_empty() {
+        vec![parse_variant("uniform"), parse_variant("guided")]
+    } else {
+        args.variant.iter().map(|v| parse_variant(v)).collect()
+    };
+    let budgets: Vec<f64> = args.budget.iter().map(|b| parse_duration(b)).collect::<Result<_>>()?;
+    if args.seeds == 0 {
+        bail!("--seeds must be ≥ 1");
+    }
+    let total = scenes.len() * variants.len() * budgets.len() * args.seeds as usize;
+    let mut done = 0;
+    // Seeds outermost, then budgets, scenes and variants: an interrupted table has every
+    // variant at the same seeds.
+    for seed in 0..args.seeds {
+        for &budget in &budgets {
+            for scene in &scenes {
+                for variant in &variants {
+                    done += 1;
+                    let dir = args.out.join(scene.name()).join(&variant.name).join(format!("b{budget:.0}")).join(format!("s{seed}"));
+                    if read_metrics(&dir).is_some() || args.report_only {
+                        continue;
+                    }
+                    eprintln!("trade: run {done}/{total}: {} · {} · {budget:.0} s · seed {seed}", scene.name(), variant.name);
+                    let mut overrides = args.overrides.clone();
+                    overrides.extend(variant.overrides.iter().cloned());
+                    if let SceneSpec::Builtin(shape) = scene {
+                        overrides.push(format!("data.builtin.shape={shape}"));
+                    }
+                    let train_args = TrainArgs {
+                        data: match scene {
+                            SceneSpec::Folder(p) => Some(p.clone()),
+                            SceneSpec::Builtin(_) => None,
+                        },
+                        out: dir.clone(),
+                        seed: Some(seed),
+                        budget: Some(format!("{budget}s")),
+                        overrides,
+                        ..TrainArgs::default()
+                    };
+                    if let Outcome::Stopped { .. } = train(&train_args, stop).with_context(|| format!("the run in {}", dir.display()))? {
+                        bail!("stopped; run the same command again to continue the table");
+                    }
+                }
+            }
+        }
+    }
+    report(args, &scenes, &variants, &budgets)
+}
+
+/// Aggregates the runs in the folder: trade.md, trade.json, trade.png.
+fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets: &[f64]) -> Result<()> {
+    let colours = [
+        [0.2, 0.35, 0.85],
+        [0.85, 0.15, 0.15],
+        [0.15, 0.6, 0.25],
+        [0.6, 0.3, 0.7],
+        [0.9, 0.55, 0.1],
+        [0.3, 0.3, 0.3],
+        [0.1, 0.65, 0.7],
+        [0.7, 0.55, 0.2],
+    ];
+    let mut md = String::new();
+    let mut all = Vec::new();
+    let mut panels = Vec::new();
+    for scene in scenes {
+        md += &format!(
+            "\n### {}\n\n| budget | variant | runs | iterations | s / iteration | grid s | {} |\n|---|---|---|---|---|---|{}\n",
+            scene.name(),
+            METRICS.iter().map(|m| m.1).collect::<Vec<_>>().join(" | "),
+            "---|".repeat(METRICS.len())
+        );
+        // (variant, metric) → points (budget, mean, std).
+        let mut curves: BTreeMap<(usize, &str), Vec<Point>> = BTreeMap::new();
+        for &budget in budgets {
+            for (vi, variant) in variants.iter().enumerate() {
+                let base = args.out.join(scene.name()).join(&variant.name).join(format!("b{budget:.0}"));
+                let runs: Vec<Value> = (0..args.seeds).filter_map(|s| read_metrics(&base.join(format!("s{s}")))).collect();
+                if runs.is_empty() {
+                    continue;
+                }
+                let get = |key: &str| -> Vec<f64> { runs.iter().filter_map(|r| r[key].as_f64()).collect() };
+                let fmt = |key: &str| match mean_std(&get(key)) {
+                    Some((m, s)) if key.starts_with("psnr") => format!("{m:.2} ± {s:.2}"),
+                    Some((m, s)) if key == "f_score" => format!("{m:.3} ± {s:.3}"),
+                    Some((m, s)) => format!("{m:.4} ± {s:.4}"),
+                    None => "—".into(),
+                };
+                let iterations = mean_std(&get("steps")).map_or("—".into(), |(m, s)| format!("{m:.0} ± {s:.0}"));
+                let per_iteration: Vec<f64> = runs.iter().filter_map(|r| Some(r["train_s"].as_f64()? / r["steps"].as_f64()?)).collect();
+                let per_iteration = mean_std(&per_iteration).map_or("—".into(), |(m, s)| format!("{m:.3} ± {s:.3}"));
+                let grid = mean_std(&get("grid_s")).map_or("—".into(), |(m, _)| format!("{m:.1}"));
+                md += &format!(
+                    "| {budget:.0} s | {} | {} | {iterations} | {per_iteration} | {grid} | {} |\n",
+                    variant.name,
+                    runs.len(),
+                    METRICS.iter().map(|m| fmt(m.0)).collect::<Vec<_>>().join(" | ")
+                );
+                for (key, _, _) in METRICS {
+                    if let Some((m, s)) = mean_std(&get(key)) {
+                        curves.entry((vi, key)).or_default().push((budget, m, (runs.len() > 1).then_some(s)));
+                    }
+                }
+                all.push(json!({"scene": scene.name(), "variant": variant.name, "overrides": variant.overrides, "budget_s": budget, "runs": runs}));
+            }
+        }
+        for (key, label, _) in METRICS.iter().take(5) {
+            let series: Vec<Series> = variants
+                .iter()
+                .enumerate()
+                .filter_map(|(vi, v)| {
+                    curves.get(&(vi, *key)).map(|points| Series { label: v.name.clone(), color: colours[vi % colours.len()], points: points.clone() })
+                })
+                .collect();
+            if !series.is_empty() {
+                panels.push(Panel {
+                    title: format!("{}: {}", scene.name(), label.trim_end_matches(['↑', '↓', ' '])),
+                    x_label: "training wall-time budget (s)".into(),
+                    y_label: label.to_string(),
+                    series,
+                    markers: Vec::new(),
+                });
+            }
+        }
+    }
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let header = "Mean ± std over seeds (sample std; n = runs). Budgets are training wall time (grid updates, surface losses, validation pictures and checkpoints included; final evaluation excluded). Metrics in the normalised frame (the bound is the unit sphere).\n".to_string();
+    write_atomic(&args.out.join("trade.md"), format!("{header}{md}").as_bytes())?;
+    write_atomic(&args.out.join("trade.json"), serde_json::to_string_pretty(&json!({"groups": all}))?.as_bytes())?;
+    if !panels.is_empty() {
+        render(&panels, 5.min(panels.len()), (420, 320))?.save_png(&args.out.join("trade.png"))?;
+    }
+    print!("{header}{md}");
+    println!(
+        "\ntables: {}, runs: {}, plot: {}",
+        args.out.join("trade.md").display(),
+        args.out.join("trade.json").display(),
+        args.out.join("trade.png").display()
+    );
+    Ok(())
+}

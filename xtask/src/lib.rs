@@ -10,6 +10,7 @@
 //! - [`run`]: the `train` command — run folder, log, pictures, checkpoints, resume, stop
 //!   signal, final mesh and metrics; [`run::open_run`] reopens a run folder.
 //! - [`outputs`], [`progress`], [`draw`]: renders, panels, mesh files and filters, progress.
+//! - [`fuzz`]: every parser of user input under mutated bytes.
 //! - [`eval`], [`trade`], [`sample`], [`bench`], [`bench_backbone`], [`bench_overhead`]: the
 //!   other commands; [`memory`]: the memory model; [`plot`]: labelled plots.
 #![deny(missing_docs)]
@@ -21,6 +22,7 @@ pub mod config;
 pub mod data;
 pub mod draw;
 pub mod eval;
+pub mod fuzz;
 pub mod memory;
 pub mod outputs;
 pub mod plot;

@@ -12,7 +12,11 @@ use std::path::PathBuf;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use xtask::{bench, bench_backbone, bench_overhead, eval, run, sample, trade};
+use xtask::{bench, bench_backbone, bench_overhead, eval, fuzz, run, sample, trade};
+
+/// The heap, counted (and capped by `cargo xtask fuzz`; no limit otherwise).
+#[global_allocator]
+static ALLOCATOR: cap::Cap<std::alloc::System> = cap::Cap::new(std::alloc::System, usize::MAX);
 
 #[derive(Parser)]
 #[command(name = "xtask", about = "psneus: neural implicit surfaces with a probability-guided sampler")]
@@ -65,6 +69,10 @@ enum Command {
     /// What each minute of CPU buys: variants (uniform, guided, ablations) trained to the same
     /// wall-time budgets over seeds and scenes; table (mean ± std) and plots.
     Trade(trade::TradeArgs),
+    /// Feed every parser of user input (PLY, NPY/NPZ, IDR cameras, transforms JSON, COLMAP,
+    /// images, configurations, checkpoints) mutated bytes under an allocation cap; findings
+    /// (panics, over-cap allocations, hangs) are saved with their inputs.
+    Fuzz(fuzz::FuzzArgs),
     /// The guided sampler on a dataset with an analytic or mesh field: heat maps of the pixel
     /// marginal with the drawn pixels, depth profiles, and a JSON summary.
     Sample(sample::SampleArgs),
@@ -166,6 +174,17 @@ fn main() -> Result<()> {
         },
         Command::Eval(args) => eval::run(&args),
         Command::Trade(args) => trade::run(&args, &stop_signal()),
+        Command::Fuzz(args) => {
+            let cap = |bytes: usize| {
+                if ALLOCATOR.set_limit(ALLOCATOR.allocated().max(bytes)).is_err() {
+                    eprintln!("fuzz: could not set the allocation cap");
+                }
+            };
+            if !fuzz::run(&args, &cap)? {
+                std::process::exit(1);
+            }
+            Ok(())
+        }
         Command::Bench { which: BenchKind::Sampler { data, json, quick } } => bench::sampler(data.as_deref(), json, quick),
         Command::Bench { which: BenchKind::Backbone(args) } => bench_backbone::run(&args),
         Command::Bench { which: BenchKind::Overhead { run, iterations, json } } => bench_overhead::run(&run, iterations, json),

@@ -371,8 +371,19 @@ fn check_camera(path: &Path, camera: &ColmapCamera) -> Result<()> {
             message: format!("focal lengths ({}, {}) and size {}×{} must be positive", k.fx, k.fy, camera.width, camera.height),
         });
     }
+    if camera.width > MAX_IMAGE_SIDE || camera.height > MAX_IMAGE_SIDE {
+        return Err(DatasetError::InvalidValue {
+            path: path.to_path_buf(),
+            entry: entry(),
+            message: format!("size {}×{} exceeds {MAX_IMAGE_SIDE} pixels a side: corrupt", camera.width, camera.height),
+        });
+    }
     Ok(())
 }
+
+/// The largest image side a camera may have (a 1-gigapixel frame is 32 768 a side): a larger
+/// size is corruption, and would make the undistortion plan scan an absurd border.
+pub const MAX_IMAGE_SIDE: u32 = 1 << 16;
 
 // ----- binary ------------------------------------------------------------------------------
 
@@ -448,9 +459,8 @@ fn read_bytes(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(io_err(path))
 }
 
-fn cameras_binary(path: &Path) -> Result<Vec<ColmapCamera>> {
-    let bytes = read_bytes(path)?;
-    let mut b = Bin { path, bytes: &bytes, pos: 0 };
+fn cameras_binary(bytes: &[u8], path: &Path) -> Result<Vec<ColmapCamera>> {
+    let mut b = Bin { path, bytes, pos: 0 };
     let n = b.count("number of cameras", 24)?;
     let mut cameras = Vec::with_capacity(n);
     for _ in 0..n {
@@ -480,9 +490,8 @@ fn cameras_binary(path: &Path) -> Result<Vec<ColmapCamera>> {
 /// Bytes of an image record before its name: id, quaternion, translation, camera id.
 const IMAGE_HEAD_BYTES: usize = 4 + 4 * 8 + 3 * 8 + 4;
 
-fn images_binary(path: &Path) -> Result<Vec<ColmapImage>> {
-    let bytes = read_bytes(path)?;
-    let mut b = Bin { path, bytes: &bytes, pos: 0 };
+fn images_binary(bytes: &[u8], path: &Path) -> Result<Vec<ColmapImage>> {
+    let mut b = Bin { path, bytes, pos: 0 };
     // Smallest record: head, an empty name (1 NUL byte), the 2D point count.
     let n = b.count("number of images", IMAGE_HEAD_BYTES + 1 + 8)?;
     let mut images = Vec::with_capacity(n);
@@ -509,9 +518,8 @@ fn distinct(ids: &mut [u32]) -> u32 {
     (ids.len() - ids.windows(2).filter(|w| w[0] == w[1]).count()) as u32
 }
 
-fn points_binary(path: &Path) -> Result<Vec<ColmapPoint>> {
-    let bytes = read_bytes(path)?;
-    let mut b = Bin { path, bytes: &bytes, pos: 0 };
+fn points_binary(bytes: &[u8], path: &Path) -> Result<Vec<ColmapPoint>> {
+    let mut b = Bin { path, bytes, pos: 0 };
     let n = b.count("number of 3D points", 8 + 24 + 3 + 8 + 8)?;
     let mut points = Vec::with_capacity(n);
     let mut track = Vec::new();
@@ -535,12 +543,11 @@ fn points_binary(path: &Path) -> Result<Vec<ColmapPoint>> {
 
 // ----- text --------------------------------------------------------------------------------
 
-fn read_text(path: &Path) -> Result<String> {
-    let bytes = read_bytes(path)?;
-    String::from_utf8(bytes).map_err(|e| DatasetError::Corrupt {
+fn as_text<'a>(bytes: &'a [u8], path: &Path) -> Result<&'a str> {
+    std::str::from_utf8(bytes).map_err(|e| DatasetError::Corrupt {
         path: path.to_path_buf(),
         kind: "COLMAP text model",
-        message: format!("not UTF-8 text (byte {})", e.utf8_error().valid_up_to()),
+        message: format!("not UTF-8 text (byte {})", e.valid_up_to()),
     })
 }
 
@@ -576,10 +583,10 @@ fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
     text.lines().enumerate().map(|(i, l)| (i + 1, l.trim())).filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
 }
 
-fn cameras_text(path: &Path) -> Result<Vec<ColmapCamera>> {
-    let text = read_text(path)?;
+fn cameras_text(bytes: &[u8], path: &Path) -> Result<Vec<ColmapCamera>> {
+    let text = as_text(bytes, path)?;
     let mut cameras = Vec::new();
-    for (line, content) in data_lines(&text) {
+    for (line, content) in data_lines(text) {
         let mut f = Fields { path, line, rest: content };
         let camera_id: u32 = f.next("CAMERA_ID")?;
         let model = f.token().ok_or_else(|| corrupt_text(path, line, "missing MODEL".into()))?;
@@ -603,8 +610,8 @@ fn cameras_text(path: &Path) -> Result<Vec<ColmapCamera>> {
     Ok(cameras)
 }
 
-fn images_text(path: &Path) -> Result<Vec<ColmapImage>> {
-    let text = read_text(path)?;
+fn images_text(bytes: &[u8], path: &Path) -> Result<Vec<ColmapImage>> {
+    let text = as_text(bytes, path)?;
     let mut images = Vec::new();
     let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l));
     while let Some((line, content)) = lines.next() {
@@ -643,11 +650,11 @@ fn images_text(path: &Path) -> Result<Vec<ColmapImage>> {
     Ok(images)
 }
 
-fn points_text(path: &Path) -> Result<Vec<ColmapPoint>> {
-    let text = read_text(path)?;
+fn points_text(bytes: &[u8], path: &Path) -> Result<Vec<ColmapPoint>> {
+    let text = as_text(bytes, path)?;
     let mut points = Vec::new();
     let mut track = Vec::new();
-    for (line, content) in data_lines(&text) {
+    for (line, content) in data_lines(text) {
         let mut f = Fields { path, line, rest: content };
         let point3d_id = f.next("POINT3D_ID")?;
         let point_in_world = DVec3::new(f.next("X")?, f.next("Y")?, f.next("Z")?);
@@ -676,9 +683,20 @@ impl ColmapModel {
 
     /// Reads the three files.
     pub fn read_files(files: ModelFiles) -> Result<ColmapModel> {
+        let (cameras, images, points3d) = (read_bytes(&files.cameras)?, read_bytes(&files.images)?, read_bytes(&files.points3d)?);
+        ColmapModel::parse(files, &cameras, &images, &points3d)
+    }
+
+    /// Parses the contents of the three files (`files` gives their names for messages and the
+    /// encoding). Every count and length is checked against the bytes present.
+    pub fn parse(files: ModelFiles, cameras: &[u8], images: &[u8], points3d: &[u8]) -> Result<ColmapModel> {
         let (cameras, images, points) = match files.encoding {
-            ModelEncoding::Binary => (cameras_binary(&files.cameras)?, images_binary(&files.images)?, points_binary(&files.points3d)?),
-            ModelEncoding::Text => (cameras_text(&files.cameras)?, images_text(&files.images)?, points_text(&files.points3d)?),
+            ModelEncoding::Binary => {
+                (cameras_binary(cameras, &files.cameras)?, images_binary(images, &files.images)?, points_binary(points3d, &files.points3d)?)
+            }
+            ModelEncoding::Text => {
+                (cameras_text(cameras, &files.cameras)?, images_text(images, &files.images)?, points_text(points3d, &files.points3d)?)
+            }
         };
         Ok(ColmapModel { files, cameras, images, points })
     }

@@ -59,7 +59,7 @@ pub(crate) fn image_size(path: &Path) -> Result<(u32, u32)> {
     })
 }
 
-fn matrix4(npz: &mut Npz, path: &Path, key: &str) -> Result<Option<DMat4>> {
+fn matrix4<R: std::io::Read + std::io::Seek>(npz: &mut Npz<R>, path: &Path, key: &str) -> Result<Option<DMat4>> {
     let Some(NpyArray { shape, data }) = npz.get(key)? else { return Ok(None) };
     let rows = match shape.as_slice() {
         [4, 4] => 4,
@@ -84,24 +84,45 @@ fn matrix4(npz: &mut Npz, path: &Path, key: &str) -> Result<Option<DMat4>> {
     Ok(Some(m))
 }
 
+/// Image and mask files of a scene with `n` cameras.
+pub(crate) type ViewFiles = (Vec<PathBuf>, Option<Vec<PathBuf>>);
+
 /// Reads the cameras of an IDR folder (image headers only, no pixels).
 pub(crate) fn read_cameras(dir: &Path, options: &LoadOptions) -> Result<SceneCameras> {
     let npz_path = camera_file(dir).ok_or_else(|| DatasetError::UnknownLayout { dir: dir.to_path_buf() })?;
     let mut npz = Npz::open(&npz_path)?;
+    let files = |n: usize| -> Result<ViewFiles> {
+        let image_dir = ["image", "images"]
+            .iter()
+            .map(|d| dir.join(d))
+            .find(|p| p.is_dir())
+            .ok_or_else(|| DatasetError::MissingKey { path: dir.to_path_buf(), key: "image/ (or images/) folder".into() })?;
+        let images = numbered_files(&image_dir, n, "images")?;
+        let mask_dir = dir.join("mask");
+        let masks = if mask_dir.is_dir() { Some(numbered_files(&mask_dir, n, "masks")?) } else { None };
+        Ok((images, masks))
+    };
+    cameras_from_npz(&mut npz, &npz_path, dir, options, &files, &image_size)
+}
+
+/// The cameras of an IDR camera archive: `files(n)` lists the images (and masks) of its `n`
+/// cameras and `image_size` reads a file's size (the loader reads headers; the fuzzer makes
+/// them up).
+pub(crate) fn cameras_from_npz<R: std::io::Read + std::io::Seek>(
+    npz: &mut Npz<R>,
+    npz_path: &Path,
+    dir: &Path,
+    options: &LoadOptions,
+    files: &dyn Fn(usize) -> Result<ViewFiles>,
+    image_size: &dyn Fn(&Path) -> Result<(u32, u32)>,
+) -> Result<SceneCameras> {
+    let npz_path = npz_path.to_path_buf();
     let keys = npz.keys();
     let n = keys.iter().filter(|k| k.strip_prefix("world_mat_").is_some_and(|s| s.parse::<usize>().is_ok())).count();
     if n == 0 {
         return Err(DatasetError::MissingKey { path: npz_path, key: "world_mat_0".into() });
     }
-    let image_dir = ["image", "images"]
-        .iter()
-        .map(|d| dir.join(d))
-        .find(|p| p.is_dir())
-        .ok_or_else(|| DatasetError::MissingKey { path: dir.to_path_buf(), key: "image/ (or images/) folder".into() })?;
-    let images = numbered_files(&image_dir, n, "images")?;
-    let mask_dir = dir.join("mask");
-    let masks = if mask_dir.is_dir() { Some(numbered_files(&mask_dir, n, "masks")?) } else { None };
-
+    let (images, masks) = files(n)?;
     let mut scale_mat_0 = None;
     let mut records = Vec::with_capacity(n);
     let mut size0: Option<(u32, u32)> = None;
@@ -109,8 +130,8 @@ pub(crate) fn read_cameras(dir: &Path, options: &LoadOptions) -> Result<SceneCam
     for i in 0..n {
         let world_key = format!("world_mat_{i}");
         let world_mat =
-            matrix4(&mut npz, &npz_path, &world_key)?.ok_or_else(|| DatasetError::MissingKey { path: npz_path.clone(), key: world_key.clone() })?;
-        let scale_mat = match matrix4(&mut npz, &npz_path, &format!("scale_mat_{i}"))? {
+            matrix4(npz, &npz_path, &world_key)?.ok_or_else(|| DatasetError::MissingKey { path: npz_path.clone(), key: world_key.clone() })?;
+        let scale_mat = match matrix4(npz, &npz_path, &format!("scale_mat_{i}"))? {
             Some(m) => m,
             None => {
                 missing_scale = true;

@@ -141,8 +141,13 @@ pub(crate) struct Decoded {
 }
 
 fn decode(path: &Path) -> Result<image::DynamicImage> {
-    let bytes = std::fs::read(path).map_err(io_err(path))?;
-    image::load_from_memory(&bytes).map_err(|e| DatasetError::Corrupt { path: path.to_path_buf(), kind: "image", message: e.to_string() })
+    decode_bytes(&std::fs::read(path).map_err(io_err(path))?, path)
+}
+
+/// Decodes the bytes of an image file (format from its contents; the `image` crate's default
+/// limits bound what a header may make it allocate).
+pub(crate) fn decode_bytes(bytes: &[u8], path: &Path) -> Result<image::DynamicImage> {
+    image::load_from_memory(bytes).map_err(|e| DatasetError::Corrupt { path: path.to_path_buf(), kind: "image", message: e.to_string() })
 }
 
 /// Area-averages `channels`-channel u8 rows by an integer factor (remainder dropped).
@@ -173,7 +178,11 @@ fn downscale_u8(src: &[u8], width: u32, height: u32, channels: usize, n: u32) ->
 /// Loads an image file as RGB, downscaled by `downscale` (area average). Files with alpha are
 /// composited over `background` and give an alpha mask (alpha > 127 after averaging).
 pub(crate) fn load_rgb(path: &Path, downscale: u32, background: [f32; 3]) -> Result<Decoded> {
-    let img = decode(path)?;
+    Ok(rgb_of(decode(path)?, downscale, background))
+}
+
+/// The RGB (and alpha mask) of a decoded image, as [`load_rgb`].
+pub(crate) fn rgb_of(img: image::DynamicImage, downscale: u32, background: [f32; 3]) -> Decoded {
     let (w, h) = (img.width(), img.height());
     if img.color().has_alpha() {
         let rgba = img.into_rgba8();
@@ -191,18 +200,22 @@ pub(crate) fn load_rgb(path: &Path, downscale: u32, background: [f32; 3]) -> Res
                 mask.set(i as u32 % w2, i as u32 / w2, true);
             }
         }
-        Ok(Decoded { rgb, alpha_mask: Some(mask) })
+        Decoded { rgb, alpha_mask: Some(mask) }
     } else {
         let rgb = img.into_rgb8();
         let (data, w2, h2) = downscale_u8(rgb.as_raw(), w, h, 3, downscale);
-        Ok(Decoded { rgb: RgbImage { width: w2, height: h2, data }, alpha_mask: None })
+        Decoded { rgb: RgbImage { width: w2, height: h2, data }, alpha_mask: None }
     }
 }
 
 /// Loads a mask file (grey or RGB: the first channel; soft edges thresholded: > 127 is
 /// foreground, after area-averaging by `downscale`). Returns the mask and the file's full size.
 pub(crate) fn load_mask(path: &Path, downscale: u32) -> Result<(Mask, (u32, u32))> {
-    let img = decode(path)?;
+    Ok(mask_of(decode(path)?, downscale))
+}
+
+/// The mask of a decoded image, as [`load_mask`].
+pub(crate) fn mask_of(img: image::DynamicImage, downscale: u32) -> (Mask, (u32, u32)) {
     let (w, h) = (img.width(), img.height());
     let grey: Vec<u8> = match img {
         image::DynamicImage::ImageLuma8(g) => g.into_raw(),
@@ -215,7 +228,7 @@ pub(crate) fn load_mask(path: &Path, downscale: u32) -> Result<(Mask, (u32, u32)
             mask.set(i as u32 % w2, i as u32 / w2, true);
         }
     }
-    Ok((mask, (w, h)))
+    (mask, (w, h))
 }
 
 #[cfg(test)]

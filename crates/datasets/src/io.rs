@@ -201,7 +201,12 @@ impl PlyData {
     /// binary little-endian PLY; other properties and elements are skipped.
     pub fn read(path: &Path) -> Result<PlyData> {
         let bytes = std::fs::read(path).map_err(io_err(path))?;
-        parse_ply(&bytes).map_err(|message| crate::error::DatasetError::Corrupt { path: path.to_path_buf(), kind: "PLY file", message })
+        PlyData::parse(&bytes, path)
+    }
+
+    /// Parses the bytes of a PLY file (`path` names it in errors).
+    pub fn parse(bytes: &[u8], path: &Path) -> Result<PlyData> {
+        parse_ply(bytes).map_err(|message| crate::error::DatasetError::Corrupt { path: path.to_path_buf(), kind: "PLY file", message })
     }
 }
 
@@ -230,6 +235,38 @@ fn read_scalar(t: &str, b: &[u8]) -> f64 {
 
 /// (name, scalar type, list count type).
 type Property = (String, String, Option<String>);
+
+/// The body of a PLY file: ASCII tokens (reversed, popped from the end) or binary bytes.
+struct Body<'a> {
+    ascii: bool,
+    tokens: Vec<&'a str>,
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl Body<'_> {
+    /// The next scalar of type `t`.
+    fn next(&mut self, t: &str) -> std::result::Result<f64, String> {
+        if self.ascii {
+            self.tokens.pop().ok_or("file ends early")?.parse::<f64>().map_err(|e| e.to_string())
+        } else {
+            let n = type_size(t)?;
+            let b = self.bytes.get(self.pos..self.pos + n).ok_or("file ends early")?;
+            self.pos += n;
+            Ok(read_scalar(t, b))
+        }
+    }
+
+    /// Tokens or bytes left.
+    fn left(&self) -> usize {
+        if self.ascii { self.tokens.len() } else { self.bytes.len() - self.pos }
+    }
+}
+
+/// A list length or vertex index: a non-negative integer below 2^32.
+fn index(v: f64, what: &str) -> std::result::Result<u32, String> {
+    if (0.0..4294967296.0).contains(&v) && v.fract() == 0.0 { Ok(v as u32) } else { Err(format!("{what} {v} is not an index")) }
+}
 
 fn parse_ply(bytes: &[u8]) -> std::result::Result<PlyData, String> {
     let end = bytes.windows(11).position(|w| w == b"end_header\n").ok_or("no end_header line")? + 11;
@@ -264,31 +301,30 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PlyData, String> {
     let mut tokens =
         if ascii { std::str::from_utf8(body).map_err(|_| "ASCII body is not text")?.split_whitespace().collect::<Vec<_>>() } else { Vec::new() };
     tokens.reverse();
-    let mut pos = 0usize;
-    let mut next = |t: &str| -> std::result::Result<f64, String> {
-        if ascii {
-            tokens.pop().ok_or("file ends early")?.parse::<f64>().map_err(|e| e.to_string())
-        } else {
-            let n = type_size(t)?;
-            let b = body.get(pos..pos + n).ok_or("file ends early")?;
-            pos += n;
-            Ok(read_scalar(t, b))
-        }
-    };
+    let mut body = Body { ascii, tokens, bytes: body, pos: 0 };
     for (name, count, props) in &elements {
-        for _ in 0..*count {
+        // Every record takes at least one byte (binary) or one token (ASCII): a count beyond
+        // what is left is corrupt, and must not drive a loop or an allocation.
+        let left = body.left();
+        if *count > left {
+            return Err(format!("element {name:?} declares {count} records, the file has room for at most {left}"));
+        }
+        if props.is_empty() && *count > 0 {
+            return Err(format!("element {name:?} declares {count} records without properties"));
+        }
+        for record in 0..*count {
             let mut xyz = [0.0f32; 3];
             for (pname, t, list) in props {
                 if let Some(ct) = list {
-                    let k = next(ct)? as usize;
-                    let idx: Vec<u32> = (0..k).map(|_| next(t).map(|v| v as u32)).collect::<std::result::Result<_, _>>()?;
+                    let k = index(body.next(ct)?, "list length")? as usize;
+                    let idx: Vec<u32> = (0..k).map(|_| body.next(t).and_then(|v| index(v, "list entry"))).collect::<std::result::Result<_, _>>()?;
                     if name == "face" && pname.starts_with("vertex_ind") {
                         for j in 1..k.saturating_sub(1) {
                             out.faces.push([idx[0], idx[j], idx[j + 1]]);
                         }
                     }
                 } else {
-                    let v = next(t)?;
+                    let v = body.next(t)?;
                     if name == "vertex" {
                         match pname.as_str() {
                             "x" => xyz[0] = v as f32,
@@ -300,6 +336,9 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PlyData, String> {
                 }
             }
             if name == "vertex" {
+                if !xyz.iter().all(|v| v.is_finite()) {
+                    return Err(format!("vertex {record} has a non-finite coordinate {xyz:?}"));
+                }
                 out.positions.push(Vec3::from_array(xyz));
             }
         }
@@ -345,7 +384,12 @@ mod tests {
         assert_eq!(q.positions.len(), 4);
         assert_eq!(q.faces, vec![[0, 1, 2], [0, 2, 3]]);
         assert!(parse_ply(b"ply\nformat binary_big_endian 1.0\nend_header\n").unwrap_err().contains("big"));
-        assert!(parse_ply(b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1\n").unwrap_err().contains("early"));
+        assert!(parse_ply(b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1\n").unwrap_err().contains("room"));
+        assert!(
+            parse_ply(b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nend_header\n1 2 3\n")
+                .unwrap_err()
+                .contains("early")
+        );
     }
 
     #[test]

@@ -30,6 +30,7 @@ pub mod images;
 pub mod io;
 mod load;
 pub mod npy;
+pub mod parse;
 mod scene;
 mod transforms;
 pub mod undistort;

@@ -45,14 +45,14 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
         return Err(corrupt(path, "Fortran-ordered arrays are not supported"));
     }
     let shape_text = field("shape")?;
-    let shape_text = &shape_text[1..shape_text.find(')').ok_or_else(|| corrupt(path, "malformed shape"))?];
+    let shape_text = shape_text.strip_prefix('(').and_then(|t| t.split_once(')')).ok_or_else(|| corrupt(path, "malformed shape"))?.0;
     let shape: Vec<usize> = shape_text
         .split(',')
         .map(str::trim)
         .filter(|s| !s.is_empty())
         .map(|s| s.parse().map_err(|_| corrupt(path, format!("bad shape entry {s:?}"))))
         .collect::<Result<_>>()?;
-    let count: usize = shape.iter().product();
+    let count = shape.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d)).ok_or_else(|| corrupt(path, format!("shape {shape:?} overflows")))?;
     let body = &bytes[start + header_len..];
     let (size, read): (usize, fn(&[u8]) -> f64) = match descr {
         "<f8" => (8, |b| f64::from_le_bytes(b.try_into().unwrap())),
@@ -62,10 +62,11 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
         "|u1" => (1, |b| b[0] as f64),
         other => return Err(corrupt(path, format!("unsupported dtype {other}"))),
     };
-    if body.len() < count * size {
-        return Err(corrupt(path, format!("expected {} data bytes, found {}", count * size, body.len())));
-    }
-    let data = body[..count * size].chunks_exact(size).map(read).collect();
+    let need = count
+        .checked_mul(size)
+        .filter(|&n| n <= body.len())
+        .ok_or_else(|| corrupt(path, format!("shape {shape:?} of {size}-byte values needs more than the {} data bytes present", body.len())))?;
+    let data = body[..need].chunks_exact(size).map(read).collect();
     Ok(NpyArray { shape, data })
 }
 
@@ -110,17 +111,28 @@ pub fn npy_bytes<T: NpyElement>(shape: &[usize], data: &[T]) -> Vec<u8> {
     out
 }
 
-/// An opened `.npz` archive.
-pub struct Npz {
+/// The largest array an `.npz` entry may hold (camera files hold a few kilobytes): a larger
+/// declared size is an error, not an allocation.
+pub const MAX_NPZ_ENTRY_BYTES: u64 = 256 << 20;
+
+/// An opened `.npz` archive (a file, or any seekable reader such as bytes in memory).
+pub struct Npz<R = std::io::BufReader<std::fs::File>> {
     path: std::path::PathBuf,
-    archive: zip::ZipArchive<std::io::BufReader<std::fs::File>>,
+    archive: zip::ZipArchive<R>,
 }
 
 impl Npz {
     /// Opens an archive.
     pub fn open(path: &Path) -> Result<Npz> {
         let file = std::fs::File::open(path).map_err(io_err(path))?;
-        let archive = zip::ZipArchive::new(std::io::BufReader::new(file)).map_err(|e| DatasetError::Corrupt {
+        Npz::from_reader(std::io::BufReader::new(file), path)
+    }
+}
+
+impl<R: Read + Seek> Npz<R> {
+    /// Reads the directory of an archive from `reader` (`path` names it in errors).
+    pub fn from_reader(reader: R, path: &Path) -> Result<Npz<R>> {
+        let archive = zip::ZipArchive::new(reader).map_err(|e| DatasetError::Corrupt {
             path: path.to_path_buf(),
             kind: "npz archive",
             message: e.to_string(),
@@ -133,22 +145,23 @@ impl Npz {
         self.archive.file_names().filter_map(|n| n.ok()).map(|n| n.trim_end_matches(".npy").to_string()).collect()
     }
 
-    /// Reads one array, `None` if the key is absent.
+    /// Reads one array, `None` if the key is absent. Entries declaring more than
+    /// [`MAX_NPZ_ENTRY_BYTES`] are errors; an entry is never read past its declared size.
     pub fn get(&mut self, key: &str) -> Result<Option<NpyArray>> {
         let name = format!("{key}.npy");
-        let mut entry = match self.archive.by_name(&name) {
+        let corrupt = |path: &Path, message: String| DatasetError::Corrupt { path: path.to_path_buf(), kind: "npz archive", message };
+        let entry = match self.archive.by_name(&name) {
             Ok(e) => e,
             Err(zip::result::ZipError::FileNotFound) => return Ok(None),
-            Err(e) => {
-                return Err(DatasetError::Corrupt { path: self.path.clone(), kind: "npz archive", message: format!("{name}: {e}") });
-            }
+            Err(e) => return Err(corrupt(&self.path, format!("{name}: {e}"))),
         };
+        let size = entry.size();
+        if size > MAX_NPZ_ENTRY_BYTES {
+            return Err(corrupt(&self.path, format!("{name}: declares {size} bytes, more than the {MAX_NPZ_ENTRY_BYTES} a camera array may hold")));
+        }
+        // Grown as bytes arrive: a size the archive declares but does not hold allocates nothing.
         let mut bytes = Vec::new();
-        entry.read_to_end(&mut bytes).map_err(|e| DatasetError::Corrupt {
-            path: self.path.clone(),
-            kind: "npz archive",
-            message: format!("{name}: {e}"),
-        })?;
+        entry.take(size).read_to_end(&mut bytes).map_err(|e| corrupt(&self.path, format!("{name}: {e}")))?;
         parse_npy(&bytes, &self.path.join(&name)).map(Some)
     }
 }

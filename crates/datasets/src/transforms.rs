@@ -76,12 +76,33 @@ fn resolve_image(dir: &Path, file_path: &str) -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
+/// An image file and its size, found from a frame's `file_path` and index.
+pub(crate) type FrameImage = (PathBuf, (u32, u32));
+
 /// Reads the cameras of a transforms JSON (image headers only).
 pub(crate) fn read_cameras(json_path: &Path, format: Format, options: &LoadOptions) -> Result<SceneCameras> {
     let dir = json_path.parent().unwrap_or(Path::new("."));
-    let text = std::fs::read_to_string(json_path).map_err(io_err(json_path))?;
+    let text = std::fs::read(json_path).map_err(io_err(json_path))?;
+    let image = |file_path: &str, camera: usize| -> Result<FrameImage> {
+        let image_path = resolve_image(dir, file_path).ok_or_else(|| DatasetError::MissingImage { dir: dir.join(file_path), camera })?;
+        let size = image_size(&image_path)?;
+        Ok((image_path, size))
+    };
+    cameras_from_json(&text, json_path, format, options, &image)
+}
+
+/// The cameras of the bytes of a transforms JSON; `image` finds a frame's image file and its
+/// size (the loader reads headers; the fuzzer makes them up).
+pub(crate) fn cameras_from_json(
+    text: &[u8],
+    json_path: &Path,
+    format: Format,
+    options: &LoadOptions,
+    image: &dyn Fn(&str, usize) -> Result<FrameImage>,
+) -> Result<SceneCameras> {
+    let dir = json_path.parent().unwrap_or(Path::new("."));
     let t: Transforms =
-        serde_json::from_str(&text).map_err(|e| DatasetError::Corrupt { path: json_path.to_path_buf(), kind: "JSON", message: e.to_string() })?;
+        serde_json::from_slice(text).map_err(|e| DatasetError::Corrupt { path: json_path.to_path_buf(), kind: "JSON", message: e.to_string() })?;
     let invalid = |entry: String, message: String| DatasetError::InvalidValue { path: json_path.to_path_buf(), entry, message };
 
     let (center, radius) = match (options.bound_sphere, format) {
@@ -125,9 +146,7 @@ pub(crate) fn read_cameras(json_path: &Path, format: Format, options: &LoadOptio
                 message: format!("{entry}: sk_y ≠ 0 makes K not upper-triangular"),
             });
         }
-        let image_path =
-            resolve_image(dir, &frame.file_path).ok_or_else(|| DatasetError::MissingImage { dir: dir.join(&frame.file_path), camera: i })?;
-        let (w_file, h_file) = image_size(&image_path)?;
+        let (image_path, (w_file, h_file)) = image(&frame.file_path, i)?;
         let w = f.w.unwrap_or(w_file as f64);
         let h = f.h.unwrap_or(h_file as f64);
         if (w, h) != (w_file as f64, h_file as f64) {

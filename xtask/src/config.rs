@@ -88,6 +88,10 @@ pub struct DataConfig {
     pub masks: bool,
     /// Every n-th view is held out for evaluation (0: none).
     pub holdout_every: usize,
+    /// The region of interest `[x, y, z, radius]` in the dataset's own units, overriding what
+    /// the format gives (instant-ngp's `aabb`, COLMAP's sparse points, NeRF-synthetic's default).
+    /// Empty: the format's.
+    pub bound: Vec<f64>,
     /// The built-in scene (no `--data`).
     pub builtin: BuiltinConfig,
 }
@@ -257,7 +261,7 @@ impl Default for TrainConfig {
 
 impl Default for DataConfig {
     fn default() -> Self {
-        DataConfig { downscale: 1, masks: true, holdout_every: 8, builtin: BuiltinConfig::default() }
+        DataConfig { downscale: 1, masks: true, holdout_every: 8, bound: Vec::new(), builtin: BuiltinConfig::default() }
     }
 }
 
@@ -423,6 +427,12 @@ impl TrainConfig {
         need(self.steps >= 1, "steps", self.steps, "≥ 1")?;
         need(non_neg(self.time_budget_s), "time_budget_s", self.time_budget_s, "≥ 0 (0: bounded by steps)")?;
         need(self.data.downscale >= 1, "data.downscale", self.data.downscale, "≥ 1")?;
+        need(
+            self.data.bound.is_empty() || (self.data.bound.len() == 4 && self.data.bound.iter().all(|v| v.is_finite()) && self.data.bound[3] > 0.0),
+            "data.bound",
+            &self.data.bound,
+            "[] or [x, y, z, radius > 0]",
+        )?;
         need(self.data.builtin.width >= 16, "data.builtin.width", self.data.builtin.width, "≥ 16")?;
         need(self.data.builtin.views >= 2, "data.builtin.views", self.data.builtin.views, "≥ 2")?;
         need(

@@ -36,7 +36,16 @@ impl SceneData {
 
     /// A dataset folder (any layout `datasets` reads).
     pub fn folder(config: &TrainConfig, dir: &Path) -> Result<SceneData> {
-        let options = LoadOptions { downscale: config.data.downscale, background: config.model.background.map(|c| c as f32), ..Default::default() };
+        let bound_sphere = match config.data.bound.as_slice() {
+            [x, y, z, r] => Some((glam::DVec3::new(*x, *y, *z), *r)),
+            _ => None,
+        };
+        let options = LoadOptions {
+            downscale: config.data.downscale,
+            background: config.model.background.map(|c| c as f32),
+            bound_sphere,
+            ..Default::default()
+        };
         let scene = load_scene(dir, &options).with_context(|| format!("cannot load the data folder {}", dir.display()))?;
         if scene.views.is_empty() {
             bail!("the data folder {} has no views", dir.display());

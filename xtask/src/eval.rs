@@ -41,6 +41,11 @@ pub struct EvalArgs {
     /// `--dilate` pixels) of at least two views of --data.
     #[arg(long, requires = "data")]
     pub cull: bool,
+    /// The mesh was made in the world of this dataset folder (e.g. imported from COLMAP): it is
+    /// carried into --data's world by the similarity that best maps this folder's camera
+    /// centres onto --data's (views matched in order).
+    #[arg(long, requires = "data")]
+    pub mesh_cameras: Option<PathBuf>,
     /// Mask dilation in pixels for --cull.
     #[arg(long, default_value_t = 12)]
     pub dilate: u32,
@@ -66,15 +71,49 @@ fn read_mesh(path: &Path) -> Result<MeshArrays> {
     }
 }
 
+/// The camera centres of a dataset folder in its world units, in view order.
+fn centres_in_world(dir: &Path) -> Result<Vec<[f64; 3]>> {
+    let cams = datasets::read_cameras(dir, &LoadOptions::default()).with_context(|| format!("reading the cameras of {}", dir.display()))?;
+    Ok(cams.records.iter().map(|r| cams.world_from_normalized.transform_point3(r.camera.center_in_world()).to_array()).collect())
+}
+
+/// The similarity from `from`'s world to `to`'s by their camera centres, and the RMS residual.
+fn camera_alignment(from: &Path, to: &Path) -> Result<(eval_metrics::align::Similarity, f64)> {
+    let (a, b) = (centres_in_world(from)?, centres_in_world(to)?);
+    if a.len() != b.len() {
+        bail!("{} has {} views and {} has {}: views are matched in order", from.display(), a.len(), to.display(), b.len());
+    }
+    let s = eval_metrics::align::similarity(&a, &b).with_context(|| format!("the cameras of {} do not determine a similarity", from.display()))?;
+    let rms = (a.iter().zip(&b).map(|(p, q)| (0..3).map(|i| (s.apply(*p)[i] - q[i]).powi(2)).sum::<f64>()).sum::<f64>() / a.len() as f64).sqrt();
+    Ok((s, rms))
+}
+
 /// Runs `cargo xtask eval`.
 pub fn run(args: &EvalArgs) -> Result<()> {
     if let Some(dir) = &args.run {
         return eval_run(dir, args);
     }
     let mesh_path = args.mesh.as_ref().context("--mesh is required")?;
-    let (vertices, triangles) = read_mesh(mesh_path).with_context(|| format!("reading the mesh {}", mesh_path.display()))?;
+    let (mut vertices, triangles) = read_mesh(mesh_path).with_context(|| format!("reading the mesh {}", mesh_path.display()))?;
     if triangles.is_empty() {
         bail!("the mesh {} has no triangles", mesh_path.display());
+    }
+    let mut alignment = serde_json::Value::Null;
+    if let (Some(from), Some(to)) = (&args.mesh_cameras, &args.data) {
+        let (similarity, rms) = camera_alignment(from, to)?;
+        for v in &mut vertices {
+            *v = similarity.apply(v.map(f64::from)).map(|c| c as f32);
+        }
+        alignment = json!({"from": from.display().to_string(), "scale": similarity.scale, "centre_rms": rms});
+        if !args.json {
+            println!(
+                "aligned by the camera centres of {} → {}: scale {:.6}, centre residual {:.5} (RMS, --data units)",
+                from.display(),
+                to.display(),
+                similarity.scale,
+                rms
+            );
+        }
     }
     // Ground truth: points, or a mesh to sample.
     let gt_mesh = args.gt_mesh.clone().or_else(|| args.data.as_ref().map(|d| d.join("gt_mesh.ply")).filter(|p| p.exists()));
@@ -130,6 +169,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         "chamfer": m.chamfer, "accuracy": m.accuracy, "completeness": m.completeness,
         "precision": m.precision, "recall": m.recall, "f_score": m.f_score, "tau": tau,
         "spacing": spacing, "max_dist": max_dist, "pred_points": m.n_pred, "culled": before - pred.len(), "gt_points": m.n_gt,
+        "alignment": alignment,
     });
     if args.json {
         println!("{result}");

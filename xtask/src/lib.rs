@@ -11,12 +11,13 @@
 //!   signal, final mesh and metrics; [`run::open_run`] reopens a run folder.
 //! - [`outputs`], [`progress`], [`draw`]: renders, panels, mesh files and filters, progress.
 //! - [`fuzz`]: every parser of user input under mutated bytes.
-//! - [`eval`], [`trade`], [`sample`], [`bench`], [`bench_backbone`], [`bench_overhead`]: the
+//! - [`eval`], [`trade`], [`sample`], [`bench`], [`bench_backbone`], [`bench_memory`], [`bench_overhead`]: the
 //!   other commands; [`memory`]: the memory model; [`plot`]: labelled plots.
 #![deny(missing_docs)]
 
 pub mod bench;
 pub mod bench_backbone;
+pub mod bench_memory;
 pub mod bench_overhead;
 pub mod config;
 pub mod data;

@@ -12,7 +12,7 @@ use std::path::PathBuf;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use xtask::{bench, bench_backbone, bench_overhead, eval, fuzz, run, sample, trade};
+use xtask::{bench, bench_backbone, bench_memory, bench_overhead, eval, fuzz, run, sample, trade};
 
 /// The heap, counted (and capped by `cargo xtask fuzz`; no limit otherwise).
 #[global_allocator]
@@ -36,12 +36,55 @@ struct DataArgs {
     /// NeRF-synthetic split.
     #[arg(long, default_value = "train")]
     split: String,
+    /// The region of interest `x,y,z,radius` in the dataset's units (overrides the format's:
+    /// COLMAP's sparse points, instant-ngp's aabb).
+    #[arg(long, value_parser = parse_bound)]
+    bound: Option<(DVec3, f64)>,
 }
 
 impl DataArgs {
     fn options(&self) -> LoadOptions {
-        LoadOptions { downscale: self.downscale, split: self.split.clone(), ..LoadOptions::default() }
+        LoadOptions { downscale: self.downscale, split: self.split.clone(), bound_sphere: self.bound, ..LoadOptions::default() }
     }
+}
+
+fn parse_bound(text: &str) -> Result<(DVec3, f64)> {
+    let v: Vec<f64> = text
+        .split(',')
+        .map(|s| s.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .with_context(|| format!("--bound {text:?}: numbers x,y,z,radius"))?;
+    match v.as_slice() {
+        [x, y, z, r] if v.iter().all(|a| a.is_finite()) && *r > 0.0 => Ok((DVec3::new(*x, *y, *z), *r)),
+        _ => bail!("--bound {text:?}: expected x,y,z,radius with radius > 0"),
+    }
+}
+
+#[derive(Subcommand)]
+enum ImportKind {
+    /// A COLMAP sparse model and its images → the IDR layout (undistorted pinhole images,
+    /// masks, cameras_sphere.npz with scale_mat in COLMAP units), readable by every tool.
+    Colmap {
+        /// The sparse model folder (cameras, images, points3D as .bin or .txt), e.g. sparse/0.
+        #[arg(long)]
+        model: PathBuf,
+        /// The folder COLMAP's image names are relative to.
+        #[arg(long)]
+        images: PathBuf,
+        /// Masks (same names as the images, any image format; white = object).
+        #[arg(long)]
+        masks: Option<PathBuf>,
+        /// Output folder (IDR layout).
+        #[arg(long)]
+        out: PathBuf,
+        /// Integer downscale of the images (area average; intrinsics follow).
+        #[arg(long, default_value_t = 1)]
+        downscale: u32,
+        /// The region of interest `x,y,z,radius` in COLMAP units (default: from the sparse
+        /// points seen by ≥ 3 images, 2–98 % percentiles, × 1.1).
+        #[arg(long, value_parser = parse_bound)]
+        bound: Option<(DVec3, f64)>,
+    },
 }
 
 #[derive(Subcommand)]
@@ -69,6 +112,12 @@ enum Command {
     /// What each minute of CPU buys: variants (uniform, guided, ablations) trained to the same
     /// wall-time budgets over seeds and scenes; table (mean ± std) and plots.
     Trade(trade::TradeArgs),
+    /// Convert a capture into the IDR layout (`import colmap --model sparse/0 --images images
+    /// --out scene`).
+    Import {
+        #[command(subcommand)]
+        which: ImportKind,
+    },
     /// Feed every parser of user input (PLY, NPY/NPZ, IDR cameras, transforms JSON, COLMAP,
     /// images, configurations, checkpoints) mutated bytes under an allocation cap; findings
     /// (panics, over-cap allocations, hangs) are saved with their inputs.
@@ -135,6 +184,32 @@ enum BenchKind {
         #[arg(long)]
         json: bool,
     },
+    /// Every preset end to end (a few iterations, mesh, evaluation), each in its own process:
+    /// time per phase, peak resident memory against the memory model's estimate.
+    Memory {
+        /// Presets (repeat); default all four.
+        #[arg(long)]
+        preset: Vec<String>,
+        /// Iterations per preset.
+        #[arg(long, default_value_t = 3)]
+        steps: u64,
+        /// One JSON object per preset.
+        #[arg(long)]
+        json: bool,
+    },
+    /// A long run of the default preset with its resident size logged every `--every`
+    /// iterations: flat after warm-up, or it leaks.
+    Soak {
+        /// Iterations.
+        #[arg(long, default_value_t = 2000)]
+        iterations: u64,
+        /// Sampling period (iterations).
+        #[arg(long, default_value_t = 100)]
+        every: u64,
+        /// One JSON object.
+        #[arg(long)]
+        json: bool,
+    },
     /// Backbone presets: training-step time (512 rays × 128 samples), FLOP per sample, MLP rate
     /// against the measured f32 matrix-product rate, peak memory.
     Backbone(bench_backbone::BackboneArgs),
@@ -174,6 +249,22 @@ fn main() -> Result<()> {
         },
         Command::Eval(args) => eval::run(&args),
         Command::Trade(args) => trade::run(&args, &stop_signal()),
+        Command::Import { which: ImportKind::Colmap { model, images, masks, out, downscale, bound } } => {
+            let options = LoadOptions { downscale, bound_sphere: bound, ..LoadOptions::default() };
+            let report = datasets::import_colmap(&model, &images, masks.as_deref(), &out, &options)?;
+            let scale = report.world_from_normalized.col(0).truncate().length();
+            let centre = report.world_from_normalized.col(3).truncate();
+            println!(
+                "wrote {}: {} views ({} undistorted){}; region of interest: centre {centre:.4}, radius {scale:.4} (COLMAP units)\n{}",
+                out.display(),
+                report.views,
+                report.undistorted,
+                if report.masks { ", with masks" } else { "" },
+                report.description
+            );
+            println!("next: cargo xtask train --data {}", out.display());
+            Ok(())
+        }
         Command::Fuzz(args) => {
             let cap = |bytes: usize| {
                 if ALLOCATOR.set_limit(ALLOCATOR.allocated().max(bytes)).is_err() {
@@ -188,6 +279,8 @@ fn main() -> Result<()> {
         Command::Bench { which: BenchKind::Sampler { data, json, quick } } => bench::sampler(data.as_deref(), json, quick),
         Command::Bench { which: BenchKind::Backbone(args) } => bench_backbone::run(&args),
         Command::Bench { which: BenchKind::Overhead { run, iterations, json } } => bench_overhead::run(&run, iterations, json),
+        Command::Bench { which: BenchKind::Memory { preset, steps, json } } => bench_memory::memory(&preset, steps, json),
+        Command::Bench { which: BenchKind::Soak { iterations, every, json } } => bench_memory::soak(iterations, every, json),
         Command::Cameras { data, ply } => cameras(&data, &ply),
         Command::Inspect { data } => inspect(&data),
         Command::Golden { shape, mesh, rig, out, views, width, height, seed, mesh_z_up, no_backdrop, thumbnail } => {

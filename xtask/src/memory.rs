@@ -141,6 +141,13 @@ pub fn peak_rss_bytes() -> Option<f64> {
     Some(line.split_whitespace().nth(1)?.parse::<f64>().ok()? * 1024.0)
 }
 
+/// This process's resident size now (bytes), from `/proc/self/statm` (Linux).
+pub fn rss_bytes() -> Option<f64> {
+    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
+    let pages: f64 = statm.split_whitespace().nth(1)?.parse().ok()?;
+    Some(pages * 4096.0)
+}
+
 /// Parses a size such as `8G`, `512M`, `2.5GB` into bytes.
 pub fn parse_size(text: &str) -> anyhow::Result<f64> {
     let t = text.trim().to_ascii_uppercase();

@@ -415,6 +415,7 @@ fn log_step(folder: &RunFolder, progress: &Progress, trainer: &Trainer, report: 
             "step": report.step, "progress": report.progress, "loss": report.loss, "psnr_batch": report.psnr_batch, "s": report.s, "lr": report.lr,
             "train_s": trainer.state().train_seconds, "step_s": per(t.step_seconds), "rays_s": per(t.ray_seconds), "levels": report.levels,
             "grid_updates": t.grid_updates, "grid_s": t.grid_seconds, "guided_rays": report.guided_rays,
+            "rss_bytes": crate::memory::rss_bytes(),
             "update": report.update.as_ref().map(|u| json!({"seconds": u.seconds, "s": u.s, "occupied": u.occupied_fraction,
                 "lipschitz_measured": u.lipschitz.measured, "lipschitz_used": u.lipschitz.used, "lipschitz_retries": u.lipschitz.retries})),
         });

@@ -99,6 +99,24 @@ fn masked_training_ignores_the_backdrop() {
     assert_eq!(g_with, g_without);
 }
 
+/// A backdrop + mask scene trains exactly as its black-backdrop twin: after several
+/// iterations (grid updates included) the parameters are equal bit for bit, so its Chamfer is
+/// the twin's (the issue asked for within 1.2×; the backdrop never enters the loss).
+#[test]
+fn masked_backdrop_scene_trains_exactly_as_its_black_backdrop_twin() {
+    let params = |backdrop: bool| {
+        let config = config(&["render.rays=64", "steps=6", "guide.updates=3", &format!("data.builtin.backdrop={backdrop}")]);
+        let data = SceneData::builtin(&config).unwrap();
+        let mut trainer = Trainer::new(config, data).unwrap();
+        while !trainer.done() {
+            trainer.step().unwrap();
+        }
+        trainer.state().params.clone()
+    };
+    let (with, without) = (params(true), params(false));
+    assert!(with.iter().zip(&without).all(|(a, b)| a.to_bits() == b.to_bits()), "the backdrop changed the training");
+}
+
 /// The default mesh filter keeps every real part of a multi-part scene (a base, a cage with a
 /// ball seen only through its openings, a thin ring, a thin pole, a bowl) and drops a floater
 /// outside the visual hull; `largest` would keep one part only.

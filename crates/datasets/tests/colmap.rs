@@ -135,15 +135,10 @@ fn assert_names(err: &DatasetError, needle: &Path) {
 }
 
 /// `R(q)` for a unit quaternion (qw, qx, qy, qz), written out (Hamilton convention, as Eigen).
+/// COLMAP's world-to-camera quaternion as a rotation (eval-metrics' conversion, independent of
+/// the loader's).
 fn rotation_from_quaternion(q: [f64; 4]) -> DMat3 {
-    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-    let [w, x, y, z] = q.map(|v| v / n);
-    let rows = [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
-    ];
-    DMat3::from_cols_array_2d(&rows).transpose()
+    DMat3::from_cols_array_2d(&eval_metrics::align::rotation_from_quaternion(q)).transpose()
 }
 
 fn rotation_angle_degrees(r: DMat3) -> f64 {
@@ -197,61 +192,11 @@ fn independent_text_cameras(text_dir: &Path) -> Vec<TextCamera> {
         .collect()
 }
 
-/// The similarity `b ≈ s·R·a + t` minimising Σ|s R aᵢ + t − bᵢ|² (Umeyama; the rotation by Horn's
-/// quaternion method, the largest eigenvector from Jacobi sweeps).
+/// The similarity `b ≈ s·R·a + t` minimising Σ|s R aᵢ + t − bᵢ|² (eval-metrics' Umeyama).
 fn similarity(a: &[DVec3], b: &[DVec3]) -> (f64, DMat3, DVec3) {
-    let n = a.len() as f64;
-    let (ma, mb) = (a.iter().sum::<DVec3>() / n, b.iter().sum::<DVec3>() / n);
-    let mut s = [[0.0; 3]; 3];
-    for (p, q) in a.iter().zip(b) {
-        let (p, q) = (*p - ma, *q - mb);
-        for i in 0..3 {
-            for j in 0..3 {
-                s[i][j] += p[i] * q[j];
-            }
-        }
-    }
-    let [[sxx, sxy, sxz], [syx, syy, syz], [szx, szy, szz]] = s;
-    let mut m = [
-        [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
-        [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
-        [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
-        [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
-    ];
-    let mut v = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
-    for _ in 0..100 {
-        for p in 0..4 {
-            for q in p + 1..4 {
-                if m[p][q].abs() < 1e-300 {
-                    continue;
-                }
-                let theta = (m[q][q] - m[p][p]) / (2.0 * m[p][q]);
-                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-                let (c, s) = (1.0 / (t * t + 1.0).sqrt(), t / (t * t + 1.0).sqrt());
-                for k in 0..4 {
-                    let (kp, kq) = (m[k][p], m[k][q]);
-                    m[k][p] = c * kp - s * kq;
-                    m[k][q] = s * kp + c * kq;
-                }
-                for k in 0..4 {
-                    let (pk, qk) = (m[p][k], m[q][k]);
-                    m[p][k] = c * pk - s * qk;
-                    m[q][k] = s * pk + c * qk;
-                }
-                for k in 0..4 {
-                    let (kp, kq) = (v[k][p], v[k][q]);
-                    v[k][p] = c * kp - s * kq;
-                    v[k][q] = s * kp + c * kq;
-                }
-            }
-        }
-    }
-    let best = (0..4).max_by(|&i, &j| m[i][i].total_cmp(&m[j][j])).unwrap();
-    let rotation = rotation_from_quaternion([v[0][best], v[1][best], v[2][best], v[3][best]]);
-    let num: f64 = a.iter().zip(b).map(|(p, q)| (*q - mb).dot(rotation * (*p - ma))).sum();
-    let den: f64 = a.iter().map(|p| (*p - ma).length_squared()).sum();
-    let scale = num / den;
-    (scale, rotation, mb - scale * (rotation * ma))
+    let (a, b): (Vec<[f64; 3]>, Vec<[f64; 3]>) = (a.iter().map(|p| p.to_array()).collect(), b.iter().map(|p| p.to_array()).collect());
+    let s = eval_metrics::align::similarity(&a, &b).expect("enough spread points");
+    (s.scale, DMat3::from_cols_array_2d(&s.rotation).transpose(), DVec3::from_array(s.translation))
 }
 
 /// Agreement of estimated cameras with true ones after the best similarity on the centres:
@@ -811,5 +756,18 @@ fn write_colmap_fixture_inputs() {
         let (w, h) = img.dimensions();
         let rgb = RgbImage { width: w, height: h, data: img.into_raw() }.downscaled(2);
         rgb.save_png(&dtu_out.join(path.file_name().unwrap())).unwrap();
+    }
+    // The masks alike, under the images' names (for `import colmap --masks`).
+    let masks_out = out.join("dtu_scan24_800/masks");
+    std::fs::create_dir_all(&masks_out).unwrap();
+    for entry in std::fs::read_dir(dtu.join("mask")).unwrap() {
+        let path = entry.unwrap().path();
+        let grey = image::open(&path).unwrap().into_luma8();
+        let (w, h) = grey.dimensions();
+        let mut mask = Mask::new(w, h);
+        for (i, v) in grey.as_raw().iter().enumerate() {
+            mask.set(i as u32 % w, i as u32 / w, *v > 127);
+        }
+        mask.downscaled(2).save_png(&masks_out.join(path.file_name().unwrap())).unwrap();
     }
 }

@@ -14,6 +14,8 @@
 //! larger ones are outliers and are left out of the mean, not clamped); Chamfer = their mean.
 #![deny(missing_docs)]
 
+pub mod align;
+
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
 use rayon::prelude::*;

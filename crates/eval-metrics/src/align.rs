@@ -1,0 +1,131 @@
+//! The similarity that best maps one point set onto another: to compare a reconstruction made
+//! in one frame (e.g. COLMAP's) with ground truth in another, align the two sets of camera
+//! centres and carry the mesh across.
+
+/// `b ≈ scale · rotation · a + translation`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Similarity {
+    /// Uniform scale.
+    pub scale: f64,
+    /// Rotation, row-major.
+    pub rotation: [[f64; 3]; 3],
+    /// Translation.
+    pub translation: [f64; 3],
+}
+
+impl Similarity {
+    /// Applies the similarity to a point.
+    pub fn apply(&self, p: [f64; 3]) -> [f64; 3] {
+        let r = &self.rotation;
+        std::array::from_fn(|i| self.scale * (r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2]) + self.translation[i])
+    }
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn mean(points: &[[f64; 3]]) -> [f64; 3] {
+    let n = points.len() as f64;
+    let s = points.iter().fold([0.0; 3], |acc, p| [acc[0] + p[0], acc[1] + p[1], acc[2] + p[2]]);
+    s.map(|v| v / n)
+}
+
+/// The rotation of a quaternion `[w, x, y, z]` (normalised first), row-major.
+pub fn rotation_from_quaternion(q: [f64; 4]) -> [[f64; 3]; 3] {
+    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let [w, x, y, z] = q.map(|v| v / n);
+    [
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+    ]
+}
+
+/// The similarity minimising Σ |s R aᵢ + t − bᵢ|² (Umeyama; the rotation by Horn's quaternion
+/// method, the largest eigenvector of his 4 × 4 matrix by Jacobi sweeps). `None` when the sets
+/// differ in size, have fewer than 3 points, or `a` has no spread.
+pub fn similarity(a: &[[f64; 3]], b: &[[f64; 3]]) -> Option<Similarity> {
+    if a.len() != b.len() || a.len() < 3 {
+        return None;
+    }
+    let (ma, mb) = (mean(a), mean(b));
+    let mut s = [[0.0; 3]; 3];
+    for (p, q) in a.iter().zip(b) {
+        let (p, q) = (sub(*p, ma), sub(*q, mb));
+        for i in 0..3 {
+            for j in 0..3 {
+                s[i][j] += p[i] * q[j];
+            }
+        }
+    }
+    let [[sxx, sxy, sxz], [syx, syy, syz], [szx, szy, szz]] = s;
+    let mut m = [
+        [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
+        [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
+        [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
+        [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
+    ];
+    let mut v = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
+    for _ in 0..100 {
+        for p in 0..4 {
+            for q in p + 1..4 {
+                if m[p][q].abs() < 1e-300 {
+                    continue;
+                }
+                let theta = (m[q][q] - m[p][p]) / (2.0 * m[p][q]);
+                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+                let (c, s) = (1.0 / (t * t + 1.0).sqrt(), t / (t * t + 1.0).sqrt());
+                for k in 0..4 {
+                    let (kp, kq) = (m[k][p], m[k][q]);
+                    m[k][p] = c * kp - s * kq;
+                    m[k][q] = s * kp + c * kq;
+                }
+                for k in 0..4 {
+                    let (pk, qk) = (m[p][k], m[q][k]);
+                    m[p][k] = c * pk - s * qk;
+                    m[q][k] = s * pk + c * qk;
+                }
+                for k in 0..4 {
+                    let (kp, kq) = (v[k][p], v[k][q]);
+                    v[k][p] = c * kp - s * kq;
+                    v[k][q] = s * kp + c * kq;
+                }
+            }
+        }
+    }
+    let best = (0..4).max_by(|&i, &j| m[i][i].total_cmp(&m[j][j]))?;
+    let rotation = rotation_from_quaternion([v[0][best], v[1][best], v[2][best], v[3][best]]);
+    let rotated = |p: [f64; 3]| -> [f64; 3] { std::array::from_fn(|i| rotation[i][0] * p[0] + rotation[i][1] * p[1] + rotation[i][2] * p[2]) };
+    let dot = |x: [f64; 3], y: [f64; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+    let num: f64 = a.iter().zip(b).map(|(p, q)| dot(sub(*q, mb), rotated(sub(*p, ma)))).sum();
+    let den: f64 = a.iter().map(|p| dot(sub(*p, ma), sub(*p, ma))).sum();
+    if !(den > 0.0) {
+        return None;
+    }
+    let scale = num / den;
+    let rma = rotated(ma);
+    Some(Similarity { scale, rotation, translation: std::array::from_fn(|i| mb[i] - scale * rma[i]) })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn similarity_recovers_a_known_scale_rotation_and_translation() {
+        let truth = Similarity { scale: 2.5, rotation: rotation_from_quaternion([0.9, 0.1, -0.3, 0.2]), translation: [1.0, -2.0, 0.5] };
+        let a: Vec<[f64; 3]> = (0..20).map(|i| [(i as f64 * 0.7).sin(), (i as f64 * 1.3).cos(), i as f64 * 0.1 - 1.0]).collect();
+        let b: Vec<[f64; 3]> = a.iter().map(|p| truth.apply(*p)).collect();
+        let s = similarity(&a, &b).unwrap();
+        assert!((s.scale - truth.scale).abs() < 1e-9);
+        for i in 0..3 {
+            assert!((s.translation[i] - truth.translation[i]).abs() < 1e-9);
+            for j in 0..3 {
+                assert!((s.rotation[i][j] - truth.rotation[i][j]).abs() < 1e-9);
+            }
+        }
+        assert!(similarity(&a[..2], &b[..2]).is_none());
+        assert!(similarity(&[[1.0; 3]; 4], &b[..4]).is_none());
+    }
+}

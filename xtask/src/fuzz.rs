@@ -749,8 +749,17 @@ fn save_finding(out: &Path, target: &str, kind: &str, message: &str, input: &[u8
     Ok(path)
 }
 
+/// What only the binary may do: cap its heap, and end the process (a hung case cannot be
+/// unwound).
+pub struct ProcessHooks {
+    /// Sets the allocation cap (bytes).
+    pub memory_cap: fn(usize),
+    /// Ends the process with this code.
+    pub end_process: fn(i32) -> !,
+}
+
 /// The command.
-pub fn run(args: &FuzzArgs, memory_cap: &dyn Fn(usize)) -> Result<bool> {
+pub fn run(args: &FuzzArgs, hooks: &ProcessHooks) -> Result<bool> {
     if args.list {
         for t in targets() {
             println!("{:12} {}", t.name, t.about);
@@ -759,18 +768,18 @@ pub fn run(args: &FuzzArgs, memory_cap: &dyn Fn(usize)) -> Result<bool> {
     }
     let targets = select(&args.target)?;
     if !args.replay.is_empty() {
-        memory_cap(crate::memory::parse_size(&args.max_memory)? as usize);
-        return replay(args, &targets);
+        (hooks.memory_cap)(crate::memory::parse_size(&args.max_memory)? as usize);
+        return replay(args, &targets, hooks);
     }
     if args.worker {
-        return worker(args, &targets, memory_cap);
+        return worker(args, &targets, hooks);
     }
     supervise(args, &targets)
 }
 
 /// A thread that ends the process (exit 3) when a case has run longer than `timeout` seconds,
 /// first writing the thread's slot to `inflight/hung`.
-fn start_watchdog(timeout: f64, inflight: Option<PathBuf>) {
+fn start_watchdog(timeout: f64, inflight: Option<PathBuf>, end_process: fn(i32) -> !) {
     let timeout_ms = (timeout * 1000.0) as u64;
     std::thread::spawn(move || {
         loop {
@@ -785,18 +794,18 @@ fn start_watchdog(timeout: f64, inflight: Option<PathBuf>) {
                 if let Some(dir) = &inflight {
                     let _ = std::fs::write(dir.join("hung"), slot.to_string());
                 }
-                std::process::exit(3);
+                end_process(3);
             }
         }
     });
 }
 
-fn replay(args: &FuzzArgs, targets: &[Target]) -> Result<bool> {
+fn replay(args: &FuzzArgs, targets: &[Target], hooks: &ProcessHooks) -> Result<bool> {
     if targets.len() != 1 {
         bail!("--replay needs one --target");
     }
     install_panic_hook();
-    start_watchdog(args.case_timeout, None);
+    start_watchdog(args.case_timeout, None, hooks.end_process);
     let mut clean = true;
     for path in &args.replay {
         let input = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
@@ -818,15 +827,15 @@ fn replay(args: &FuzzArgs, targets: &[Target]) -> Result<bool> {
 }
 
 /// Runs the cases in this process; prints `progress N` lines and a final JSON report.
-fn worker(args: &FuzzArgs, targets: &[Target], memory_cap: &dyn Fn(usize)) -> Result<bool> {
+fn worker(args: &FuzzArgs, targets: &[Target], hooks: &ProcessHooks) -> Result<bool> {
     let inflight = args.out.join("inflight");
     std::fs::create_dir_all(&inflight).with_context(|| format!("creating {}", inflight.display()))?;
     let deadline =
         args.time.as_deref().map(crate::config::parse_duration).transpose()?.map(|s| Instant::now() + std::time::Duration::from_secs_f64(s));
     // The seeds are built before the cap: the checkpoint target trains a tiny run.
     let _ = targets.iter().map(|t| (t.seeds)().len()).sum::<usize>();
-    memory_cap(crate::memory::parse_size(&args.max_memory)? as usize);
-    start_watchdog(args.case_timeout, Some(inflight.clone()));
+    (hooks.memory_cap)(crate::memory::parse_size(&args.max_memory)? as usize);
+    start_watchdog(args.case_timeout, Some(inflight.clone()), hooks.end_process);
     let out = std::io::stdout();
     let report = run_cases(targets, args.seed, args.first_case, args.cases, deadline, Some(&inflight), &|n| {
         let mut o = out.lock();

@@ -266,12 +266,15 @@ fn main() -> Result<()> {
             Ok(())
         }
         Command::Fuzz(args) => {
-            let cap = |bytes: usize| {
+            fn cap(bytes: usize) {
                 if ALLOCATOR.set_limit(ALLOCATOR.allocated().max(bytes)).is_err() {
                     eprintln!("fuzz: could not set the allocation cap");
                 }
-            };
-            if !fuzz::run(&args, &cap)? {
+            }
+            fn end(code: i32) -> ! {
+                std::process::exit(code)
+            }
+            if !fuzz::run(&args, &fuzz::ProcessHooks { memory_cap: cap, end_process: end })? {
                 std::process::exit(1);
             }
             Ok(())

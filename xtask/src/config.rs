@@ -45,6 +45,30 @@ pub enum MeshFilter {
     Supported,
 }
 
+/// What is behind the object.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BackgroundModel {
+    /// Learned when the run does not use masks (a capture's real surroundings must be
+    /// explained by something other than the object), fixed when it does.
+    Auto,
+    /// NeRF++'s inverted-sphere model beyond the bound, learned with the object.
+    Learned,
+    /// The fixed colour `model.background`.
+    Fixed,
+}
+
+impl BackgroundModel {
+    /// Whether the background is learned in a run that uses masks (`use_masks`) or not.
+    pub fn learned(self, use_masks: bool) -> bool {
+        match self {
+            BackgroundModel::Auto => !use_masks,
+            BackgroundModel::Learned => true,
+            BackgroundModel::Fixed => false,
+        }
+    }
+}
+
 /// Everything a run needs. Defaults: the built-in scene on a 2-core CPU in ≤ 5 minutes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -136,8 +160,8 @@ pub struct ModelConfig {
     /// Colour behind the object in renders (and, without masks and without a learned
     /// background, in the loss).
     pub background: [f64; 3],
-    /// A learned background model instead of the fixed colour, for captures without masks.
-    pub learned_background: bool,
+    /// auto (learned without masks, fixed with them), learned, fixed.
+    pub background_model: BackgroundModel,
 }
 
 /// Rays and samples per iteration.
@@ -283,7 +307,7 @@ impl Default for ModelConfig {
             curvature: 0.0,
             normals: NormalScheme::Tetrahedral,
             background: [0.0; 3],
-            learned_background: false,
+            background_model: BackgroundModel::Auto,
         }
     }
 }

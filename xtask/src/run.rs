@@ -212,7 +212,7 @@ fn restore_run(dir: &Path, config: TrainConfig, data: SceneData) -> Result<Train
 pub fn check_memory(config: &TrainConfig, data: &SceneData, max_memory: Option<f64>) -> Result<MemoryEstimate> {
     let mut backbone = sdf_backbone::architecture(config.model.preset);
     backbone.config.normals = config.model.normals;
-    if config.model.learned_background {
+    if config.model.background_model.learned(crate::data::uses_masks(config, &data.scene)) {
         backbone.add_learned_background(&mut Vec::new(), 0);
     }
     let n_params = backbone.n_params::<f32>();

@@ -133,7 +133,7 @@ impl SampleLoss for SurfaceHook<'_> {
 /// The configured backbone with its initial parameters.
 fn configured_backbone(config: &TrainConfig, use_masks: bool) -> (Backbone, Vec<f32>) {
     let (mut backbone, mut params) = build(config.model.preset, config.model.init_radius, config.seed);
-    if config.model.learned_background {
+    if config.model.background_model.learned(use_masks) {
         backbone.add_learned_background(&mut params, config.seed + 4);
     }
     backbone.config.eikonal_weight = config.model.eikonal;

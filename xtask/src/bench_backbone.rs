@@ -7,7 +7,7 @@
 use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
 use sdf_backbone::kernels::{Strided, dispatch, gemm};
-use sdf_backbone::{Adam, Backbone, InputEncoding, Module, NoSampleLoss, NormalScheme, Preset, RayInput, adam_step, batch_gradients, build};
+use sdf_backbone::{Adam, Backbone, InputEncoding, Module, NoSampleLoss, NormalScheme, Preset, RayInput, StepRates, batch_gradients, build};
 use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -120,18 +120,14 @@ fn rays(n_rays: usize, n_samples: usize) -> Vec<RayInput<f32>> {
         .collect()
 }
 
-/// Seconds per training step: forward + backward of the whole loss + Adam (the trainer's
-/// parameter groups), the best of `reps` after a warm-up step.
+/// Seconds per training step: forward + backward of the whole loss + Adam, as the trainer
+/// runs it (`Backbone::train_step`: hash tables updated level by level from their deferred
+/// gradient, the trainer's rates and clipping), the best of `reps` after a warm-up step.
 fn time_step(backbone: &Backbone, params: &mut [f32], rays: &[RayInput<f32>], reps: usize) -> f64 {
-    let n = params.len();
-    let layout = backbone.layout();
-    let mut grads = vec![0.0f32; n];
-    let mut adam = Adam::new(n);
-    let groups = [(layout.encoding.clone(), 1e-2f32), (layout.encoding.end..n, 5e-3)];
+    let mut adam = Adam::new(params.len());
+    let rates = StepRates { tables: 1e-2, rest: 5e-3, clip_norm: Some(1.0) };
     let mut step = |params: &mut [f32]| {
-        grads.fill(0.0);
-        let _ = backbone.loss_parallel(params, rays, &mut grads, 32, &NoSampleLoss);
-        adam_step(&mut adam, params, &mut grads, &groups, None);
+        let _ = backbone.train_step(params, &mut adam, rays, 32, &NoSampleLoss, rates);
     };
     step(params);
     (0..reps.max(1))

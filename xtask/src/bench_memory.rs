@@ -96,6 +96,9 @@ pub fn soak(iterations: u64, every: u64, json_out: bool) -> Result<()> {
     }
     // After warm-up (the first quarter): the spread and the drift (least-squares slope).
     let warm: Vec<(u64, f64)> = samples.iter().copied().filter(|(s, _)| *s as f64 >= 0.25 * iterations as f64).collect();
+    if warm.len() < 2 {
+        bail!("the soak run logged {} resident sizes after warm-up; too few for a drift", warm.len());
+    }
     let (lo, hi) = warm.iter().fold((f64::INFINITY, 0.0f64), |(a, b), (_, r)| (a.min(*r), b.max(*r)));
     let n = warm.len() as f64;
     let (mx, my) = (warm.iter().map(|(s, _)| *s as f64).sum::<f64>() / n, warm.iter().map(|(_, r)| *r).sum::<f64>() / n);

@@ -45,9 +45,10 @@ pub enum MeshFilter {
     Supported,
 }
 
-/// What is behind the object.
+/// What is behind the object. In a file also `learned_background = true | false` (the key
+/// of earlier versions: learned | fixed).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "lowercase", try_from = "BackgroundModelText")]
 pub enum BackgroundModel {
     /// Learned when the run does not use masks (a capture's real surroundings must be
     /// explained by something other than the object), fixed when it does.
@@ -56,6 +57,30 @@ pub enum BackgroundModel {
     Learned,
     /// The fixed colour `model.background`.
     Fixed,
+}
+
+/// How a background model may be written: its name, or the earlier boolean.
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum BackgroundModelText {
+    Name(String),
+    Learned(bool),
+}
+
+impl TryFrom<BackgroundModelText> for BackgroundModel {
+    type Error = String;
+    fn try_from(text: BackgroundModelText) -> std::result::Result<Self, String> {
+        match text {
+            BackgroundModelText::Learned(true) => Ok(BackgroundModel::Learned),
+            BackgroundModelText::Learned(false) => Ok(BackgroundModel::Fixed),
+            BackgroundModelText::Name(n) => match n.as_str() {
+                "auto" => Ok(BackgroundModel::Auto),
+                "learned" => Ok(BackgroundModel::Learned),
+                "fixed" => Ok(BackgroundModel::Fixed),
+                other => Err(format!("unknown background model {other:?}: expected auto, learned or fixed")),
+            },
+        }
+    }
 }
 
 impl BackgroundModel {
@@ -113,8 +138,9 @@ pub struct DataConfig {
     /// Every n-th view is held out for evaluation (0: none).
     pub holdout_every: usize,
     /// The region of interest `[x, y, z, radius]` in the dataset's own units, overriding what
-    /// the format gives (instant-ngp's `aabb`, COLMAP's sparse points, NeRF-synthetic's default).
-    /// Empty: the format's.
+    /// the format gives (COLMAP's sparse points, instant-ngp's `aabb`, NeRF-synthetic's default).
+    /// Empty: the format's. An error for the IDR layout (its `scale_mat` is the bound: re-import)
+    /// and the built-in scene.
     pub bound: Vec<f64>,
     /// The built-in scene (no `--data`).
     pub builtin: BuiltinConfig,
@@ -161,6 +187,7 @@ pub struct ModelConfig {
     /// background, in the loss).
     pub background: [f64; 3],
     /// auto (learned without masks, fixed with them), learned, fixed.
+    #[serde(alias = "learned_background")]
     pub background_model: BackgroundModel,
 }
 
@@ -586,6 +613,18 @@ mod tests {
         assert_eq!(c.output.mesh_formats, vec![MeshFormat::Obj, MeshFormat::Glb]);
         let d = TrainConfig::default().differences(&c);
         assert!(d.contains(&"guide.scene.partition".to_string()) && d.contains(&"steps".to_string()), "{d:?}");
+    }
+
+    #[test]
+    fn background_model_reads_its_names_and_the_earlier_boolean_key() {
+        let model = |o: &str| TrainConfig::load(None, &[o.to_string()]).unwrap().model.background_model;
+        assert_eq!(TrainConfig::default().model.background_model, BackgroundModel::Auto);
+        assert_eq!(model("model.background_model=\"fixed\""), BackgroundModel::Fixed);
+        assert_eq!(model("model.learned_background=true"), BackgroundModel::Learned);
+        assert_eq!(model("model.learned_background=false"), BackgroundModel::Fixed);
+        assert!(BackgroundModel::Auto.learned(false) && !BackgroundModel::Auto.learned(true));
+        let err = TrainConfig::load(None, &["model.background_model=sky".into()]).unwrap_err();
+        assert!(format!("{err:#}").contains("sky"), "{err:#}");
     }
 
     #[test]

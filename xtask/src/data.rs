@@ -23,6 +23,9 @@ pub struct SceneData {
 impl SceneData {
     /// The built-in golden scene as `config.data.builtin` describes it (no files).
     pub fn builtin(config: &TrainConfig) -> Result<SceneData> {
+        if !config.data.bound.is_empty() {
+            bail!("data.bound applies to dataset folders (COLMAP, instant-ngp, NeRF-synthetic); the built-in scene's bound is the unit sphere");
+        }
         let b = &config.data.builtin;
         let mut spec = GoldenSpec::builtin();
         spec.geometry = GeometrySource::Shape(b.shape.clone());

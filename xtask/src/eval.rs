@@ -85,6 +85,16 @@ fn camera_alignment(from: &Path, to: &Path) -> Result<(eval_metrics::align::Simi
     }
     let s = eval_metrics::align::similarity(&a, &b).with_context(|| format!("the cameras of {} do not determine a similarity", from.display()))?;
     let rms = (a.iter().zip(&b).map(|(p, q)| (0..3).map(|i| (s.apply(*p)[i] - q[i]).powi(2)).sum::<f64>()).sum::<f64>() / a.len() as f64).sqrt();
+    // The rig's size: RMS distance of --data's centres from their mean.
+    let mean: [f64; 3] = std::array::from_fn(|i| b.iter().map(|q| q[i]).sum::<f64>() / b.len() as f64);
+    let size = (b.iter().map(|q| (0..3).map(|i| (q[i] - mean[i]).powi(2)).sum::<f64>()).sum::<f64>() / b.len() as f64).sqrt();
+    if !(rms <= 0.05 * size) {
+        bail!(
+            "the camera centres of {} and {} do not match up to a similarity (residual {rms:.4} against a rig of size {size:.4}): are the views in the same order?",
+            from.display(),
+            to.display()
+        );
+    }
     Ok((s, rms))
 }
 

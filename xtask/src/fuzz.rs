@@ -24,12 +24,11 @@ use datasets::npy::{npy_bytes, write_npz};
 use datasets::{Format, LoadOptions};
 use glam::{DMat3, DMat4, DVec3, Vec3};
 use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
-use rayon::prelude::*;
 use std::cell::RefCell;
 use std::io::{BufRead, Cursor, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::time::Instant;
 
 /// Options of `cargo xtask fuzz`.
@@ -331,8 +330,16 @@ fn tiny_trainer() -> Result<crate::trainer::Trainer> {
     Ok(trainer)
 }
 
-thread_local! {
-    static TRAINER: RefCell<Option<crate::trainer::Trainer>> = const { RefCell::new(None) };
+/// Tiny runs the checkpoint target restores into, one per worker (taken and put back per case).
+static TRAINERS: Mutex<Vec<crate::trainer::Trainer>> = Mutex::new(Vec::new());
+
+/// Builds `n` tiny runs for the checkpoint target (before the allocation cap is set).
+pub fn prepare_checkpoint_runs(n: usize) -> Result<()> {
+    let mut pool = TRAINERS.lock().expect("trainer pool");
+    while pool.len() < n {
+        pool.push(tiny_trainer().context("building the checkpoint target's tiny run")?);
+    }
+    Ok(())
 }
 
 fn seeds_checkpoint() -> Vec<Vec<u8>> {
@@ -411,16 +418,20 @@ fn run_overrides(b: &[u8]) -> Verdict {
 }
 
 fn run_checkpoint(b: &[u8]) -> Verdict {
-    TRAINER.with(|cell| {
-        let mut slot = cell.borrow_mut();
-        if slot.is_none() {
-            *slot = Some(tiny_trainer().map_err(|e| format!("building the tiny run: {e:#}"))?);
-        }
-        let trainer = slot.as_mut().expect("built above");
-        let mut input = Cursor::new(b);
-        let reader = sdf_backbone::CheckpointReader::open(&mut input, b.len() as u64).map_err(|e| e.to_string())?;
-        verdict(trainer.restore(&reader, &mut input).map_err(|e| format!("{e:#}")))
-    })
+    let taken = TRAINERS.lock().map_err(|_| "trainer pool poisoned".to_string())?.pop();
+    let mut trainer = match taken {
+        Some(t) => t,
+        None => tiny_trainer().map_err(|e| format!("building the tiny run: {e:#}"))?,
+    };
+    let mut input = Cursor::new(b);
+    let verdict = match sdf_backbone::CheckpointReader::open(&mut input, b.len() as u64) {
+        Ok(reader) => verdict(trainer.restore(&reader, &mut input).map_err(|e| format!("{e:#}"))),
+        Err(e) => Err(e.to_string()),
+    };
+    if let Ok(mut pool) = TRAINERS.lock() {
+        pool.push(trainer);
+    }
+    verdict
 }
 
 /// Every target.
@@ -580,20 +591,24 @@ pub struct Report {
     pub findings: Vec<Finding>,
     /// Wall time of the cases.
     pub seconds: f64,
+    /// Order-free digest of every case's input and verdict (the same for any thread count).
+    pub digest: u64,
 }
 
 thread_local! {
     static PANIC: RefCell<Option<String>> = const { RefCell::new(None) };
-    static INFLIGHT: RefCell<Option<std::fs::File>> = const { RefCell::new(None) };
 }
 
-static QUIET_PANICS: AtomicBool = AtomicBool::new(false);
+/// How many fuzz runs are under way in this process (panics are recorded, not printed, while > 0).
+static QUIET_PANICS: AtomicUsize = AtomicUsize::new(0);
 
-/// Per worker thread: when its running case started (ms since the epoch), 0 when idle.
+/// Per worker thread: when its running case started ([`clock_ms`], ≥ 1), 0 when idle.
 static RUNNING: [AtomicU64; 64] = [const { AtomicU64::new(0) }; 64];
 
-fn epoch_ms() -> u64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(1, |d| d.as_millis() as u64)
+/// Milliseconds on a monotonic clock (from the first call).
+fn clock_ms() -> u64 {
+    static ORIGIN: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
+    ORIGIN.get_or_init(Instant::now).elapsed().as_millis() as u64
 }
 
 /// Installs (once) a panic hook that records panics of fuzz cases instead of printing them.
@@ -602,7 +617,7 @@ fn install_panic_hook() {
     ONCE.call_once(|| {
         let default = std::panic::take_hook();
         std::panic::set_hook(Box::new(move |info| {
-            if QUIET_PANICS.load(Ordering::Relaxed) {
+            if QUIET_PANICS.load(Ordering::SeqCst) > 0 {
                 let location = info.location().map_or("?".into(), |l| format!("{}:{}", l.file(), l.line()));
                 let payload = info.payload();
                 let message =
@@ -615,96 +630,118 @@ fn install_panic_hook() {
     });
 }
 
-/// Where a worker thread writes its case before running it (target index, case index, bytes).
-fn write_inflight(dir: &Path, target: usize, case: u64, input: &[u8]) {
+/// Writes a worker's case to its in-flight file before running it (target index, case index,
+/// bytes); the file is emptied when the case returns, so a non-empty file after the worker died
+/// is the case it died on.
+fn write_inflight(file: &mut std::fs::File, target: usize, case: u64, input: &[u8]) {
     use std::os::unix::fs::FileExt;
-    INFLIGHT.with(|cell| {
-        let mut slot = cell.borrow_mut();
-        if slot.is_none() {
-            let index = rayon::current_thread_index().unwrap_or(0);
-            *slot = std::fs::File::create(dir.join(format!("thread-{index}.case"))).ok();
-        }
-        if let Some(file) = slot.as_ref() {
-            let mut head = [0u8; 16];
-            head[..8].copy_from_slice(&(target as u64).to_le_bytes());
-            head[8..].copy_from_slice(&case.to_le_bytes());
-            let _ = file.set_len(16 + input.len() as u64);
-            let _ = file.write_all_at(&head, 0);
-            let _ = file.write_all_at(input, 16);
-        }
-    });
+    let mut head = [0u8; 16];
+    head[..8].copy_from_slice(&(target as u64).to_le_bytes());
+    head[8..].copy_from_slice(&case.to_le_bytes());
+    let _ = file.write_all_at(input, 16);
+    let _ = file.write_all_at(&head, 0);
+    let _ = file.set_len(16 + input.len() as u64);
 }
 
-/// Cases `first .. first + cases` over `targets` (case `i` → target `i mod n`), in parallel, until
-/// `deadline`. `inflight`: folder where each thread writes its case first (workers);
-/// `progress(done)` is called about every 4096 cases; `running` holds, per thread, when its case
-/// started (for the watchdog).
+/// A run of cases: where, how many, on how many threads.
+#[derive(Debug, Clone)]
+pub struct CaseRange {
+    /// Seed of the case streams.
+    pub seed: u64,
+    /// First case index.
+    pub first: u64,
+    /// Number of cases.
+    pub cases: u64,
+    /// Worker threads (each takes chunks of 256 cases in turn).
+    pub threads: usize,
+}
+
+/// Cases `first .. first + cases` over `targets` (case `i` → target `i mod n`, its input from
+/// `seeds` of that target) on `range.threads` worker threads of our own — not rayon's pool, so
+/// that a parser's own parallel work can never run another case on the same thread — until
+/// `deadline`. `inflight`: folder where each worker writes its case before running it and
+/// clears it after (supervised workers); `progress(done)` is called about every 4096 cases.
 pub fn run_cases(
     targets: &[Target],
-    seed: u64,
-    first: u64,
-    cases: u64,
+    seeds: &[Vec<Vec<u8>>],
+    range: &CaseRange,
     deadline: Option<Instant>,
     inflight: Option<&Path>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Report {
     install_panic_hook();
-    let seeds: Vec<Vec<Vec<u8>>> = targets.iter().map(|t| (t.seeds)()).collect();
     // Per target: cases, accepted, nanoseconds, slowest case (ns).
     let tallies: Vec<[AtomicU64; 4]> = targets.iter().map(|_| std::array::from_fn(|_| AtomicU64::new(0))).collect();
     let findings: Mutex<Vec<Finding>> = Mutex::new(Vec::new());
+    let digest = AtomicU64::new(0);
+    let next_chunk = AtomicU64::new(0);
     let done = AtomicU64::new(0);
-    let stop = AtomicBool::new(false);
     let started = Instant::now();
-    QUIET_PANICS.store(true, Ordering::Relaxed);
+    QUIET_PANICS.fetch_add(1, Ordering::SeqCst);
     const CHUNK: u64 = 256;
-    (0..cases.div_ceil(CHUNK)).into_par_iter().for_each(|chunk| {
-        if stop.load(Ordering::Relaxed) {
-            return;
-        }
-        let mut input = Vec::new();
-        for case in first + chunk * CHUNK..(first + (chunk + 1) * CHUNK).min(first + cases) {
-            let t = (case % targets.len() as u64) as usize;
-            let mut rng = Xoshiro256PlusPlus::seed_from_u64(view_sampler::stream_seed(seed, case, 0xF022));
-            let pool = &seeds[t];
-            let base = rng.random_range(0..pool.len());
-            mutate(&mut rng, &pool[base], pool, &mut input);
-            if let Some(dir) = inflight {
-                write_inflight(dir, t, case, &input);
-            }
-            let slot = rayon::current_thread_index().unwrap_or(0) % RUNNING.len();
-            let begun = Instant::now();
-            RUNNING[slot].store(epoch_ms(), Ordering::Relaxed);
-            let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| (targets[t].run)(&input)));
-            RUNNING[slot].store(0, Ordering::Relaxed);
-            let ns = begun.elapsed().as_nanos() as u64;
-            tallies[t][0].fetch_add(1, Ordering::Relaxed);
-            tallies[t][2].fetch_add(ns, Ordering::Relaxed);
-            tallies[t][3].fetch_max(ns, Ordering::Relaxed);
-            match outcome {
-                Ok(Ok(())) => {
-                    tallies[t][1].fetch_add(1, Ordering::Relaxed);
-                }
-                Ok(Err(_)) => {}
-                Err(_) => {
-                    let message = PANIC.with(|p| p.borrow_mut().take()).unwrap_or_else(|| "panic".into());
-                    let mut f = findings.lock().expect("findings lock");
-                    let location = message.rsplit(" at ").next().unwrap_or("").to_string();
-                    if !f.iter().any(|x| x.target == targets[t].name && x.message.ends_with(&location)) {
-                        f.push(Finding { target: targets[t].name.into(), case, message, input: input.clone() });
+    let chunks = range.cases.div_ceil(CHUNK);
+    let threads = range.threads.clamp(1, RUNNING.len());
+    std::thread::scope(|scope| {
+        for worker in 0..threads {
+            let (tallies, findings, digest, next_chunk, done) = (&tallies, &findings, &digest, &next_chunk, &done);
+            scope.spawn(move || {
+                let mut inflight_file = inflight.and_then(|dir| std::fs::File::create(dir.join(format!("thread-{worker}.case"))).ok());
+                let mut input = Vec::new();
+                loop {
+                    let chunk = next_chunk.fetch_add(1, Ordering::Relaxed);
+                    if chunk >= chunks || deadline.is_some_and(|d| Instant::now() >= d) {
+                        break;
+                    }
+                    let end = ((chunk + 1) * CHUNK).min(range.cases);
+                    for offset in chunk * CHUNK..end {
+                        let case = range.first + offset;
+                        let t = (case % targets.len() as u64) as usize;
+                        let mut rng = Xoshiro256PlusPlus::seed_from_u64(view_sampler::stream_seed(range.seed, case, 0xF022));
+                        let pool = &seeds[t];
+                        let base = rng.random_range(0..pool.len());
+                        mutate(&mut rng, &pool[base], pool, &mut input);
+                        if let Some(file) = inflight_file.as_mut() {
+                            write_inflight(file, t, case, &input);
+                        }
+                        let begun = Instant::now();
+                        RUNNING[worker].store(clock_ms().max(1), Ordering::Relaxed);
+                        let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| (targets[t].run)(&input)));
+                        RUNNING[worker].store(0, Ordering::Relaxed);
+                        if let Some(file) = inflight_file.as_mut() {
+                            let _ = file.set_len(0);
+                        }
+                        let ns = begun.elapsed().as_nanos() as u64;
+                        tallies[t][0].fetch_add(1, Ordering::Relaxed);
+                        tallies[t][2].fetch_add(ns, Ordering::Relaxed);
+                        tallies[t][3].fetch_max(ns, Ordering::Relaxed);
+                        let verdict = match outcome {
+                            Ok(Ok(())) => {
+                                tallies[t][1].fetch_add(1, Ordering::Relaxed);
+                                1
+                            }
+                            Ok(Err(_)) => 2,
+                            Err(_) => {
+                                let message = PANIC.with(|p| p.borrow_mut().take()).unwrap_or_else(|| "panic".into());
+                                let mut f = findings.lock().expect("findings lock");
+                                let location = message.rsplit(" at ").next().unwrap_or("").to_string();
+                                if !f.iter().any(|x| x.target == targets[t].name && x.message.ends_with(&location)) {
+                                    f.push(Finding { target: targets[t].name.into(), case, message, input: input.clone() });
+                                }
+                                3
+                            }
+                        };
+                        // Order-free digest of (case, input, verdict): equal for any thread count.
+                        digest.fetch_add(view_sampler::stream_seed(fnv1a(&input), case, verdict), Ordering::Relaxed);
+                    }
+                    let n = done.fetch_add(end - chunk * CHUNK, Ordering::Relaxed) + (end - chunk * CHUNK);
+                    if n % 4096 < CHUNK {
+                        progress(n);
                     }
                 }
-            }
-        }
-        let n = done.fetch_add(CHUNK, Ordering::Relaxed) + CHUNK;
-        if n % 4096 < CHUNK {
-            progress(n.min(cases));
-        }
-        if deadline.is_some_and(|d| Instant::now() >= d) {
-            stop.store(true, Ordering::Relaxed);
+            });
         }
     });
-    QUIET_PANICS.store(false, Ordering::Relaxed);
+    QUIET_PANICS.fetch_sub(1, Ordering::SeqCst);
     Report {
         tallies: targets
             .iter()
@@ -721,7 +758,18 @@ pub fn run_cases(
             .collect(),
         findings: findings.into_inner().expect("findings lock"),
         seconds: started.elapsed().as_secs_f64(),
+        digest: digest.load(Ordering::Relaxed),
     }
+}
+
+/// FNV-1a of bytes (names saved inputs and feeds the run digest).
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ *b as u64).wrapping_mul(0x100_0000_01b3))
+}
+
+/// The seed inputs of `targets`.
+pub fn seeds_of(targets: &[Target]) -> Vec<Vec<Vec<u8>>> {
+    targets.iter().map(|t| (t.seeds)()).collect()
 }
 
 /// The targets named (all when none).
@@ -742,8 +790,7 @@ pub fn select(names: &[String]) -> Result<Vec<Target>> {
 fn save_finding(out: &Path, target: &str, kind: &str, message: &str, input: &[u8]) -> Result<PathBuf> {
     let dir = out.join("findings");
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-    let hash = input.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ *b as u64).wrapping_mul(0x100_0000_01b3));
-    let path = dir.join(format!("{target}-{kind}-{hash:016x}.bin"));
+    let path = dir.join(format!("{target}-{kind}-{:016x}.bin", fnv1a(input)));
     datasets::io::write_atomic(&path, input)?;
     datasets::io::write_atomic(&path.with_extension("txt"), format!("target {target}\n{kind}: {message}\n").as_bytes())?;
     Ok(path)
@@ -752,8 +799,8 @@ fn save_finding(out: &Path, target: &str, kind: &str, message: &str, input: &[u8
 /// What only the binary may do: cap its heap, and end the process (a hung case cannot be
 /// unwound).
 pub struct ProcessHooks {
-    /// Sets the allocation cap (bytes).
-    pub memory_cap: fn(usize),
+    /// Sets the allocation cap (bytes); false when the heap in use already exceeds it.
+    pub memory_cap: fn(usize) -> bool,
     /// Ends the process with this code.
     pub end_process: fn(i32) -> !,
 }
@@ -767,8 +814,19 @@ pub fn run(args: &FuzzArgs, hooks: &ProcessHooks) -> Result<bool> {
         return Ok(true);
     }
     let targets = select(&args.target)?;
+    if !(args.case_timeout.is_finite() && args.case_timeout > 0.0) {
+        bail!("--case-timeout {}: expected seconds > 0", args.case_timeout);
+    }
+    if args.first_case.checked_add(args.cases).is_none() {
+        bail!("--first-case {} + --cases {} overflows", args.first_case, args.cases);
+    }
     if !args.replay.is_empty() {
-        (hooks.memory_cap)(crate::memory::parse_size(&args.max_memory)? as usize);
+        if targets.iter().any(|t| t.name == "checkpoint") {
+            prepare_checkpoint_runs(1)?;
+        }
+        if !(hooks.memory_cap)(crate::memory::parse_size(&args.max_memory)? as usize) {
+            bail!("--max-memory {}: below the heap already in use", args.max_memory);
+        }
         return replay(args, &targets, hooks);
     }
     if args.worker {
@@ -784,7 +842,7 @@ fn start_watchdog(timeout: f64, inflight: Option<PathBuf>, end_process: fn(i32) 
     std::thread::spawn(move || {
         loop {
             std::thread::sleep(std::time::Duration::from_millis(200));
-            let now = epoch_ms();
+            let now = clock_ms();
             let hung = RUNNING.iter().position(|r| {
                 let started = r.load(Ordering::Relaxed);
                 started != 0 && now.saturating_sub(started) > timeout_ms
@@ -809,11 +867,11 @@ fn replay(args: &FuzzArgs, targets: &[Target], hooks: &ProcessHooks) -> Result<b
     let mut clean = true;
     for path in &args.replay {
         let input = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-        QUIET_PANICS.store(true, Ordering::Relaxed);
-        RUNNING[0].store(epoch_ms(), Ordering::Relaxed);
+        QUIET_PANICS.fetch_add(1, Ordering::SeqCst);
+        RUNNING[0].store(clock_ms().max(1), Ordering::Relaxed);
         let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| (targets[0].run)(&input)));
         RUNNING[0].store(0, Ordering::Relaxed);
-        QUIET_PANICS.store(false, Ordering::Relaxed);
+        QUIET_PANICS.fetch_sub(1, Ordering::SeqCst);
         match outcome {
             Ok(Ok(())) => println!("{}: accepted", path.display()),
             Ok(Err(e)) => println!("{}: rejected: {e}", path.display()),
@@ -832,12 +890,20 @@ fn worker(args: &FuzzArgs, targets: &[Target], hooks: &ProcessHooks) -> Result<b
     std::fs::create_dir_all(&inflight).with_context(|| format!("creating {}", inflight.display()))?;
     let deadline =
         args.time.as_deref().map(crate::config::parse_duration).transpose()?.map(|s| Instant::now() + std::time::Duration::from_secs_f64(s));
-    // The seeds are built before the cap: the checkpoint target trains a tiny run.
-    let _ = targets.iter().map(|t| (t.seeds)().len()).sum::<usize>();
-    (hooks.memory_cap)(crate::memory::parse_size(&args.max_memory)? as usize);
+    // Seeds and the checkpoint target's runs are built before the cap (they train a tiny run).
+    let seeds = seeds_of(targets);
+    let threads = rayon::current_num_threads();
+    if targets.iter().any(|t| t.name == "checkpoint") {
+        prepare_checkpoint_runs(threads)?;
+    }
+    let cap = crate::memory::parse_size(&args.max_memory)? as usize;
+    if !(hooks.memory_cap)(cap) {
+        bail!("--max-memory {}: below the heap already in use after building the seeds", args.max_memory);
+    }
     start_watchdog(args.case_timeout, Some(inflight.clone()), hooks.end_process);
     let out = std::io::stdout();
-    let report = run_cases(targets, args.seed, args.first_case, args.cases, deadline, Some(&inflight), &|n| {
+    let range = CaseRange { seed: args.seed, first: args.first_case, cases: args.cases, threads };
+    let report = run_cases(targets, &seeds, &range, deadline, Some(&inflight), &|n| {
         let mut o = out.lock();
         let _ = writeln!(o, "progress {n}");
         let _ = o.flush();

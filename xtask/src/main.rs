@@ -266,10 +266,8 @@ fn main() -> Result<()> {
             Ok(())
         }
         Command::Fuzz(args) => {
-            fn cap(bytes: usize) {
-                if ALLOCATOR.set_limit(ALLOCATOR.allocated().max(bytes)).is_err() {
-                    eprintln!("fuzz: could not set the allocation cap");
-                }
+            fn cap(bytes: usize) -> bool {
+                ALLOCATOR.set_limit(bytes).is_ok()
             }
             fn end(code: i32) -> ! {
                 std::process::exit(code)

@@ -136,16 +136,18 @@ pub fn available_bytes() -> Option<f64> {
 
 /// This process's peak resident memory (`VmHWM`), in bytes.
 pub fn peak_rss_bytes() -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    Some(line.split_whitespace().nth(1)?.parse::<f64>().ok()? * 1024.0)
+    status_kib("VmHWM:").map(|k| k * 1024.0)
 }
 
-/// This process's resident size now (bytes), from `/proc/self/statm` (Linux).
+/// This process's resident size now (bytes), `VmRSS` of `/proc/self/status` (Linux).
 pub fn rss_bytes() -> Option<f64> {
-    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
-    let pages: f64 = statm.split_whitespace().nth(1)?.parse().ok()?;
-    Some(pages * 4096.0)
+    status_kib("VmRSS:").map(|k| k * 1024.0)
+}
+
+/// A `kB` line of `/proc/self/status`.
+fn status_kib(key: &str) -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    status.lines().find(|l| l.starts_with(key))?.split_whitespace().nth(1)?.parse::<f64>().ok()
 }
 
 /// Parses a size such as `8G`, `512M`, `2.5GB` into bytes.

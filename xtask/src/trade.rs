@@ -59,10 +59,37 @@ struct Variant {
 fn parse_variant(text: &str) -> Variant {
     let (name, rest) = text.split_once(':').unwrap_or((text, ""));
     let mut overrides: Vec<String> = rest.split(',').map(str::trim).filter(|s| !s.is_empty()).map(String::from).collect();
-    if rest.is_empty() && (name == "uniform" || name == "guided") {
+    // `uniform` and `guided` name the sampler unless the variant sets it itself.
+    if (name == "uniform" || name == "guided") && !overrides.iter().any(|o| o.trim_start().starts_with("sampler")) {
         overrides.push(format!("sampler={name}"));
     }
     Variant { name: name.to_string(), overrides }
+}
+
+/// The folder name of a budget: exact (`b120`, `b90.5`), so that two budgets never share runs.
+fn budget_dir(budget: f64) -> String {
+    format!("b{budget}")
+}
+
+/// What a run of the table was made with, kept beside its metrics: a folder is reused only for
+/// the same scene, variant, overrides, budget and seed.
+fn run_record(scene: &SceneSpec, variant: &Variant, overrides: &[String], budget: f64, seed: u64) -> Value {
+    let scene = match scene {
+        SceneSpec::Folder(p) => p.display().to_string(),
+        SceneSpec::Builtin(s) => format!("builtin:{s}"),
+    };
+    json!({"scene": scene, "variant": variant.name, "overrides": overrides, "budget_s": budget, "seed": seed})
+}
+
+/// Fails when two entries have the same name (they would share run folders).
+fn distinct_names<'a>(what: &str, names: impl Iterator<Item = String> + 'a) -> Result<()> {
+    let mut seen = std::collections::BTreeSet::new();
+    for n in names {
+        if !seen.insert(n.clone()) {
+            bail!("two {what} are named {n:?}: they would share run folders (rename one)");
+        }
+    }
+    Ok(())
 }
 
 /// A scene of the table: a folder or a built-in shape.
@@ -86,7 +113,7 @@ const METRICS: [(&str, &str, bool); 6] = [
     ("chamfer", "Chamfer (normalised units) ↓", false),
     ("accuracy", "accuracy (normalised units) ↓", false),
     ("completeness", "completeness (normalised units) ↓", false),
-    ("f_score", "F-score at τ = 0.01 ↑", true),
+    ("f_score", "F-score ↑", true),
     ("psnr_masked", "PSNR inside the masks (dB) ↑", true),
     ("psnr", "PSNR, whole image (dB) ↑", true),
 ];
@@ -122,6 +149,9 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
     if args.seeds == 0 {
         bail!("--seeds must be ≥ 1");
     }
+    distinct_names("scenes", scenes.iter().map(SceneSpec::name))?;
+    distinct_names("variants", variants.iter().map(|v| v.name.clone()))?;
+    distinct_names("budgets", budgets.iter().map(|b| budget_dir(*b)))?;
     let total = scenes.len() * variants.len() * budgets.len() * args.seeds as usize;
     let mut done = 0;
     // Seeds outermost, then budgets, scenes and variants: an interrupted table has every
@@ -131,30 +161,48 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
             for scene in &scenes {
                 for variant in &variants {
                     done += 1;
-                    let dir = args.out.join(scene.name()).join(&variant.name).join(format!("b{budget:.0}")).join(format!("s{seed}"));
-                    if read_metrics(&dir).is_some() || args.report_only {
-                        continue;
-                    }
-                    eprintln!("trade: run {done}/{total}: {} · {} · {budget:.0} s · seed {seed}", scene.name(), variant.name);
+                    let dir = args.out.join(scene.name()).join(&variant.name).join(budget_dir(budget)).join(format!("s{seed}"));
                     let mut overrides = args.overrides.clone();
                     overrides.extend(variant.overrides.iter().cloned());
                     if let SceneSpec::Builtin(shape) = scene {
                         overrides.push(format!("data.builtin.shape={shape}"));
                     }
-                    let train_args = TrainArgs {
-                        data: match scene {
-                            SceneSpec::Folder(p) => Some(p.clone()),
-                            SceneSpec::Builtin(_) => None,
-                        },
-                        out: dir.clone(),
-                        seed: Some(seed),
-                        budget: Some(format!("{budget}s")),
-                        overrides,
-                        ..TrainArgs::default()
+                    let record = run_record(scene, variant, &overrides, budget, seed);
+                    if read_metrics(&dir).is_some() {
+                        let kept = std::fs::read_to_string(dir.join("trade_run.json")).ok().and_then(|t| serde_json::from_str::<Value>(&t).ok());
+                        if kept.as_ref() != Some(&record) {
+                            bail!("{} holds a run made with other settings than this table's ({record}); use another --out", dir.display());
+                        }
+                        continue;
+                    }
+                    if args.report_only {
+                        continue;
+                    }
+                    eprintln!("trade: run {done}/{total}: {} · {} · {budget} s · seed {seed}", scene.name(), variant.name);
+                    // An interrupted run resumes from its checkpoint; a folder without one starts over.
+                    let resume = dir.join("checkpoint.safetensors").is_file();
+                    if !resume && dir.exists() {
+                        std::fs::remove_dir_all(&dir).with_context(|| format!("clearing the unfinished run {}", dir.display()))?;
+                    }
+                    let train_args = if resume {
+                        TrainArgs { resume: Some(dir.clone()), ..TrainArgs::default() }
+                    } else {
+                        TrainArgs {
+                            data: match scene {
+                                SceneSpec::Folder(p) => Some(p.clone()),
+                                SceneSpec::Builtin(_) => None,
+                            },
+                            out: dir.clone(),
+                            seed: Some(seed),
+                            budget: Some(format!("{budget}s")),
+                            overrides,
+                            ..TrainArgs::default()
+                        }
                     };
                     if let Outcome::Stopped { .. } = train(&train_args, stop).with_context(|| format!("the run in {}", dir.display()))? {
                         bail!("stopped; run the same command again to continue the table");
                     }
+                    write_atomic(&dir.join("trade_run.json"), serde_json::to_string_pretty(&record)?.as_bytes())?;
                 }
             }
         }
@@ -188,7 +236,7 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
         let mut curves: BTreeMap<(usize, &str), Vec<Point>> = BTreeMap::new();
         for &budget in budgets {
             for (vi, variant) in variants.iter().enumerate() {
-                let base = args.out.join(scene.name()).join(&variant.name).join(format!("b{budget:.0}"));
+                let base = args.out.join(scene.name()).join(&variant.name).join(budget_dir(budget));
                 let runs: Vec<Value> = (0..args.seeds).filter_map(|s| read_metrics(&base.join(format!("s{s}")))).collect();
                 if runs.is_empty() {
                     continue;
@@ -238,7 +286,10 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
         }
     }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let header = "Mean ± std over seeds (sample std; n = runs). Budgets are training wall time (grid updates, surface losses, validation pictures and checkpoints included; final evaluation excluded). Metrics in the normalised frame (the bound is the unit sphere).\n".to_string();
+    let tau = all.iter().find_map(|g| g["runs"][0]["f_score_tau"].as_f64()).map_or(String::new(), |t| format!(" F-score at τ = {t}."));
+    let header = format!(
+        "Mean ± std over seeds (sample std; n = runs). Budgets are training wall time (grid updates, surface losses, validation pictures and checkpoints included; final evaluation excluded). Metrics in the normalised frame (the bound is the unit sphere).{tau}\n"
+    );
     write_atomic(&args.out.join("trade.md"), format!("{header}{md}").as_bytes())?;
     write_atomic(&args.out.join("trade.json"), serde_json::to_string_pretty(&json!({"groups": all}))?.as_bytes())?;
     if !panels.is_empty() {

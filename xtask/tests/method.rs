@@ -114,6 +114,8 @@ fn masked_backdrop_scene_trains_exactly_as_its_black_backdrop_twin() {
         trainer.state().params.clone()
     };
     let (with, without) = (params(true), params(false));
+    assert_eq!(with.len(), without.len());
+    assert!(!with.is_empty());
     assert!(with.iter().zip(&without).all(|(a, b)| a.to_bits() == b.to_bits()), "the backdrop changed the training");
 }
 

@@ -32,6 +32,7 @@
 
 use crate::error::{DatasetError, Result, io_err};
 use crate::idr::image_size;
+use crate::images::MAX_IMAGE_SIDE;
 use crate::images::{Mask, RgbImage, load_mask, load_rgb};
 use crate::io::write_atomic;
 use crate::npy::{npy_bytes, write_npz};
@@ -371,6 +372,7 @@ fn check_camera(path: &Path, camera: &ColmapCamera) -> Result<()> {
             message: format!("focal lengths ({}, {}) and size {}×{} must be positive", k.fx, k.fy, camera.width, camera.height),
         });
     }
+    // A larger size is corruption, and would make the undistortion plan scan an absurd border.
     if camera.width > MAX_IMAGE_SIDE || camera.height > MAX_IMAGE_SIDE {
         return Err(DatasetError::InvalidValue {
             path: path.to_path_buf(),
@@ -380,10 +382,6 @@ fn check_camera(path: &Path, camera: &ColmapCamera) -> Result<()> {
     }
     Ok(())
 }
-
-/// The largest image side a camera may have (a 1-gigapixel frame is 32 768 a side): a larger
-/// size is corruption, and would make the undistortion plan scan an absurd border.
-pub const MAX_IMAGE_SIDE: u32 = 1 << 16;
 
 // ----- binary ------------------------------------------------------------------------------
 
@@ -978,9 +976,7 @@ impl ColmapWorkspace {
     }
 
     fn plan(&self, options: &LoadOptions) -> Result<Plan> {
-        if options.downscale == 0 {
-            return Err(DatasetError::InvalidValue { path: self.model_dir.clone(), entry: "downscale".into(), message: "must be ≥ 1".into() });
-        }
+        options.validate(&self.model_dir)?;
         let model = ColmapModel::read(&self.model_dir)?;
         let views = model.views()?;
         if views.is_empty() {

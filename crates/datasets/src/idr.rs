@@ -60,18 +60,9 @@ pub(crate) fn image_size(path: &Path) -> Result<(u32, u32)> {
 }
 
 fn matrix4<R: std::io::Read + std::io::Seek>(npz: &mut Npz<R>, path: &Path, key: &str) -> Result<Option<DMat4>> {
-    let Some(NpyArray { shape, data }) = npz.get(key)? else { return Ok(None) };
-    let rows = match shape.as_slice() {
-        [4, 4] => 4,
-        [3, 4] => 3,
-        _ => {
-            return Err(DatasetError::InvalidValue {
-                path: path.to_path_buf(),
-                entry: key.into(),
-                message: format!("shape {shape:?}, expected [4, 4] or [3, 4]"),
-            });
-        }
-    };
+    let four_by_four = |shape: &[usize]| matches!(shape, [4, 4] | [3, 4]);
+    let Some(NpyArray { shape, data }) = npz.get_shaped(key, &four_by_four, "[4, 4] or [3, 4]")? else { return Ok(None) };
+    let rows = shape[0];
     if !data.iter().all(|v| v.is_finite()) {
         return Err(DatasetError::InvalidValue { path: path.to_path_buf(), entry: key.into(), message: "non-finite value (NaN or inf)".into() });
     }
@@ -117,6 +108,15 @@ pub(crate) fn cameras_from_npz<R: std::io::Read + std::io::Seek>(
     image_size: &dyn Fn(&Path) -> Result<(u32, u32)>,
 ) -> Result<SceneCameras> {
     let npz_path = npz_path.to_path_buf();
+    options.validate(&npz_path)?;
+    if options.bound_sphere.is_some() {
+        return Err(DatasetError::Unsupported {
+            path: npz_path,
+            message: "in the IDR layout scale_mat defines the region of interest; a bound override applies to COLMAP, instant-ngp and \
+                      NeRF-synthetic data (re-import a COLMAP model with --bound)"
+                .into(),
+        });
+    }
     let keys = npz.keys();
     let n = keys.iter().filter(|k| k.strip_prefix("world_mat_").is_some_and(|s| s.parse::<usize>().is_ok())).count();
     if n == 0 {

@@ -144,10 +144,29 @@ fn decode(path: &Path) -> Result<image::DynamicImage> {
     decode_bytes(&std::fs::read(path).map_err(io_err(path))?, path)
 }
 
-/// Decodes the bytes of an image file (format from its contents; the `image` crate's default
-/// limits bound what a header may make it allocate).
+/// The largest image side any loader accepts (a 1-gigapixel frame is 32 768 a side).
+pub const MAX_IMAGE_SIDE: u32 = 1 << 16;
+
+/// The most pixels a decoded image may have: 2²⁸ (1 GiB as RGBA, the largest form we convert
+/// to), so that a small file whose header claims a huge image is refused before decoding.
+pub const MAX_IMAGE_PIXELS: u64 = 1 << 28;
+
+/// Decodes the bytes of an image file (format from its contents), refusing headers beyond
+/// [`MAX_IMAGE_SIDE`] or [`MAX_IMAGE_PIXELS`] before any pixel is allocated.
 pub(crate) fn decode_bytes(bytes: &[u8], path: &Path) -> Result<image::DynamicImage> {
-    image::load_from_memory(bytes).map_err(|e| DatasetError::Corrupt { path: path.to_path_buf(), kind: "image", message: e.to_string() })
+    let corrupt = |message: String| DatasetError::Corrupt { path: path.to_path_buf(), kind: "image", message };
+    let reader = || image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format().map_err(|e| corrupt(e.to_string()));
+    let (w, h) = reader()?.into_dimensions().map_err(|e| corrupt(e.to_string()))?;
+    if w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE || w as u64 * h as u64 > MAX_IMAGE_PIXELS {
+        return Err(corrupt(format!("{w}×{h} pixels: beyond the {MAX_IMAGE_SIDE} a side and {MAX_IMAGE_PIXELS} in all an image may have")));
+    }
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_IMAGE_SIDE);
+    limits.max_image_height = Some(MAX_IMAGE_SIDE);
+    limits.max_alloc = Some(4 * MAX_IMAGE_PIXELS);
+    let mut reader = reader()?;
+    reader.limits(limits);
+    reader.decode().map_err(|e| corrupt(e.to_string()))
 }
 
 /// Area-averages `channels`-channel u8 rows by an integer factor (remainder dropped).

@@ -25,9 +25,7 @@ pub fn detect_format(dir: &Path) -> Result<Format> {
 
 /// Reads the cameras of a dataset folder (any supported layout) without decoding pixels.
 pub fn read_cameras(dir: &Path, options: &LoadOptions) -> Result<SceneCameras> {
-    if options.downscale == 0 {
-        return Err(DatasetError::InvalidValue { path: dir.to_path_buf(), entry: "downscale".into(), message: "must be ≥ 1".into() });
-    }
+    options.validate(dir)?;
     match detect_format(dir)? {
         Format::Idr => idr::read_cameras(dir, options),
         Format::NerfSynthetic => {

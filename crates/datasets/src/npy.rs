@@ -20,8 +20,21 @@ fn corrupt(path: &Path, message: impl Into<String>) -> DatasetError {
     DatasetError::Corrupt { path: path.to_path_buf(), kind: "npy array", message: message.into() }
 }
 
-/// Parses an `.npy` byte buffer. `path` is only used in error messages (e.g. `file.npz/key.npy`).
-pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
+/// What an NPY header says: the element reader, the shape, the element count and the byte
+/// where the data start.
+struct NpyHeader {
+    size: usize,
+    read: fn(&[u8]) -> f64,
+    shape: Vec<usize>,
+    count: usize,
+    data_start: usize,
+}
+
+/// The largest NPY header we read (NumPy's are ~128 bytes; version 1 allows 65 535).
+const MAX_NPY_HEADER: usize = 1 << 16;
+
+/// Parses the header of an `.npy` from its first bytes (the data need not be there).
+fn parse_npy_header(bytes: &[u8], path: &Path) -> Result<NpyHeader> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err(corrupt(path, "not an NPY array (bad magic)"));
     }
@@ -30,6 +43,9 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
         2 | 3 if bytes.len() >= 12 => (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12),
         v => return Err(corrupt(path, format!("unsupported NPY version {v}"))),
     };
+    if header_len > MAX_NPY_HEADER {
+        return Err(corrupt(path, format!("header of {header_len} bytes (at most {MAX_NPY_HEADER})")));
+    }
     let header = bytes.get(start..start + header_len).ok_or_else(|| corrupt(path, "truncated header"))?;
     let header = std::str::from_utf8(header).map_err(|_| corrupt(path, "header is not text"))?;
     let field = |key: &str| -> Result<&str> {
@@ -53,7 +69,6 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
         .map(|s| s.parse().map_err(|_| corrupt(path, format!("bad shape entry {s:?}"))))
         .collect::<Result<_>>()?;
     let count = shape.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d)).ok_or_else(|| corrupt(path, format!("shape {shape:?} overflows")))?;
-    let body = &bytes[start + header_len..];
     let (size, read): (usize, fn(&[u8]) -> f64) = match descr {
         "<f8" => (8, |b| f64::from_le_bytes(b.try_into().unwrap())),
         "<f4" => (4, |b| f32::from_le_bytes(b.try_into().unwrap()) as f64),
@@ -62,12 +77,18 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
         "|u1" => (1, |b| b[0] as f64),
         other => return Err(corrupt(path, format!("unsupported dtype {other}"))),
     };
-    let need = count
-        .checked_mul(size)
-        .filter(|&n| n <= body.len())
-        .ok_or_else(|| corrupt(path, format!("shape {shape:?} of {size}-byte values needs more than the {} data bytes present", body.len())))?;
-    let data = body[..need].chunks_exact(size).map(read).collect();
-    Ok(NpyArray { shape, data })
+    Ok(NpyHeader { size, read, shape, count, data_start: start + header_len })
+}
+
+/// Parses an `.npy` byte buffer. `path` is only used in error messages (e.g. `file.npz/key.npy`).
+pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyArray> {
+    let h = parse_npy_header(bytes, path)?;
+    let body = &bytes[h.data_start..];
+    let need = h.count.checked_mul(h.size).filter(|&n| n <= body.len()).ok_or_else(|| {
+        corrupt(path, format!("shape {:?} of {}-byte values needs more than the {} data bytes present", h.shape, h.size, body.len()))
+    })?;
+    let data = body[..need].chunks_exact(h.size).map(h.read).collect();
+    Ok(NpyArray { shape: h.shape, data })
 }
 
 /// Element types the writer supports.
@@ -111,9 +132,9 @@ pub fn npy_bytes<T: NpyElement>(shape: &[usize], data: &[T]) -> Vec<u8> {
     out
 }
 
-/// The largest array an `.npz` entry may hold (camera files hold a few kilobytes): a larger
-/// declared size is an error, not an allocation.
-pub const MAX_NPZ_ENTRY_BYTES: u64 = 256 << 20;
+/// The largest array an `.npz` entry may hold (camera files hold a few kilobytes; widened to
+/// f64 it takes at most 8× this): a larger declared size is an error, not an allocation.
+pub const MAX_NPZ_ENTRY_BYTES: u64 = 16 << 20;
 
 /// An opened `.npz` archive (a file, or any seekable reader such as bytes in memory).
 pub struct Npz<R = std::io::BufReader<std::fs::File>> {
@@ -148,9 +169,17 @@ impl<R: Read + Seek> Npz<R> {
     /// Reads one array, `None` if the key is absent. Entries declaring more than
     /// [`MAX_NPZ_ENTRY_BYTES`] are errors; an entry is never read past its declared size.
     pub fn get(&mut self, key: &str) -> Result<Option<NpyArray>> {
+        self.get_shaped(key, &|_| true, "any shape")
+    }
+
+    /// Reads one array whose shape `accept`s (else an error quoting `expected`), `None` if the
+    /// key is absent. The shape is read from the header before the data, so a huge array of
+    /// the wrong shape is refused without being read.
+    pub fn get_shaped(&mut self, key: &str, accept: &dyn Fn(&[usize]) -> bool, expected: &str) -> Result<Option<NpyArray>> {
         let name = format!("{key}.npy");
+        let entry_path = self.path.join(&name);
         let corrupt = |path: &Path, message: String| DatasetError::Corrupt { path: path.to_path_buf(), kind: "npz archive", message };
-        let entry = match self.archive.by_name(&name) {
+        let mut entry = match self.archive.by_name(&name) {
             Ok(e) => e,
             Err(zip::result::ZipError::FileNotFound) => return Ok(None),
             Err(e) => return Err(corrupt(&self.path, format!("{name}: {e}"))),
@@ -159,10 +188,20 @@ impl<R: Read + Seek> Npz<R> {
         if size > MAX_NPZ_ENTRY_BYTES {
             return Err(corrupt(&self.path, format!("{name}: declares {size} bytes, more than the {MAX_NPZ_ENTRY_BYTES} a camera array may hold")));
         }
-        // Grown as bytes arrive: a size the archive declares but does not hold allocates nothing.
+        // The header first (grown as bytes arrive: a size declared but not held allocates nothing).
         let mut bytes = Vec::new();
-        entry.take(size).read_to_end(&mut bytes).map_err(|e| corrupt(&self.path, format!("{name}: {e}")))?;
-        parse_npy(&bytes, &self.path.join(&name)).map(Some)
+        let head = size.min(12 + MAX_NPY_HEADER as u64);
+        (&mut entry).take(head).read_to_end(&mut bytes).map_err(|e| corrupt(&self.path, format!("{name}: {e}")))?;
+        let header = parse_npy_header(&bytes, &entry_path)?;
+        if !accept(&header.shape) {
+            return Err(DatasetError::InvalidValue {
+                path: self.path.clone(),
+                entry: key.into(),
+                message: format!("shape {:?}, expected {expected}", header.shape),
+            });
+        }
+        entry.take(size - head).read_to_end(&mut bytes).map_err(|e| corrupt(&self.path, format!("{name}: {e}")))?;
+        parse_npy(&bytes, &entry_path).map(Some)
     }
 }
 

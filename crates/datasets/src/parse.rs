@@ -4,8 +4,15 @@
 //! loaders read from headers, are given.
 //!
 //! Invariant (fuzzed): for any bytes, each function returns a value or a [`DatasetError`]
-//! naming `path`; it never panics, never loops without bound and never allocates more than the
-//! input can justify (counts and lengths are checked against the bytes present).
+//! naming `path`; it never panics and never loops without bound. Counts and lengths are checked
+//! against the bytes present before they drive a loop or an allocation; what a compressed
+//! format may expand to is capped: an NPZ entry at [`MAX_NPZ_ENTRY_BYTES`] (and a camera array
+//! must have a camera's shape before its data are read), an image at [`MAX_IMAGE_PIXELS`]
+//! pixels and [`MAX_IMAGE_SIDE`] a side (checked from the header, before decoding).
+//!
+//! [`MAX_NPZ_ENTRY_BYTES`]: crate::npy::MAX_NPZ_ENTRY_BYTES
+//! [`MAX_IMAGE_PIXELS`]: crate::images::MAX_IMAGE_PIXELS
+//! [`MAX_IMAGE_SIDE`]: crate::images::MAX_IMAGE_SIDE
 //!
 //! [`DatasetError`]: crate::DatasetError
 

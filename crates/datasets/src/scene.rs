@@ -111,6 +111,22 @@ pub struct LoadOptions {
     pub bound_sphere: Option<(DVec3, f64)>,
 }
 
+impl LoadOptions {
+    /// Checks the options for the data at `path`: downscale ≥ 1, a finite bound sphere of
+    /// positive radius.
+    pub fn validate(&self, path: &std::path::Path) -> crate::error::Result<()> {
+        let invalid =
+            |entry: &str, message: String| crate::error::DatasetError::InvalidValue { path: path.to_path_buf(), entry: entry.into(), message };
+        if self.downscale == 0 {
+            return Err(invalid("downscale", "must be ≥ 1".into()));
+        }
+        if let Some((center, radius)) = self.bound_sphere.filter(|(c, r)| !(c.is_finite() && r.is_finite() && *r > 0.0)) {
+            return Err(invalid("bound sphere", format!("centre {center}, radius {radius}: finite, radius > 0")));
+        }
+        Ok(())
+    }
+}
+
 impl Default for LoadOptions {
     fn default() -> Self {
         LoadOptions { downscale: 1, background: [1.0; 3], split: "train".into(), bound_sphere: None }

@@ -101,6 +101,7 @@ pub(crate) fn cameras_from_json(
     image: &dyn Fn(&str, usize) -> Result<FrameImage>,
 ) -> Result<SceneCameras> {
     let dir = json_path.parent().unwrap_or(Path::new("."));
+    options.validate(json_path)?;
     let t: Transforms =
         serde_json::from_slice(text).map_err(|e| DatasetError::Corrupt { path: json_path.to_path_buf(), kind: "JSON", message: e.to_string() })?;
     let invalid = |entry: String, message: String| DatasetError::InvalidValue { path: json_path.to_path_buf(), entry, message };

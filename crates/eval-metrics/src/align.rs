@@ -44,7 +44,8 @@ pub fn rotation_from_quaternion(q: [f64; 4]) -> [[f64; 3]; 3] {
 
 /// The similarity minimising Σ |s R aᵢ + t − bᵢ|² (Umeyama; the rotation by Horn's quaternion
 /// method, the largest eigenvector of his 4 × 4 matrix by Jacobi sweeps). `None` when the sets
-/// differ in size, have fewer than 3 points, or `a` has no spread.
+/// differ in size, have fewer than 3 points, either has no spread, or the points are collinear
+/// (the rotation about their line is then undetermined).
 pub fn similarity(a: &[[f64; 3]], b: &[[f64; 3]]) -> Option<Similarity> {
     if a.len() != b.len() || a.len() < 3 {
         return None;
@@ -94,16 +95,23 @@ pub fn similarity(a: &[[f64; 3]], b: &[[f64; 3]]) -> Option<Similarity> {
             }
         }
     }
-    let best = (0..4).max_by(|&i, &j| m[i][i].total_cmp(&m[j][j]))?;
+    let mut order = [0usize, 1, 2, 3];
+    order.sort_by(|&i, &j| m[j][j].total_cmp(&m[i][i]));
+    let best = order[0];
+    // Points on a line leave the rotation about it free: the top two eigenvalues then agree.
+    let (top, second, spread) = (m[order[0]][order[0]], m[order[1]][order[1]], (0..4).map(|i| m[i][i].abs()).fold(0.0, f64::max));
+    if !(top - second > 1e-9 * spread) {
+        return None;
+    }
     let rotation = rotation_from_quaternion([v[0][best], v[1][best], v[2][best], v[3][best]]);
     let rotated = |p: [f64; 3]| -> [f64; 3] { std::array::from_fn(|i| rotation[i][0] * p[0] + rotation[i][1] * p[1] + rotation[i][2] * p[2]) };
     let dot = |x: [f64; 3], y: [f64; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
     let num: f64 = a.iter().zip(b).map(|(p, q)| dot(sub(*q, mb), rotated(sub(*p, ma)))).sum();
     let den: f64 = a.iter().map(|p| dot(sub(*p, ma), sub(*p, ma))).sum();
-    if !(den > 0.0) {
+    let scale = num / den;
+    if !(den > 0.0 && scale > 0.0 && scale.is_finite()) {
         return None;
     }
-    let scale = num / den;
     let rma = rotated(ma);
     Some(Similarity { scale, rotation, translation: std::array::from_fn(|i| mb[i] - scale * rma[i]) })
 }
@@ -127,5 +135,9 @@ mod tests {
         }
         assert!(similarity(&a[..2], &b[..2]).is_none());
         assert!(similarity(&[[1.0; 3]; 4], &b[..4]).is_none());
+        assert!(similarity(&a[..4], &[[1.0; 3]; 4]).is_none(), "no spread in b: scale 0");
+        let line: Vec<[f64; 3]> = (0..6).map(|i| [i as f64, 2.0 * i as f64, 1.0]).collect();
+        let moved: Vec<[f64; 3]> = line.iter().map(|p| truth.apply(*p)).collect();
+        assert!(similarity(&line, &moved).is_none(), "collinear points leave a rotation free");
     }
 }

@@ -288,7 +288,7 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let tau = all.iter().find_map(|g| g["runs"][0]["f_score_tau"].as_f64()).map_or(String::new(), |t| format!(" F-score at τ = {t}."));
     let header = format!(
-        "Mean ± std over seeds (sample std; n = runs). Budgets are training wall time (grid updates, surface losses, validation pictures and checkpoints included; final evaluation excluded). Metrics in the normalised frame (the bound is the unit sphere).{tau}\n"
+        "Mean ± std over seeds (sample std; n = runs). Budgets are training wall time (grid updates and surface losses included; validation pictures, checkpoints, the final mesh and evaluation excluded). Metrics in the normalised frame (the bound is the unit sphere).{tau}\n"
     );
     write_atomic(&args.out.join("trade.md"), format!("{header}{md}").as_bytes())?;
     write_atomic(&args.out.join("trade.json"), serde_json::to_string_pretty(&json!({"groups": all}))?.as_bytes())?;

@@ -30,8 +30,8 @@ Output: one JSON object per line on stdout (everything else goes to stderr):
     differences at a small step, in f64; loss and gradient finite for every normal scheme).
   * `{"figure": "torch_step", ...}` per (normals, mode): median and min seconds of one training
     step = forward + backward of the whole loss + the Adam update (`step_s`, `step_min_s`), and
-    the same split into forward + backward (`fwd_bwd_s`; the part `cargo xtask bench backbone`
-    times, without Adam) and the Adam update (`adam_s`). On failure or timeout (e.g. torch.compile
+    the same split into forward + backward (`fwd_bwd_s`) and the Adam update (`adam_s`);
+    `cargo xtask bench backbone` compares `step_s` with its own step, Adam included. On failure or timeout (e.g. torch.compile
     and double backward) the figure carries an `"error"` field instead of times.
 Each figure runs in its own child process (clean compile state, honest per-figure peak RSS);
 warm-up steps (compilation included) are not timed. `warmup_s` includes compilation, which

@@ -24,10 +24,10 @@
 //!
 //! **Which won (the ablation, BENCHMARKS.md):** trained at equal wall time (60 s; Spot, Bob and the
 //! built-in scene with backdrops and masks; 3 seeds each), F = 1 and view dependency off give mean
-//! Chamfers 3 % and 5 % below the defaults (F = 2, opaque) over the three scenes, but no difference
-//! is outside one seed standard deviation on two of the three scenes, and neither wins on every
-//! scene's F-score and masked PSNR; F = 1 also spent more time in updates, not less (2.3 s vs 0.5 s
-//! per run, not yet explained). The defaults stay the paper's. The guide itself is what matters:
+//! Chamfers 3 % and 5 % below the defaults (F = 2, opaque) over the three scenes, with higher
+//! F-scores but lower masked PSNR on every scene; only F = 1 on Bob differs by more than one seed
+//! standard deviation. F = 1 also spent more time in updates, not less (2.3 s vs 0.5 s per run,
+//! not yet explained). The defaults stay the paper's. The guide itself is what matters:
 //! uniform sampling's Chamfer is 12–35 % higher on every scene.
 //!
 //! # Invariants

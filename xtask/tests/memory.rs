@@ -9,11 +9,14 @@ fn run(out: &std::path::Path, extra: &[&str]) -> std::process::Output {
 }
 
 /// The estimate written to metrics.json is within 25 % of the run's measured peak (VmHWM), for
-/// a hash-grid and a positional-encoding preset.
+/// a hash-grid and a positional-encoding preset. The hash-grid run is long enough (100
+/// iterations) to catch a resident size that grows with iterations: with per-thread scratch
+/// pools it reached 1.6× the estimate by iteration 100 (0.38 GB vs 0.24 GB), while 12
+/// iterations stayed within 15 %.
 #[test]
 fn memory_estimate_is_within_a_quarter_of_the_measured_peak() {
     let dir = tempfile::tempdir().unwrap();
-    for (name, extra) in [("hash", &["steps=12"][..]), ("pe", &["steps=6", "model.preset=neus-cpu", "render.rays=128"][..])] {
+    for (name, extra) in [("hash", &["steps=100"][..]), ("pe", &["steps=6", "model.preset=neus-cpu", "render.rays=128"][..])] {
         let out = dir.path().join(name);
         let o = run(&out, extra);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

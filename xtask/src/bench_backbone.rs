@@ -183,14 +183,21 @@ fn preset_figures(preset: Preset, reps: usize, gemm_best: f64) -> Vec<Value> {
         InputEncoding::Positional(_) => None,
     };
     let mut out = Vec::new();
-    for normals in [NormalScheme::Tetrahedral, NormalScheme::Central] {
+    let analytic = Module::<f32>::has_tangents(&backbone.sdf).then_some(NormalScheme::Analytic);
+    for normals in [Some(NormalScheme::Tetrahedral), Some(NormalScheme::Central), analytic].into_iter().flatten() {
         backbone.config.normals = normals;
-        let probes = if normals == NormalScheme::Tetrahedral { 4 } else { 6 };
         let step = time_step(&backbone, &mut params, &rays, reps);
         let samples = (n_rays * n_samples) as f64;
-        // Forward 2·MACs, backward 4·MACs (input and weight gradients) per row.
-        let flop_per_sample = 6.0 * ((probes + 1) as f64 * sdf_macs + color_macs);
-        let sdf_rows = n_rays * ((probes + 1) * n_samples + 1);
+        // Forward 2·MACs, backward 4·MACs (input and weight gradients) per SDF row: 1 + probes
+        // rows per sample. Analytic normals: forward 2 (values) + 3·2 (tangents along x, y, z),
+        // backward 2 (the tangent along ∂L/∂n) + 2·4 (values and tangents): 18 MACs, as 3 rows.
+        let sdf_rows_per_sample = match normals {
+            NormalScheme::Tetrahedral => 5,
+            NormalScheme::Central => 7,
+            NormalScheme::Analytic => 3,
+        };
+        let flop_per_sample = 6.0 * (sdf_rows_per_sample as f64 * sdf_macs + color_macs);
+        let sdf_rows = n_rays * (sdf_rows_per_sample * n_samples + 1);
         let t_mlp = time_mlp(&sdf_mlp, &params[layout.sdf_mlp.clone()], sdf_rows)
             + time_mlp(&backbone.color, &params[layout.color.clone()], n_rays * n_samples);
         let mlp_gflops = flop_per_sample * samples / t_mlp / 1e9;

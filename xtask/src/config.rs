@@ -181,7 +181,8 @@ pub struct ModelConfig {
     /// Curvature loss weight, reached linearly over the learning-rate warm-up (Neuralangelo:
     /// 5e-4; default 0: not measured to help on short runs).
     pub curvature: f64,
-    /// Normals (and curvature) by tetrahedral (4 probes) or central (6 probes) differences.
+    /// Normals (and curvature) by tetrahedral (4 probes) or central (6 probes) differences, or
+    /// `analytic`: the exact ∇ₓS by forward-mode derivatives (hash-grid presets, no curvature).
     pub normals: NormalScheme,
     /// Colour behind the object in renders (and, without masks and without a learned
     /// background, in the loss).
@@ -260,6 +261,11 @@ pub struct GuideConfig {
 pub struct OutputConfig {
     /// Validation pictures every n iterations (0: only at the end).
     pub validate_every: u64,
+    /// Largest share of the training time spent on validation pictures: a due picture is
+    /// skipped while the pictures so far took more than this share of the training time so far
+    /// (a picture of a large scene costs many iterations: at 100 iterations apart, DTU scan 24's
+    /// took twice the training time). 0 with `validate_every` > 0: no cap.
+    pub validate_share: f64,
     /// Downscale of the validation renders.
     pub validate_downscale: u32,
     /// Held-out views rendered for the final PSNR (spread over the held-out set).
@@ -372,6 +378,7 @@ impl Default for OutputConfig {
     fn default() -> Self {
         OutputConfig {
             validate_every: 100,
+            validate_share: 0.1,
             validate_downscale: 2,
             eval_views: 3,
             eval_train_views: 2,
@@ -498,6 +505,20 @@ impl TrainConfig {
         need(non_neg(self.model.eikonal), "model.eikonal", self.model.eikonal, "≥ 0")?;
         need(non_neg(self.model.mask), "model.mask", self.model.mask, "≥ 0")?;
         need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;
+        if self.model.normals == NormalScheme::Analytic {
+            need(
+                self.model.curvature == 0.0,
+                "model.curvature",
+                self.model.curvature,
+                "0 with model.normals = \"analytic\" (the curvature's Laplacian comes from the probes of numerical normals)",
+            )?;
+            need(
+                matches!(self.model.preset, Preset::NeuralangeloCpu | Preset::Neuralangelo),
+                "model.preset",
+                self.model.preset.name(),
+                "a hash-grid preset (neuralangelo-cpu, neuralangelo) with model.normals = \"analytic\"",
+            )?;
+        }
         need(self.model.background.iter().all(|c| (0.0..=1.0).contains(c)), "model.background", self.model.background, "each in [0, 1]")?;
         need(self.render.rays >= 1, "render.rays", self.render.rays, "≥ 1")?;
         need(self.render.coarse >= 2, "render.coarse", self.render.coarse, "≥ 2")?;
@@ -531,6 +552,7 @@ impl TrainConfig {
             "≤ render.fine (the extra points replace up-sampled ones)",
         )?;
         self.surface.validate().map_err(|e| anyhow::anyhow!("surface.{e}"))?;
+        need((0.0..=1.0).contains(&self.output.validate_share), "output.validate_share", self.output.validate_share, "in [0, 1]")?;
         need(self.output.validate_downscale >= 1, "output.validate_downscale", self.output.validate_downscale, "≥ 1")?;
         need(self.output.log_every >= 1, "output.log_every", self.output.log_every, "≥ 1")?;
         need((8..=2048).contains(&self.output.mesh_resolution), "output.mesh_resolution", self.output.mesh_resolution, "in 8..=2048")?;

@@ -34,16 +34,22 @@ pub struct MemoryEstimate {
     pub evaluation: f64,
     /// Meshing's working set.
     pub meshing: f64,
+    /// Whether the training step's buffers stay resident after it (see [`MemoryEstimate::peak`]).
+    pub step_retained: bool,
 }
 
 impl MemoryEstimate {
-    /// The estimated peak: everything resident, the training step's working set, and the larger
-    /// of the evaluation's and meshing's. The step's buffers go back to the allocator between
-    /// phases but glibc keeps freed blocks below its (adaptive, ≤ 32 MB) mmap threshold in its
-    /// per-thread arenas, so the resident size does not fall back: measured, the post-training
-    /// phases add to the step's working set rather than replace it.
+    /// The estimated peak: everything resident, then the phases' working sets. The step's
+    /// buffers go back to the allocator between phases (the scratch pool is emptied), but glibc
+    /// keeps freed blocks below its adaptive mmap threshold (at most 32 MiB) in its arenas, so
+    /// with the CPU presets' buffers (a few MB each) the resident size does not fall back and the
+    /// post-training phases add to the step's working set (measured); buffers above the threshold
+    /// are mapped and unmapped on their own (the paper-scale presets' tens to hundreds of MB), and
+    /// then the phases replace each other.
     pub fn peak(&self) -> f64 {
-        BASE + self.parameters + self.images + self.guide + self.step + self.evaluation.max(self.meshing)
+        let after = self.evaluation.max(self.meshing);
+        let phases = if self.step_retained { self.step + after } else { self.step.max(after) };
+        BASE + self.parameters + self.images + self.guide + phases
     }
 
     /// One line per part for people.
@@ -80,10 +86,7 @@ impl MemoryEstimate {
 
 /// Bytes of one work item's forward + backward buffers for `rays` rays of `samples` intervals.
 fn work_item_bytes(backbone: &Backbone, rays: usize, samples: usize, backward: bool) -> f64 {
-    let probes = match backbone.config.normals {
-        NormalScheme::Tetrahedral => 4,
-        NormalScheme::Central => 6,
-    };
+    let probes = probes(backbone);
     let sdf_rows = (rays * ((probes + 1) * samples + 1)) as f64;
     let col_rows = (rays * samples) as f64;
     let sdf_out = Module::<f32>::n_outputs(&backbone.sdf) as f64;
@@ -94,8 +97,24 @@ fn work_item_bytes(backbone: &Backbone, rays: usize, samples: usize, backward: b
     // Forward: points, outputs, contexts; backward: output gradients, the layers' temporaries
     // (dZ, dA), the colour input gradient.
     let forward = sdf_rows * (3.0 + sdf_out + sdf_ctx) + col_rows * (2.0 * col_in + col_ctx + 6.0);
+    // Analytic normals: the tangents along x, y, z of every layer (forward), then along ∂L/∂n
+    // with their adjoints (backward).
+    let tangents = if backbone.config.normals == NormalScheme::Analytic {
+        sdf_rows * (3.0 * (sdf_ctx + sdf_out) + if backward { 2.0 * sdf_ctx + 6.0 } else { 0.0 })
+    } else {
+        0.0
+    };
     let backward = if backward { sdf_rows * (sdf_out + 3.0 * width + 8.0) + col_rows * (col_in + 3.0 * width) } else { 0.0 };
-    F32 * (forward + backward)
+    F32 * (forward + backward + tangents)
+}
+
+/// Probe rows per sample of the normals.
+fn probes(backbone: &Backbone) -> usize {
+    match backbone.config.normals {
+        NormalScheme::Tetrahedral => 4,
+        NormalScheme::Central => 6,
+        NormalScheme::Analytic => 0,
+    }
 }
 
 /// The memory model of `config` with `backbone` on a scene of `views` views and `pixel_bytes`
@@ -106,9 +125,10 @@ pub fn estimate(config: &TrainConfig, backbone: &Backbone, n_params: usize, view
     let tables = backbone.layout().encoding.len() as f64;
     let samples = config.render.coarse + config.render.fine;
     let chunks = config.render.rays.div_ceil(config.render.chunk) as f64;
-    let probes = if backbone.config.normals == NormalScheme::Tetrahedral { 4 } else { 6 };
-    let rows_per_chunk = (config.render.chunk * ((probes + 1) * samples + 1)) as f64;
-    let record = Module::<f32>::deferred_width(&backbone.sdf) as f64 + 3.0;
+    let rows_per_chunk = (config.render.chunk * ((probes(backbone) + 1) * samples + 1)) as f64;
+    // Analytic normals record the tangents too: twice the width, twice the points.
+    let twice = if backbone.config.normals == NormalScheme::Analytic { 2.0 } else { 1.0 };
+    let record = twice * (Module::<f32>::deferred_width(&backbone.sdf) as f64 + 3.0);
     let levels = backbone.levels().unwrap_or(1) as f64;
     // Every work item's gradient (without the tables) and table record live until the sum.
     let batch = chunks * F32 * ((n - tables) + rows_per_chunk * record);
@@ -124,7 +144,11 @@ pub fn estimate(config: &TrainConfig, backbone: &Backbone, n_params: usize, view
     let guided = config.sampler == crate::config::SamplerKind::Guided;
     let scene_cells = (config.guide.scene.resolution as f64).powi(3);
     let guide = if guided { views as f64 * cells * F32 * 3.0 } else { 0.0 } + scene_cells * 20.0;
-    MemoryEstimate { parameters: 3.0 * F32 * n, images: pixel_bytes as f64, guide, step, evaluation, meshing }
+    // The step's largest buffer, a work item's SDF context, against glibc's largest mmap
+    // threshold (32 MiB on 64-bit Linux).
+    let sdf_ctx_bytes = F32 * rows_per_chunk * Module::<f32>::ctx_per_row(&backbone.sdf) as f64;
+    let step_retained = sdf_ctx_bytes < 32.0 * 1024.0 * 1024.0;
+    MemoryEstimate { parameters: 3.0 * F32 * n, images: pixel_bytes as f64, guide, step, evaluation, meshing, step_retained }
 }
 
 /// The memory the kernel says is available for new work (`MemAvailable`), in bytes.

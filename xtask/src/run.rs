@@ -287,6 +287,12 @@ pub fn train_with(args: &TrainArgs, stop: &AtomicBool, sink: Arc<dyn Sink>) -> R
     result
 }
 
+/// Whether a due validation picture is taken: while the pictures so far took at most `share` of
+/// the training time so far (the time a budget counts; `share` = 0: always).
+fn pictures_due(picture_seconds: f64, trainer: &Trainer, share: f64) -> bool {
+    share == 0.0 || picture_seconds <= share * trainer.state().train_seconds
+}
+
 fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: &AtomicBool, estimate: &MemoryEstimate) -> Result<Outcome> {
     let config = trainer.config().clone();
     if args.resume.is_none() {
@@ -314,6 +320,7 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: 
     let mut history = Vec::new();
     let start = Instant::now();
     let mut measured_seconds = 0.0;
+    let mut picture_seconds = 0.0;
     while !trainer.done() {
         let report = trainer.step()?;
         log_step(folder, &progress, &trainer, &report)?;
@@ -323,8 +330,10 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: 
         if periodic(config.output.checkpoint_every) || stopping {
             folder.write_checkpoint(&trainer)?;
         }
-        if periodic(config.output.validate_every) {
+        if periodic(config.output.validate_every) && pictures_due(picture_seconds, &trainer, config.output.validate_share) {
+            let t = Instant::now();
             validation_pictures(&trainer, folder, step)?;
+            picture_seconds += t.elapsed().as_secs_f64();
         }
         if periodic(config.output.metrics_every) {
             let t = Instant::now();
@@ -349,6 +358,7 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: 
     curves(folder)?;
     let mut summary = finish(&trainer, folder, &progress, wall, estimate)?;
     summary.metrics["checkpoint_s"] = json!(checkpoint_seconds);
+    summary.metrics["validation_s"] = json!(picture_seconds);
     folder.write("metrics.json", serde_json::to_string_pretty(&summary.metrics)?.as_bytes())?;
     let t = trainer.timing();
     history.push(json!({"step": trainer.state().step, "chamfer": summary.metrics["chamfer"], "f_score": summary.metrics["f_score"], "psnr": summary.metrics["psnr"], "psnr_masked": summary.metrics["psnr_masked"], "time_s": t.step_seconds + t.grid_seconds}));

@@ -136,3 +136,33 @@ fn render_fit_reaches_24_db_inside_the_masks_of_the_training_views() {
     eprintln!("training-view PSNR inside the masks after 400 iterations: {psnr:.2} dB");
     assert!(psnr >= 24.0, "training-view masked PSNR {psnr:.2} dB < 24 dB");
 }
+
+/// Validation pictures due every iteration are capped at their share of the training time
+/// (`output.validate_share`): on a large scene they would otherwise cost more than training
+/// (DTU scan 24: 244 s of pictures in a 120 s budget at the default period).
+#[test]
+fn validation_pictures_take_at_most_their_share_of_the_training_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("pictures");
+    let mut args = vec!["train", "--out", out.to_str().unwrap()];
+    args.extend_from_slice(TINY);
+    // A picture at full resolution after every iteration: uncapped, the pictures would take
+    // most of the run.
+    args.extend_from_slice(&["steps=40", "output.validate_every=1", "output.validate_downscale=1", "output.validate_share=0.1"]);
+    let o = xtask(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    let (pictures_s, train_s) = (m["validation_s"].as_f64().unwrap(), m["train_s"].as_f64().unwrap());
+    // The periodic pictures (the final one, val_000040, is not periodic and always made).
+    let taken = std::fs::read_dir(out.join("pictures"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|name| name.starts_with("val_0") && name != "val_000040.png")
+        .count();
+    assert!(taken >= 1, "the first due picture is taken");
+    assert!(taken < 39, "{taken} pictures in 40 iterations: the cap did nothing");
+    // At most the last picture's overrun beyond the share (each is taken only while the ones
+    // before it fit the share); pictures vary in time, so allow twice the mean for it.
+    let one = pictures_s / taken as f64;
+    assert!(pictures_s <= 0.1 * train_s + 2.0 * one, "pictures took {pictures_s:.3} s of {train_s:.3} s training ({taken} pictures)");
+}

@@ -101,6 +101,38 @@ impl<R: Real> Module<R> for InputEncoding {
             InputEncoding::Positional(p) => p.backward_parts_block(parts, block, d_block),
         }
     }
+    /// Analytic normals: the hash grid only.
+    fn has_tangents(&self) -> bool {
+        match self {
+            InputEncoding::HashGrid(g) => Module::<R>::has_tangents(g),
+            InputEncoding::Positional(_) => false,
+        }
+    }
+    fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
+        if let InputEncoding::HashGrid(g) = self {
+            g.forward_tangents(params, input, ctx, k, tangents_in, tangents_out);
+        }
+    }
+    fn backward_tangent(
+        &self,
+        params: &[R],
+        input: &[R],
+        ctx: &[R],
+        tangent_in: &[R],
+        d_output: &[R],
+        d_tangent_out: &[R],
+        d_params: &mut [R],
+        d_input: Option<(&mut [R], &mut [R])>,
+    ) {
+        if let InputEncoding::HashGrid(g) = self {
+            g.backward_tangent(params, input, ctx, tangent_in, d_output, d_tangent_out, d_params, d_input);
+        }
+    }
+    fn tangent_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
+        if let InputEncoding::HashGrid(g) = self {
+            g.tangent_parts_block(parts, block, d_block);
+        }
+    }
 }
 
 /// The SDF network of every preset: encoding → MLP (first output: SDF; the rest: features).

@@ -202,6 +202,90 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
         let inner: Vec<(&[R], &[R])> = parts.iter().zip(&inner).map(|((input, _), d)| (*input, &d[..])).collect();
         self.encoding.backward_parts_block(&inner, block, d_block);
     }
+    fn has_tangents(&self) -> bool {
+        self.encoding.has_tangents()
+    }
+    /// `[ẋ, ∂m/∂x · ẋ]`.
+    fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
+        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
+        let rows = input.len() / n_in;
+        let mut enc = crate::scratch::Buf::<R>::zeroed(rows * k * n_enc);
+        self.encoding.forward_tangents(params, input, &ctx[..rows * self.encoding.ctx_per_row()], k, tangents_in, &mut enc);
+        let n_out = n_in + n_enc;
+        for ((out, t), e) in tangents_out.chunks_exact_mut(n_out).zip(tangents_in.chunks_exact(n_in)).zip(enc.chunks_exact(n_enc)) {
+            out[..n_in].copy_from_slice(t);
+            out[n_in..].copy_from_slice(e);
+        }
+    }
+    fn backward_tangent(
+        &self,
+        params: &[R],
+        input: &[R],
+        ctx: &[R],
+        tangent_in: &[R],
+        d_output: &[R],
+        d_tangent_out: &[R],
+        d_params: &mut [R],
+        d_input: Option<(&mut [R], &mut [R])>,
+    ) {
+        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
+        let rows = input.len() / n_in;
+        let n_out = n_in + n_enc;
+        let strip = |d: &[R]| {
+            let mut e = crate::scratch::Buf::<R>::zeroed(rows * n_enc);
+            for (dst, src) in e.chunks_exact_mut(n_enc).zip(d.chunks_exact(n_out)) {
+                dst.copy_from_slice(&src[n_in..]);
+            }
+            e
+        };
+        let (d_enc, d_enc_tangent) = (strip(d_output), strip(d_tangent_out));
+        let enc_ctx = &ctx[..rows * self.encoding.ctx_per_row()];
+        match d_input {
+            Some((d_in, d_in_tangent)) => {
+                self.encoding.backward_tangent(
+                    params,
+                    input,
+                    enc_ctx,
+                    tangent_in,
+                    &d_enc,
+                    &d_enc_tangent,
+                    d_params,
+                    Some((&mut *d_in, &mut *d_in_tangent)),
+                );
+                for r in 0..rows {
+                    for q in 0..n_in {
+                        d_in[r * n_in + q] += d_output[r * n_out + q];
+                        d_in_tangent[r * n_in + q] += d_tangent_out[r * n_out + q];
+                    }
+                }
+            }
+            None => self.encoding.backward_tangent(params, input, enc_ctx, tangent_in, &d_enc, &d_enc_tangent, d_params, None),
+        }
+    }
+    fn tangent_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
+        // Each record is two blocks (output adjoints, tangent adjoints): strip the raw input's
+        // columns from both.
+        let halves: Vec<(crate::scratch::Buf<R>, crate::scratch::Buf<R>)> = parts
+            .iter()
+            .map(|(_, record)| {
+                let (a, b) = record.split_at(record.len() / 2);
+                let inner = self.encoding_parts(&[(&[][..], a), (&[][..], b)]);
+                let mut it = inner.into_iter();
+                (it.next().expect("two halves"), it.next().expect("two halves"))
+            })
+            .collect();
+        let joined: Vec<crate::scratch::Buf<R>> = halves
+            .iter()
+            .map(|(a, b)| {
+                let mut j = crate::scratch::Buf::<R>::zeroed(a.len() + b.len());
+                j[..a.len()].copy_from_slice(a);
+                j[a.len()..].copy_from_slice(b);
+                j
+            })
+            .collect();
+        let inner: Vec<(&[R], &[R])> = parts.iter().zip(&joined).map(|((input, _), d)| (*input, &d[..])).collect();
+        self.encoding.tangent_parts_block(&inner, block, d_block);
+    }
 }
 
 impl<M> WithInput<M> {

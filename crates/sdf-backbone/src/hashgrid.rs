@@ -176,6 +176,91 @@ impl<R: Real> Module<R> for HashGrid {
             },
         );
     }
+    fn has_tangents(&self) -> bool {
+        true
+    }
+    /// ∂(features)/∂x · ẋ = Σ_c (∇ₓw_c · ẋ) T[c]: the same 8 corners as the features, weighted by
+    /// the trilinear weights' gradients (zero outside the grid, where inputs are clamped).
+    fn forward_tangents(&self, params: &[R], input: &[R], _: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
+        let f = self.config.features;
+        let n_out = self.config.levels * f;
+        tangents_out.fill(R::ZERO);
+        let mask = (self.table - 1) as u32;
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || {
+                for level in 0..self.active_levels.min(self.config.levels) {
+                    let base = level * self.table * f;
+                    let table = &params[base..base + self.table * f];
+                    let (n, dense) = (self.resolutions[level], self.dense[level]);
+                    macro_rules! run {
+                        ($f:expr) => {
+                            if dense {
+                                level_tangents::<R, $f, true>(table, n, mask, input, k, tangents_in, tangents_out, n_out, level * f)
+                            } else {
+                                level_tangents::<R, $f, false>(table, n, mask, input, k, tangents_in, tangents_out, n_out, level * f)
+                            }
+                        };
+                    }
+                    match f {
+                        1 => run!(1),
+                        2 => run!(2),
+                        4 => run!(4),
+                        8 => run!(8),
+                        _ => {
+                            for (r, x) in input.chunks_exact(3).enumerate() {
+                                let (idx, _, dw) = self.corners(level, x);
+                                for j in 0..k {
+                                    let t = &tangents_in[3 * (r * k + j)..3 * (r * k + j) + 3];
+                                    let out = &mut tangents_out[(r * k + j) * n_out + level * f..(r * k + j) * n_out + (level + 1) * f];
+                                    for c in 0..8 {
+                                        let s = dw[c][0] * t[0] + dw[c][1] * t[1] + dw[c][2] * t[2];
+                                        for q in 0..f {
+                                            out[q] = s.mul_add(table[idx[c] * f + q], out[q]);
+                                        }
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            },
+        );
+    }
+    /// The tables' gradient: T̄[c] += w_c ȳ + (∇ₓw_c · v) ẏ̄. The adjoint of the input is not
+    /// computed (a hash grid is the first module of an SDF network, whose inputs are not learnt):
+    /// `d_input`, if given, is zeroed.
+    fn backward_tangent(
+        &self,
+        _: &[R],
+        input: &[R],
+        _: &[R],
+        tangent_in: &[R],
+        d_output: &[R],
+        d_tangent_out: &[R],
+        d_params: &mut [R],
+        d_input: Option<(&mut [R], &mut [R])>,
+    ) {
+        debug_assert!(d_input.is_none(), "a hash grid does not propagate tangent adjoints to its input");
+        if let Some((a, b)) = d_input {
+            a.fill(R::ZERO);
+            b.fill(R::ZERO);
+        }
+        let size = self.table * self.config.features;
+        for level in 0..self.active_levels.min(self.config.levels) {
+            self.scatter_tangent_level(level, input, tangent_in, d_output, d_tangent_out, &mut d_params[level * size..(level + 1) * size]);
+        }
+    }
+    fn tangent_parts_block(&self, parts: &[(&[R], &[R])], level: usize, d_table: &mut [R]) {
+        if level >= self.active_levels.min(self.config.levels) {
+            return;
+        }
+        for (points, record) in parts {
+            let (x, v) = points.split_at(points.len() / 2);
+            let (d_output, d_tangent_out) = record.split_at(record.len() / 2);
+            self.scatter_tangent_level(level, x, v, d_output, d_tangent_out, d_table);
+        }
+    }
 }
 
 /// The 8 corners of the cell around `p` (one point) on a level of resolution `n`: table indices
@@ -207,6 +292,113 @@ fn corner_weights<R: Real, const DENSE: bool>(p: &[R], n: u32, mask: u32) -> ([u
         w[c as usize] = wx * wy * wz;
     }
     (idx, w)
+}
+
+/// [`corner_weights`] with the weights' gradients in x (zero along an axis where the input is
+/// clamped to the grid), for the tangents of analytic normals.
+#[inline(always)]
+fn corner_gradients<R: Real, const DENSE: bool>(p: &[R], n: u32, mask: u32) -> ([u32; 8], [R; 8], [[R; 3]; 8]) {
+    let scale = R::of(f64::from(n) * 0.5);
+    let (nf, last) = (R::of(f64::from(n)), R::of(f64::from(n) - 1.0));
+    let mut cell = [0u32; 3];
+    let mut fr = [R::ZERO; 3];
+    let mut slope = [R::ZERO; 3];
+    for d in 0..3 {
+        let raw = (p[d] + R::ONE) * scale;
+        let q = raw.max(R::ZERO).min(nf);
+        slope[d] = if q == raw { scale } else { R::ZERO };
+        let c = q.floor().min(last);
+        cell[d] = c.small_index();
+        fr[d] = q - c;
+    }
+    let n1 = n + 1;
+    let mut idx = [0u32; 8];
+    let mut w = [R::ZERO; 8];
+    let mut dw = [[R::ZERO; 3]; 8];
+    for c in 0..8u32 {
+        let (bx, by, bz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
+        let (ix, iy, iz) = (cell[0] + bx, cell[1] + by, cell[2] + bz);
+        idx[c as usize] = if DENSE { ix + n1 * (iy + n1 * iz) } else { (ix ^ iy.wrapping_mul(2_654_435_761) ^ iz.wrapping_mul(805_459_861)) & mask };
+        let wx = if bx == 1 { fr[0] } else { R::ONE - fr[0] };
+        let wy = if by == 1 { fr[1] } else { R::ONE - fr[1] };
+        let wz = if bz == 1 { fr[2] } else { R::ONE - fr[2] };
+        let sx = if bx == 1 { slope[0] } else { -slope[0] };
+        let sy = if by == 1 { slope[1] } else { -slope[1] };
+        let sz = if bz == 1 { slope[2] } else { -slope[2] };
+        w[c as usize] = wx * wy * wz;
+        dw[c as usize] = [sx * wy * wz, wx * sy * wz, wx * wy * sz];
+    }
+    (idx, w, dw)
+}
+
+/// One level's output tangents for every row: `k` directions per row (`tangents_in`, rows × k ×
+/// 3) into columns `at..at + F` of `tangents_out` (rows × k × `n_out`).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn level_tangents<R: Real, const F: usize, const DENSE: bool>(
+    table: &[R],
+    n: u32,
+    mask: u32,
+    input: &[R],
+    k: usize,
+    tangents_in: &[R],
+    tangents_out: &mut [R],
+    n_out: usize,
+    at: usize,
+) {
+    for (r, p) in input.chunks_exact(3).enumerate() {
+        let (idx, _, dw) = corner_gradients::<R, DENSE>(p, n, mask);
+        let mut values = [[R::ZERO; F]; 8];
+        for c in 0..8 {
+            for q in 0..F {
+                values[c][q] = table.get(idx[c] as usize * F + q).copied().unwrap_or(R::ZERO);
+            }
+        }
+        for j in 0..k {
+            let t = &tangents_in[3 * (r * k + j)..3 * (r * k + j) + 3];
+            let mut acc = [R::ZERO; F];
+            for c in 0..8 {
+                let s = dw[c][0] * t[0] + dw[c][1] * t[1] + dw[c][2] * t[2];
+                for q in 0..F {
+                    acc[q] = s.mul_add(values[c][q], acc[q]);
+                }
+            }
+            let o = (r * k + j) * n_out + at;
+            tangents_out[o..o + F].copy_from_slice(&acc);
+        }
+    }
+}
+
+/// One level's table gradient through the features and their tangents along `v` (rows × 3):
+/// T̄[c] += w_c ȳ + (∇ₓw_c · v) ẏ̄ (sequential scatter: rows share entries).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn level_tangent_scatter<R: Real, const F: usize, const DENSE: bool>(
+    n: u32,
+    mask: u32,
+    input: &[R],
+    v: &[R],
+    d_output: &[R],
+    d_tangent_out: &[R],
+    n_out: usize,
+    at: usize,
+    d_table: &mut [R],
+) {
+    for (r, p) in input.chunks_exact(3).enumerate() {
+        let (idx, w, dw) = corner_gradients::<R, DENSE>(p, n, mask);
+        let t = &v[3 * r..3 * r + 3];
+        let dy = &d_output[r * n_out + at..r * n_out + at + F];
+        let dt = &d_tangent_out[r * n_out + at..r * n_out + at + F];
+        for c in 0..8 {
+            let s = dw[c][0] * t[0] + dw[c][1] * t[1] + dw[c][2] * t[2];
+            let base = idx[c] as usize * F;
+            for q in 0..F {
+                if let Some(d) = d_table.get_mut(base + q) {
+                    *d = w[c].mul_add(dy[q], s.mul_add(dt[q], *d));
+                }
+            }
+        }
+    }
 }
 
 /// One level's features for every row into `out` (rows × F, level-major). Table reads go
@@ -309,6 +501,49 @@ impl HashGrid {
                 }
             }
         }
+    }
+
+    /// One level's table gradient through the features and their tangents along `v` (rows × 3):
+    /// T̄[c] += w_c ȳ + (∇ₓw_c · v) ẏ̄.
+    fn scatter_tangent_level<R: Real>(&self, level: usize, input: &[R], v: &[R], d_output: &[R], d_tangent_out: &[R], d_table: &mut [R]) {
+        let f = self.config.features;
+        let n_out = self.config.levels * f;
+        let mask = (self.table - 1) as u32;
+        let (n, dense) = (self.resolutions[level], self.dense[level]);
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || {
+                macro_rules! run {
+                    ($f:expr) => {
+                        if dense {
+                            level_tangent_scatter::<R, $f, true>(n, mask, input, v, d_output, d_tangent_out, n_out, level * f, d_table)
+                        } else {
+                            level_tangent_scatter::<R, $f, false>(n, mask, input, v, d_output, d_tangent_out, n_out, level * f, d_table)
+                        }
+                    };
+                }
+                match f {
+                    1 => run!(1),
+                    2 => run!(2),
+                    4 => run!(4),
+                    8 => run!(8),
+                    _ => {
+                        for (r, x) in input.chunks_exact(3).enumerate() {
+                            let (idx, w, dw) = self.corners(level, x);
+                            let t = &v[3 * r..3 * r + 3];
+                            let dy = &d_output[r * n_out + level * f..r * n_out + (level + 1) * f];
+                            let dt = &d_tangent_out[r * n_out + level * f..r * n_out + (level + 1) * f];
+                            for c in 0..8 {
+                                let s = dw[c][0] * t[0] + dw[c][1] * t[1] + dw[c][2] * t[2];
+                                for q in 0..f {
+                                    d_table[idx[c] * f + q] += w[c] * dy[q] + s * dt[q];
+                                }
+                            }
+                        }
+                    }
+                }
+            },
+        );
     }
 
     #[inline(always)]

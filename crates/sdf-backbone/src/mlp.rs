@@ -359,6 +359,221 @@ impl<R: Real> Module<R> for Mlp {
             },
         );
     }
+
+    fn has_tangents(&self) -> bool {
+        self.config.hidden_activation.second_from_slope(R::ZERO).is_some() && self.config.output_activation.second_from_slope(R::ZERO).is_some()
+    }
+
+    fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
+        let rows = input.len() / self.config.n_inputs;
+        if rows > 0 {
+            self.tangent_pass(params, ctx, rows, k, tangents_in, Some(tangents_out));
+        }
+    }
+
+    /// Layer by layer, with u = act'(Z) ⊙ Ż the tangent of the activation: Ż̄ = act'(Z) ⊙ ū,
+    /// Z̄ = act'(Z) ⊙ ȳ + act''(Z) ⊙ Ż ⊙ ū; W̄ += Z̄ᵀA + Ż̄ᵀȦ, b̄ += ΣZ̄; Ā = Z̄W, Ǡ = Ż̄W.
+    fn backward_tangent(
+        &self,
+        params: &[R],
+        input: &[R],
+        ctx: &[R],
+        tangent_in: &[R],
+        d_output: &[R],
+        d_tangent_out: &[R],
+        d_params: &mut [R],
+        d_input: Option<(&mut [R], &mut [R])>,
+    ) {
+        let n_x = self.config.n_inputs;
+        let n_y = self.config.n_outputs;
+        let rows = input.len() / n_x;
+        if rows == 0 {
+            return;
+        }
+        let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
+        let starts = self.ctx_starts(rows);
+        let tangents = self.tangent_pass(params, ctx, rows, 1, tangent_in, None);
+        let mut d_input = d_input;
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || {
+                let op_last = pad(n_y);
+                let mut dy = Buf::<R>::zeroed(rows * op_last);
+                let mut du = Buf::<R>::zeroed(rows * op_last);
+                for r in 0..rows {
+                    dy[r * op_last..r * op_last + n_y].copy_from_slice(&d_output[r * n_y..(r + 1) * n_y]);
+                    du[r * op_last..r * op_last + n_y].copy_from_slice(&d_tangent_out[r * n_y..(r + 1) * n_y]);
+                }
+                let (mut d_skip, mut d_skip_tangent): (Option<Buf<R>>, Option<Buf<R>>) = (None, None);
+                for l in (0..self.layers.len()).rev() {
+                    let (n_in, n_out, off) = self.layers[l];
+                    let (ip, op) = (pad(n_in), pad(n_out));
+                    let (act, _) = self.layer_activation::<R>(l);
+                    let a = &ctx[starts[l].0..starts[l].0 + rows * ip];
+                    let slope = &ctx[starts[l].1..starts[l].1 + rows * op];
+                    let (a_dot, z_dot) = &tangents[l];
+                    // Z̄ and Ż̄ in place of ȳ and ū.
+                    for i in 0..rows * op {
+                        let second = act.second_from_slope(slope[i]).unwrap_or(R::ZERO);
+                        let (g, u) = (dy[i], du[i]);
+                        dy[i] = slope[i] * g + second * z_dot[i] * u;
+                        du[i] = slope[i] * u;
+                    }
+                    let mut dw = Buf::<R>::zeroed(n_out * ip);
+                    gemm(&mut dw, ip, Strided { data: &dy, sm: 1, sk: op }, a, ip, n_out, ip, rows, false);
+                    gemm(&mut dw, ip, Strided { data: &du, sm: 1, sk: op }, a_dot, ip, n_out, ip, rows, true);
+                    let (dwp, dbp) = d_params[off..off + n_in * n_out + n_out].split_at_mut(n_in * n_out);
+                    for o in 0..n_out {
+                        for i in 0..n_in {
+                            dwp[o * n_in + i] += dw[o * ip + i];
+                        }
+                    }
+                    for row in dy.chunks_exact(op) {
+                        for (b, g) in dbp.iter_mut().zip(row) {
+                            *b += *g;
+                        }
+                    }
+                    if l == 0 && d_input.is_none() {
+                        break;
+                    }
+                    let (_, wp, _) = self.packed(params, l);
+                    let mut da = Buf::<R>::zeroed(rows * ip);
+                    let mut da_dot = Buf::<R>::zeroed(rows * ip);
+                    gemm(&mut da, ip, Strided { data: &dy, sm: op, sk: 1 }, &wp, ip, rows, ip, n_out, false);
+                    gemm(&mut da_dot, ip, Strided { data: &du, sm: op, sk: 1 }, &wp, ip, rows, ip, n_out, false);
+                    if l == 0 {
+                        if let Some((d_in, d_in_tangent)) = d_input.as_mut() {
+                            for r in 0..rows {
+                                for q in 0..n_x {
+                                    d_in[r * n_x + q] = da[r * ip + q] + d_skip.as_ref().map_or(R::ZERO, |s| s[r * n_x + q]);
+                                    d_in_tangent[r * n_x + q] = da_dot[r * ip + q] + d_skip_tangent.as_ref().map_or(R::ZERO, |s| s[r * n_x + q]);
+                                }
+                            }
+                        }
+                        break;
+                    }
+                    let prev_out = self.layers[l - 1].1;
+                    let prev_op = pad(prev_out);
+                    let skip = self.config.skip == Some(l);
+                    if skip && d_input.is_some() {
+                        let take = |d: &[R]| {
+                            let mut g = Buf::<R>::zeroed(rows * n_x);
+                            for (dst, src) in g.chunks_exact_mut(n_x).zip(d.chunks_exact(ip)) {
+                                for q in 0..n_x {
+                                    dst[q] = src[prev_out + q] * inv_sqrt2;
+                                }
+                            }
+                            g
+                        };
+                        d_skip = Some(take(&da));
+                        d_skip_tangent = Some(take(&da_dot));
+                    }
+                    let scale = if skip { inv_sqrt2 } else { R::ONE };
+                    let (mut next, mut next_u) = (Buf::<R>::zeroed(rows * prev_op), Buf::<R>::zeroed(rows * prev_op));
+                    for r in 0..rows {
+                        for q in 0..prev_out {
+                            next[r * prev_op + q] = da[r * ip + q] * scale;
+                            next_u[r * prev_op + q] = da_dot[r * ip + q] * scale;
+                        }
+                    }
+                    dy = next;
+                    du = next_u;
+                }
+            },
+        );
+    }
+}
+
+impl Mlp {
+    /// Block offsets of each layer's input A and act'(Z) in a context of `rows` rows.
+    fn ctx_starts(&self, rows: usize) -> Vec<(usize, usize)> {
+        let mut starts = Vec::with_capacity(self.layers.len());
+        let mut at = 0;
+        for &(n_in, n_out, _) in &self.layers {
+            starts.push((at, at + rows * pad(n_in)));
+            at += rows * (pad(n_in) + pad(n_out));
+        }
+        starts
+    }
+
+    /// The activation of layer `l` and the scale of its output (1/√2 before the skip layer).
+    fn layer_activation<R: Real>(&self, l: usize) -> (Activation, R) {
+        if l == self.layers.len() - 1 {
+            (self.config.output_activation, R::ONE)
+        } else if self.config.skip == Some(l + 1) {
+            (self.config.hidden_activation, R::of(std::f64::consts::FRAC_1_SQRT_2))
+        } else {
+            (self.config.hidden_activation, R::ONE)
+        }
+    }
+
+    /// Forward-mode pass of `t_rows` tangent rows, `k` per input row (row r's tangents are rows
+    /// r·k … r·k + k − 1): `tangents_in` (t_rows × n_inputs). Returns, per layer, the padded
+    /// tangent of its input (t_rows × in_pad) and of its pre-activation Ż (t_rows × out_pad);
+    /// the output tangents go to `tangents_out` (t_rows × n_outputs) when given.
+    fn tangent_pass<R: Real>(
+        &self,
+        params: &[R],
+        ctx: &[R],
+        rows: usize,
+        k: usize,
+        tangents_in: &[R],
+        tangents_out: Option<&mut [R]>,
+    ) -> Vec<(Buf<R>, Buf<R>)> {
+        let n_x = self.config.n_inputs;
+        let t_rows = rows * k;
+        let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
+        let starts = self.ctx_starts(rows);
+        let mut blocks: Vec<(Buf<R>, Buf<R>)> = Vec::with_capacity(self.layers.len());
+        let ip0 = pad(n_x);
+        let mut a_dot = Buf::<R>::zeroed(t_rows * ip0);
+        for (dst, src) in a_dot.chunks_exact_mut(ip0).zip(tangents_in.chunks_exact(n_x)) {
+            dst[..n_x].copy_from_slice(src);
+        }
+        let mut tangents_out = tangents_out;
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || {
+                for (l, &(n_in, n_out, _)) in self.layers.iter().enumerate() {
+                    let (ip, op) = (pad(n_in), pad(n_out));
+                    let (wt, _, _) = self.packed(params, l);
+                    // Ż = Ȧ Wᵀ (no bias).
+                    let mut z_dot = Buf::<R>::zeroed(t_rows * op);
+                    gemm(&mut z_dot, op, Strided { data: &a_dot, sm: ip, sk: 1 }, &wt, op, t_rows, op, n_in, false);
+                    let slope = &ctx[starts[l].1..starts[l].1 + rows * op];
+                    let (_, scale) = self.layer_activation::<R>(l);
+                    if l == self.layers.len() - 1 {
+                        if let Some(out) = tangents_out.as_deref_mut() {
+                            for (t, (o, z)) in out.chunks_exact_mut(n_out).zip(z_dot.chunks_exact(op)).enumerate() {
+                                let sl = &slope[(t / k) * op..(t / k) * op + op];
+                                for q in 0..n_out {
+                                    o[q] = sl[q] * z[q] * scale;
+                                }
+                            }
+                        }
+                        blocks.push((std::mem::replace(&mut a_dot, Buf::zeroed(0)), z_dot));
+                        break;
+                    }
+                    // The next layer's input tangent: act'(Z) ⊙ Ż · scale (and ẋ/√2 after a skip).
+                    let next_ip = pad(self.layers[l + 1].0);
+                    let mut next = Buf::<R>::zeroed(t_rows * next_ip);
+                    for (t, (dst, z)) in next.chunks_exact_mut(next_ip).zip(z_dot.chunks_exact(op)).enumerate() {
+                        let sl = &slope[(t / k) * op..(t / k) * op + op];
+                        for q in 0..n_out {
+                            dst[q] = sl[q] * z[q] * scale;
+                        }
+                        if self.config.skip == Some(l + 1) {
+                            for q in 0..n_x {
+                                dst[n_out + q] = tangents_in[t * n_x + q] * inv_sqrt2;
+                            }
+                        }
+                    }
+                    blocks.push((std::mem::replace(&mut a_dot, next), z_dot));
+                }
+            },
+        );
+        blocks
+    }
 }
 
 /// Solves A x = b for a symmetric positive-definite A (row-major, overwritten by its Cholesky

@@ -87,6 +87,67 @@ pub trait Module<R: Real>: Sync {
             self.apply_deferred(parts, d_block);
         }
     }
+
+    // Forward-mode derivatives with respect to the input (analytic normals ∇ₓS), and the
+    // reverse pass through them. A module without them says so with `has_tangents` = false (the
+    // default; the pipeline refuses analytic normals then) and the other methods do nothing.
+
+    /// Whether [`Module::forward_tangents`] and the tangent backward passes are implemented.
+    fn has_tangents(&self) -> bool {
+        false
+    }
+
+    /// After [`Module::forward`] (with its `ctx`): the outputs' derivatives along `k` input
+    /// directions per row. `tangents_in` is rows × k × n_inputs (direction j of row r at
+    /// `(r·k + j)·n_inputs`), `tangents_out` rows × k × n_outputs, written.
+    fn forward_tangents(&self, _params: &[R], _input: &[R], _ctx: &[R], _k: usize, _tangents_in: &[R], _tangents_out: &mut [R]) {}
+
+    /// The reverse pass through the outputs y and their derivative ẏ along one input direction
+    /// per row (`tangent_in`, rows × n_inputs): adds ∂L/∂params for a loss with adjoints
+    /// `d_output` (of y) and `d_tangent_out` (of ẏ), both rows × n_outputs; writes the adjoints
+    /// of the input and of its tangent into `d_input` when given (encodings that come first in
+    /// a network need not: the pipeline's inputs are not learnt).
+    #[allow(clippy::too_many_arguments)]
+    fn backward_tangent(
+        &self,
+        _params: &[R],
+        _input: &[R],
+        _ctx: &[R],
+        _tangent_in: &[R],
+        _d_output: &[R],
+        _d_tangent_out: &[R],
+        _d_params: &mut [R],
+        _d_input: Option<(&mut [R], &mut [R])>,
+    ) {
+    }
+
+    /// [`Module::backward_tangent`] without the gradient of the first [`Module::deferred_params`]
+    /// parameters; what it needs goes to `deferred`, rows × 2·[`Module::deferred_width`] in two
+    /// blocks (the adjoints of the deferred module's outputs, then of their tangents), for
+    /// [`Module::apply_deferred_tangent_block`] with the input `[points block; tangents block]`.
+    #[allow(clippy::too_many_arguments)]
+    fn backward_tangent_deferring(
+        &self,
+        params: &[R],
+        input: &[R],
+        ctx: &[R],
+        tangent_in: &[R],
+        d_output: &[R],
+        d_tangent_out: &[R],
+        d_params: &mut [R],
+        _deferred: &mut [R],
+    ) {
+        self.backward_tangent(params, input, ctx, tangent_in, d_output, d_tangent_out, d_params, None);
+    }
+
+    /// The tangent counterpart of [`Module::backward_parts_block`] (modules that
+    /// [`Module::defers_gradient`]): `parts` = ([inputs block; input tangents block],
+    /// [output adjoints block; output-tangent adjoints block]) per work item.
+    fn tangent_parts_block(&self, _parts: &[(&[R], &[R])], _block: usize, _d_block: &mut [R]) {}
+
+    /// The tangent counterpart of [`Module::apply_deferred_block`], for the records of
+    /// [`Module::backward_tangent_deferring`].
+    fn apply_deferred_tangent_block(&self, _parts: &[(&[R], &[R])], _block: usize, _d_block: &mut [R]) {}
 }
 
 /// Element-wise activations.
@@ -140,6 +201,18 @@ impl Activation {
                 (s, s * (R::ONE - s))
             }
             other => (other.apply(z), other.derivative(z)),
+        }
+    }
+
+    /// d²y/dz² from dy/dz (what a forward pass keeps): 0 for the piecewise-linear ones;
+    /// softplus: β·σ(βz)(1 − σ(βz)) with σ(βz) = dy/dz. `None` for the sigmoid, whose dy/dz does
+    /// not determine z's side (no tangents through it).
+    #[inline]
+    pub fn second_from_slope<R: Real>(self, slope: R) -> Option<R> {
+        match self {
+            Activation::Identity | Activation::Relu => Some(R::ZERO),
+            Activation::Softplus { beta } => Some(R::of(beta) * slope * (R::ONE - slope)),
+            Activation::Sigmoid => None,
         }
     }
 
@@ -247,6 +320,69 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
     fn apply_deferred_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
         if self.a.defers_gradient() {
             self.a.backward_parts_block(parts, block, d_block);
+        }
+    }
+    fn has_tangents(&self) -> bool {
+        self.a.has_tangents() && self.b.has_tangents()
+    }
+    fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
+        let rows = input.len() / self.a.n_inputs();
+        let (pa, pb) = params.split_at(self.a.n_params());
+        let (ca, rest) = ctx.split_at(rows * self.a.ctx_per_row());
+        let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
+        let mut mid_tangents = crate::scratch::Buf::<R>::zeroed(rows * k * self.a.n_outputs());
+        self.a.forward_tangents(pa, input, ca, k, tangents_in, &mut mid_tangents);
+        self.b.forward_tangents(pb, mid, cb, k, &mid_tangents, tangents_out);
+    }
+    fn backward_tangent(
+        &self,
+        params: &[R],
+        input: &[R],
+        ctx: &[R],
+        tangent_in: &[R],
+        d_output: &[R],
+        d_tangent_out: &[R],
+        d_params: &mut [R],
+        d_input: Option<(&mut [R], &mut [R])>,
+    ) {
+        let rows = input.len() / self.a.n_inputs();
+        let (pa, pb) = params.split_at(self.a.n_params());
+        let (dpa, dpb) = d_params.split_at_mut(self.a.n_params());
+        let (ca, rest) = ctx.split_at(rows * self.a.ctx_per_row());
+        let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
+        let mut mid_tangent = crate::scratch::Buf::<R>::zeroed(mid.len());
+        self.a.forward_tangents(pa, input, ca, 1, tangent_in, &mut mid_tangent);
+        let (mut d_mid, mut d_mid_tangent) = (crate::scratch::Buf::<R>::zeroed(mid.len()), crate::scratch::Buf::<R>::zeroed(mid.len()));
+        self.b.backward_tangent(pb, mid, cb, &mid_tangent, d_output, d_tangent_out, dpb, Some((&mut d_mid, &mut d_mid_tangent)));
+        self.a.backward_tangent(pa, input, ca, tangent_in, &d_mid, &d_mid_tangent, dpa, d_input);
+    }
+    fn backward_tangent_deferring(
+        &self,
+        params: &[R],
+        input: &[R],
+        ctx: &[R],
+        tangent_in: &[R],
+        d_output: &[R],
+        d_tangent_out: &[R],
+        d_params: &mut [R],
+        deferred: &mut [R],
+    ) {
+        if !self.a.defers_gradient() {
+            return self.backward_tangent(params, input, ctx, tangent_in, d_output, d_tangent_out, d_params, None);
+        }
+        let rows = input.len() / self.a.n_inputs();
+        let (pa, pb) = params.split_at(self.a.n_params());
+        let (ca, rest) = ctx.split_at(rows * self.a.ctx_per_row());
+        let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
+        let mut mid_tangent = crate::scratch::Buf::<R>::zeroed(mid.len());
+        self.a.forward_tangents(pa, input, ca, 1, tangent_in, &mut mid_tangent);
+        // The record: ∂L/∂(first module's outputs), then ∂L/∂(their tangents).
+        let (d_mid, d_mid_tangent) = deferred.split_at_mut(mid.len());
+        self.b.backward_tangent(pb, mid, cb, &mid_tangent, d_output, d_tangent_out, d_params, Some((d_mid, d_mid_tangent)));
+    }
+    fn apply_deferred_tangent_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
+        if self.a.defers_gradient() {
+            self.a.tangent_parts_block(parts, block, d_block);
         }
     }
 }

@@ -8,7 +8,12 @@
 //! network evaluations). Central differences are second-order accurate (error O(h²)); the
 //! tetrahedral stencil is only first-order: since v_x v_y v_z = 1 at all four vertices, its
 //! error is h·(∂²S/∂y∂z, ∂²S/∂x∂z, ∂²S/∂x∂y) + O(h²), which vanishes where the mixed second
-//! derivatives do (a plane, and at h → 0). The
+//! derivatives do (a plane, and at h → 0). Or analytic ([`NormalScheme::Analytic`]):
+//! `nᵢ = ∇ₓS(xᵢ)` exactly, by forward-mode derivatives along x, y, z through the hash grid (the
+//! trilinear weights' gradients on the same 8 corners) and the MLP (`Ż = Ȧ Wᵀ`, `Ȧ' = act'(Z) ⊙
+//! Ż`), with no probe rows; the backward pass needs one tangent only — along `vᵢ = ∂L/∂nᵢ`,
+//! since `vᵢ · δnᵢ = δ(∂S/∂x · vᵢ)` — and runs the reverse of the values and that tangent
+//! together (act'' from act', the tables' gradient `w_c ȳ + (∇w_c · v) ẏ̄`). The
 //! colour network maps `[xᵢ, nᵢ, SH₄(d), featuresᵢ]` to the colour of interval i; the ray is
 //! rendered with [`render_ray`] at scale `s = exp(10·v)` (NeuS's learnt variance v). The loss is
 //! the colour error (L1 as NeuS, or L2) of `colour + (1 − opacity)·background`, plus
@@ -47,6 +52,11 @@ pub enum NormalScheme {
     Central,
     /// Tetrahedral differences: 4 probes per sample.
     Tetrahedral,
+    /// The exact gradient ∇ₓS by forward-mode derivatives through the network
+    /// ([`Module::forward_tangents`]), and the reverse pass through them: no probes. Needs a
+    /// network with tangents (the hash-grid presets) and no curvature loss (its Laplacian comes
+    /// from the probes).
+    Analytic,
 }
 
 impl NormalScheme {
@@ -64,6 +74,7 @@ impl NormalScheme {
         match self {
             NormalScheme::Central => &C,
             NormalScheme::Tetrahedral => &T,
+            NormalScheme::Analytic => &[],
         }
     }
 }
@@ -124,6 +135,9 @@ type Deferred<R> = Option<(Buf<R>, Buf<R>)>;
 /// The deferred gradient of a batch: each work item's SDF points and record, in order.
 pub struct DeferredGradient<R: Real> {
     records: Vec<(Buf<R>, Buf<R>)>,
+    /// Records of analytic normals ([`Module::backward_tangent_deferring`]): points and
+    /// tangents, output and tangent adjoints.
+    tangent: bool,
 }
 
 impl<R: Real> DeferredGradient<R> {
@@ -135,7 +149,23 @@ impl<R: Real> DeferredGradient<R> {
     /// Adds block `block` of the deferred gradient of `net` to `d_block`
     /// ([`Module::apply_deferred_block`]).
     pub fn apply_block<M: Module<R>>(&self, net: &M, block: usize, d_block: &mut [R]) {
-        net.apply_deferred_block(&self.parts(), block, d_block);
+        if self.tangent {
+            net.apply_deferred_tangent_block(&self.parts(), block, d_block);
+        } else {
+            net.apply_deferred_block(&self.parts(), block, d_block);
+        }
+    }
+
+    /// Every block of the deferred gradient of `net` into `d_deferred` (its first
+    /// [`Module::deferred_params`] parameters), in parallel over blocks.
+    pub fn apply<M: Module<R> + Sync>(&self, net: &M, d_deferred: &mut [R]) {
+        use rayon::prelude::*;
+        if !self.tangent {
+            return net.apply_deferred(&self.parts(), d_deferred);
+        }
+        let blocks = net.deferred_blocks().max(1);
+        let size = d_deferred.len() / blocks;
+        d_deferred.par_chunks_mut(size.max(1)).enumerate().for_each(|(block, d)| self.apply_block(net, block, d));
     }
 }
 
@@ -232,9 +262,8 @@ impl<S, C> Pipeline<S, C> {
                 let n_def = self.sdf.deferred_params();
                 let (d_deferred, d_rest) = d_params.split_at_mut(n_def);
                 let (loss, outputs, deferred) = self.accumulate(params, rays, 0, Some(d_rest), m, norm, extra);
-                if let Some((points, record)) = &deferred {
-                    self.sdf.apply_deferred(&[(&points[..], &record[..])], d_deferred);
-                }
+                let tangent = self.config.normals == NormalScheme::Analytic;
+                DeferredGradient { records: deferred.into_iter().collect(), tangent }.apply(&self.sdf, d_deferred);
                 (loss, outputs)
             }
         }
@@ -269,7 +298,7 @@ impl<S, C> Pipeline<S, C> {
         let (d_deferred, d_rest) = d_params.split_at_mut(n_def);
         let (loss, outputs, deferred) = self.loss_parallel_split(params, rays, d_rest, chunk, extra);
         if n_def > 0 {
-            self.sdf.apply_deferred(&deferred.parts(), d_deferred);
+            deferred.apply(&self.sdf, d_deferred);
         }
         (loss, outputs)
     }
@@ -325,7 +354,7 @@ impl<S, C> Pipeline<S, C> {
         });
         // Back to the workers' pools (not the calling thread's).
         grads.into_par_iter().for_each(drop);
-        (loss, outputs, DeferredGradient { records })
+        (loss, outputs, DeferredGradient { records, tangent: self.config.normals == NormalScheme::Analytic })
     }
 
     /// SDF values (first output of the SDF network) at `points` (xyz rows), in parallel chunks.
@@ -454,6 +483,21 @@ impl<S, C> Pipeline<S, C> {
         let mut sdf_out = Buf::<R>::zeroed(sdf_rows * n_out);
         let mut sdf_ctx = Buf::<R>::zeroed(sdf_rows * self.sdf.ctx_per_row());
         self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
+        // Analytic normals: the derivatives of the outputs along x, y, z at every point
+        // (rows × 3 × n_out; the SDF's are ∇ₓS).
+        let analytic = self.config.normals == NormalScheme::Analytic;
+        debug_assert!(!analytic || self.sdf.has_tangents(), "analytic normals need an SDF network with tangents");
+        let gradients = analytic.then(|| {
+            let mut axes = Buf::<R>::zeroed(sdf_rows * 9);
+            for row in axes.chunks_exact_mut(9) {
+                row[0] = R::ONE;
+                row[4] = R::ONE;
+                row[8] = R::ONE;
+            }
+            let mut out = Buf::<R>::zeroed(sdf_rows * 3 * n_out);
+            self.sdf.forward_tangents(p_sdf, &points, &sdf_ctx, 3, &axes, &mut out);
+            out
+        });
 
         // Normals and colour-network inputs [x, n, SH(d), features] of every interval.
         let mut normals: Vec<[R; 3]> = Vec::with_capacity(col_rows);
@@ -466,14 +510,19 @@ impl<S, C> Pipeline<S, C> {
             sh.forward(&[], &ray.direction, &mut sh_d, &mut []);
             sh_all.push(sh_d);
             for i in 0..n {
-                let mut g = [R::ZERO; 3];
-                for (j, (offset, w)) in probes.iter().enumerate() {
-                    let v = sdf_out[(b + n + 1 + np * i + j) * n_out];
-                    for k in 0..3 {
-                        g[k] += R::of(offset[k] * w) * v;
+                let nrm = match &gradients {
+                    Some(grad) => [0, 1, 2].map(|k| grad[((b + i) * 3 + k) * n_out]),
+                    None => {
+                        let mut g = [R::ZERO; 3];
+                        for (j, (offset, w)) in probes.iter().enumerate() {
+                            let v = sdf_out[(b + n + 1 + np * i + j) * n_out];
+                            for k in 0..3 {
+                                g[k] += R::of(offset[k] * w) * v;
+                            }
+                        }
+                        g.map(|v| v / h)
                     }
-                }
-                let nrm = g.map(|v| v / h);
+                };
                 normals.push(nrm);
                 let row = &mut color_in[(c0 + i) * c_in..(c0 + i + 1) * c_in];
                 row[..3].copy_from_slice(&points[3 * (b + i)..3 * (b + i) + 3]);
@@ -555,7 +604,7 @@ impl<S, C> Pipeline<S, C> {
             let curv_w = R::of(self.config.curvature_weight) / R::of(n as f64);
             let c_probe: f64 = probes.iter().map(|(o, _)| o[0] * o[0]).sum();
             let lap_den = h * h * R::of(c_probe * 0.5);
-            if self.config.curvature_weight > 0.0 {
+            if self.config.curvature_weight > 0.0 && np > 0 {
                 for i in 0..n {
                     let mut lap = -R::of(np as f64) * sdf_values[i];
                     for j in 0..np {
@@ -663,6 +712,34 @@ impl<S, C> Pipeline<S, C> {
                 }
                 d_sdf_out[(b + i) * n_out] -= R::of(np as f64) * d_lap;
             }
+        }
+        if analytic {
+            // L depends on nᵢ = ∇ₓS(xᵢ) through vᵢ = ∂L/∂nᵢ, and vᵢ·δnᵢ = δ(∂S/∂x · vᵢ): the
+            // derivative of S along vᵢ, with adjoint 1, whatever vᵢ's length.
+            let mut v = Buf::<R>::zeroed(3 * sdf_rows);
+            let mut d_tangent_out = Buf::<R>::zeroed(sdf_rows * n_out);
+            for (r, ray) in rays.iter().enumerate() {
+                let n = ray.depths.len() - 1;
+                let (b, c0) = (sdf_at[r], col_at[r]);
+                for i in 0..n {
+                    let row = &d_color_in[(c0 + i) * c_in..(c0 + i + 1) * c_in];
+                    for k in 0..3 {
+                        v[3 * (b + i) + k] = row[3 + k] + d_normals_all[c0 + i][k];
+                    }
+                    d_tangent_out[(b + i) * n_out] = R::ONE;
+                }
+            }
+            if n_def == 0 {
+                self.sdf.backward_tangent(p_sdf, &points, &sdf_ctx, &v, &d_sdf_out, &d_tangent_out, d_sdf_params, None);
+                return (total, outputs, None);
+            }
+            let mut record = Buf::<R>::zeroed(2 * sdf_rows * self.sdf.deferred_width());
+            self.sdf.backward_tangent_deferring(p_sdf, &points, &sdf_ctx, &v, &d_sdf_out, &d_tangent_out, d_sdf_params, &mut record);
+            // The record's input: the points, then their tangents.
+            let mut points_and_tangents = Buf::<R>::zeroed(6 * sdf_rows);
+            points_and_tangents[..3 * sdf_rows].copy_from_slice(&points);
+            points_and_tangents[3 * sdf_rows..].copy_from_slice(&v);
+            return (total, outputs, Some((points_and_tangents, record)));
         }
         if n_def == 0 {
             self.sdf.backward(p_sdf, &points, &sdf_ctx, &d_sdf_out, d_sdf_params, None);

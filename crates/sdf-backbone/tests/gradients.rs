@@ -528,7 +528,7 @@ fn both_normal_schemes_recover_a_known_gradient() {
         hidden_activation: Activation::Identity,
         output_activation: Activation::Sigmoid,
     });
-    for normals in [NormalScheme::Central, NormalScheme::Tetrahedral] {
+    for normals in [NormalScheme::Central, NormalScheme::Tetrahedral, NormalScheme::Analytic] {
         let pipeline = Pipeline {
             sdf: mlp.clone(),
             color: color.clone(),
@@ -728,6 +728,141 @@ fn pipeline_is_finite_at_the_extremes() {
 /// in f64 on the hash tables and the MLPs, and bit-identical for 1 and 3 threads.
 #[test]
 fn hash_grid_pipeline_with_deferred_table_gradients_matches_finite_differences() {
+    check_hash_grid_pipeline(NormalScheme::Tetrahedral);
+}
+
+/// The same with analytic normals: the forward-mode derivatives through the hash grid and the
+/// MLP, and the reverse pass through them (deferred table records of values and tangents).
+#[test]
+fn analytic_normals_pipeline_gradients_match_finite_differences() {
+    check_hash_grid_pipeline(NormalScheme::Analytic);
+}
+
+/// Checks `d_params`, `d_input` and the adjoint of the input tangent of
+/// [`Module::backward_tangent`], and [`Module::forward_tangents`] itself, against central
+/// differences of L = Σ r ⊙ y(x) + Σ q ⊙ (∂y/∂x · v). Returns the largest relative error.
+fn tangent_check<M: Module<f64>>(module: &M, params: &[f64], rows: usize, check_input: bool, seed: u64) -> f64 {
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let (n_in, n_out) = (module.n_inputs(), module.n_outputs());
+    let input: Vec<f64> = (0..rows * n_in).map(|_| rng.random::<f64>() * 1.6 - 0.8).collect();
+    let v: Vec<f64> = (0..rows * n_in).map(|_| rng.random::<f64>() * 2.0 - 1.0).collect();
+    let r: Vec<f64> = (0..rows * n_out).map(|_| rng.random::<f64>() * 2.0 - 1.0).collect();
+    let q: Vec<f64> = (0..rows * n_out).map(|_| rng.random::<f64>() * 2.0 - 1.0).collect();
+    let run = |p: &[f64], x: &[f64], t: &[f64]| {
+        let mut out = vec![0.0; rows * n_out];
+        let mut ctx = vec![0.0; rows * module.ctx_per_row()];
+        module.forward(p, x, &mut out, &mut ctx);
+        let mut tangent = vec![0.0; rows * n_out];
+        module.forward_tangents(p, x, &ctx, 1, t, &mut tangent);
+        (out, tangent, ctx)
+    };
+    let loss = |p: &[f64], x: &[f64], t: &[f64]| {
+        let (out, tangent, _) = run(p, x, t);
+        out.iter().zip(&r).map(|(a, b)| a * b).sum::<f64>() + tangent.iter().zip(&q).map(|(a, b)| a * b).sum::<f64>()
+    };
+    let rel = |a: f64, n: f64| (a - n).abs() / a.abs().max(n.abs()).max(1e-3);
+    let mut worst = 0.0f64;
+    let h = 1e-6;
+    // The tangent is the directional derivative of the outputs.
+    let (_, tangent, ctx) = run(params, &input, &v);
+    let shifted = |sign: f64| -> Vec<f64> { input.iter().zip(&v).map(|(x, d)| x + sign * h * d).collect() };
+    let (plus, minus) = (run(params, &shifted(1.0), &v).0, run(params, &shifted(-1.0), &v).0);
+    for i in 0..rows * n_out {
+        worst = worst.max(rel(tangent[i], (plus[i] - minus[i]) / (2.0 * h)));
+    }
+    // Three directions at once give the same as one at a time.
+    let axes: Vec<f64> = (0..rows).flat_map(|_| [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]).collect();
+    if n_in == 3 {
+        let mut three = vec![0.0; rows * 3 * n_out];
+        module.forward_tangents(params, &input, &ctx, 3, &axes, &mut three);
+        for row in 0..rows {
+            for k in 0..3 {
+                let e: Vec<f64> = (0..rows).flat_map(|_| [0, 1, 2].map(|j| if j == k { 1.0 } else { 0.0 })).collect();
+                let one = run(params, &input, &e).1;
+                for o in 0..n_out {
+                    worst = worst.max(rel(three[(row * 3 + k) * n_out + o], one[row * n_out + o]));
+                }
+            }
+        }
+    }
+    let mut d_params = vec![0.0; params.len()];
+    let (mut d_input, mut d_tangent) = (vec![0.0; input.len()], vec![0.0; input.len()]);
+    let d_in = check_input.then_some((&mut d_input[..], &mut d_tangent[..]));
+    module.backward_tangent(params, &input, &ctx, &v, &r, &q, &mut d_params, d_in);
+    for i in 0..params.len() {
+        let (mut p, mut m) = (params.to_vec(), params.to_vec());
+        p[i] += h;
+        m[i] -= h;
+        worst = worst.max(rel(d_params[i], (loss(&p, &input, &v) - loss(&m, &input, &v)) / (2.0 * h)));
+    }
+    if check_input {
+        for i in 0..input.len() {
+            let (mut p, mut m) = (input.clone(), input.clone());
+            p[i] += h;
+            m[i] -= h;
+            worst = worst.max(rel(d_input[i], (loss(params, &p, &v) - loss(params, &m, &v)) / (2.0 * h)));
+            let (mut p, mut m) = (v.clone(), v.clone());
+            p[i] += h;
+            m[i] -= h;
+            worst = worst.max(rel(d_tangent[i], (loss(params, &input, &p) - loss(params, &input, &m)) / (2.0 * h)));
+        }
+    }
+    worst
+}
+
+#[test]
+fn mlp_tangents_and_their_backward_match_finite_differences() {
+    for skip in [None, Some(2)] {
+        let mlp = Mlp::new(MlpConfig {
+            n_inputs: 5,
+            width: 7,
+            hidden_layers: 3,
+            n_outputs: 4,
+            skip,
+            hidden_activation: Activation::Softplus { beta: 10.0 },
+            output_activation: Activation::Identity,
+        });
+        let params = random_params(Module::<f64>::n_params(&mlp), 0.6, 21);
+        let worst = tangent_check(&mlp, &params, 6, true, 22);
+        assert!(worst < 1e-6, "skip {skip:?}: relative error {worst:e}");
+    }
+    // Inputs of three (the SDF's) also check three directions at once.
+    let mlp = Mlp::new(MlpConfig {
+        n_inputs: 3,
+        width: 6,
+        hidden_layers: 2,
+        n_outputs: 2,
+        skip: None,
+        hidden_activation: Activation::Softplus { beta: 10.0 },
+        output_activation: Activation::Identity,
+    });
+    let params = random_params(Module::<f64>::n_params(&mlp), 0.6, 23);
+    assert!(tangent_check(&mlp, &params, 5, true, 24) < 1e-6);
+    let sigmoid = Mlp::new(MlpConfig { hidden_activation: Activation::Sigmoid, ..mlp.config().clone() });
+    assert!(!Module::<f64>::has_tangents(&sigmoid), "act'' of a sigmoid is not known from act'");
+}
+
+#[test]
+fn hash_grid_network_tangents_and_their_backward_match_finite_differences() {
+    let grid = HashGrid::new(HashGridConfig { levels: 3, features: 2, log2_table: 6, base_resolution: 2, finest_resolution: 9 });
+    let mlp = Mlp::new(MlpConfig {
+        n_inputs: 3 + 6,
+        width: 6,
+        hidden_layers: 1,
+        n_outputs: 3,
+        skip: None,
+        hidden_activation: Activation::Softplus { beta: 10.0 },
+        output_activation: Activation::Identity,
+    });
+    let net = Chain { a: WithInput { encoding: grid }, b: mlp };
+    assert!(Module::<f64>::has_tangents(&net));
+    let params = random_params(Module::<f64>::n_params(&net), 0.5, 31);
+    let worst = tangent_check(&net, &params, 9, false, 32);
+    assert!(worst < 1e-6, "relative error {worst:e}");
+    assert!(!Module::<f64>::has_tangents(&PositionalEncoding { frequencies: 2 }), "no tangents through the positional encoding");
+}
+
+fn check_hash_grid_pipeline(normals: NormalScheme) {
     let grid = HashGrid::new(HashGridConfig { levels: 3, features: 2, log2_table: 8, base_resolution: 2, finest_resolution: 12 });
     let sdf_mlp = Mlp::new(MlpConfig {
         n_inputs: 3 + 6,
@@ -756,7 +891,7 @@ fn hash_grid_pipeline_with_deferred_table_gradients_matches_finite_differences()
             eikonal_weight: 0.1,
             mask_weight: 0.1,
             normal_step: 1e-2,
-            normals: NormalScheme::Tetrahedral,
+            normals,
             curvature_weight: 0.0,
             background: [0.2; 3],
             masked_color: true,
@@ -798,7 +933,13 @@ fn hash_grid_pipeline_with_deferred_table_gradients_matches_finite_differences()
         worst = worst.max(rel);
     }
     assert!(checked > 200, "only {checked} parameters have a gradient");
-    assert!(worst <= 1e-5, "relative error {worst:e}");
+    assert!(worst <= 1e-5, "{normals:?}: relative error {worst:e}");
+    // The sequential loss gives the same gradient (up to the order of additions).
+    let mut sequential = vec![0.0; n];
+    pipeline.loss(&params, &rays, Some(&mut sequential), &TestSampleLoss);
+    for (a, b) in sequential.iter().zip(&grads) {
+        assert!((a - b).abs() <= 1e-12 * a.abs().max(b.abs()).max(1.0), "{normals:?}: sequential {a} vs parallel {b}");
+    }
     for threads in [1, 3] {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         let mut g = vec![0.0; n];

@@ -263,27 +263,10 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
         }
     }
     fn tangent_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
-        // Each record is two blocks (output adjoints, tangent adjoints): strip the raw input's
-        // columns from both.
-        let halves: Vec<(crate::scratch::Buf<R>, crate::scratch::Buf<R>)> = parts
-            .iter()
-            .map(|(_, record)| {
-                let (a, b) = record.split_at(record.len() / 2);
-                let inner = self.encoding_parts(&[(&[][..], a), (&[][..], b)]);
-                let mut it = inner.into_iter();
-                (it.next().expect("two halves"), it.next().expect("two halves"))
-            })
-            .collect();
-        let joined: Vec<crate::scratch::Buf<R>> = halves
-            .iter()
-            .map(|(a, b)| {
-                let mut j = crate::scratch::Buf::<R>::zeroed(a.len() + b.len());
-                j[..a.len()].copy_from_slice(a);
-                j[a.len()..].copy_from_slice(b);
-                j
-            })
-            .collect();
-        let inner: Vec<(&[R], &[R])> = parts.iter().zip(&joined).map(|((input, _), d)| (*input, &d[..])).collect();
+        // Each record is two blocks of rows (output adjoints, then tangent adjoints), so dropping
+        // the raw input's columns row by row drops them from both.
+        let inner = self.encoding_parts(parts);
+        let inner: Vec<(&[R], &[R])> = parts.iter().zip(&inner).map(|((input, _), d)| (*input, &d[..])).collect();
         self.encoding.tangent_parts_block(&inner, block, d_block);
     }
 }

@@ -268,29 +268,8 @@ impl<R: Real> Module<R> for HashGrid {
 /// vectorisation across points: no branches, no float → int conversion.
 #[inline(always)]
 fn corner_weights<R: Real, const DENSE: bool>(p: &[R], n: u32, mask: u32) -> ([u32; 8], [R; 8]) {
-    let scale = R::of(f64::from(n) * 0.5);
-    let (nf, last) = (R::of(f64::from(n)), R::of(f64::from(n) - 1.0));
-    let mut cell = [0u32; 3];
-    let mut fr = [R::ZERO; 3];
-    for d in 0..3 {
-        let q = ((p[d] + R::ONE) * scale).max(R::ZERO).min(nf);
-        // The last cell is closed: q = N is its far face (frac = 1).
-        let c = q.floor().min(last);
-        cell[d] = c.small_index();
-        fr[d] = q - c;
-    }
-    let n1 = n + 1;
-    let mut idx = [0u32; 8];
-    let mut w = [R::ZERO; 8];
-    for c in 0..8u32 {
-        let (bx, by, bz) = (c & 1, (c >> 1) & 1, (c >> 2) & 1);
-        let (ix, iy, iz) = (cell[0] + bx, cell[1] + by, cell[2] + bz);
-        idx[c as usize] = if DENSE { ix + n1 * (iy + n1 * iz) } else { (ix ^ iy.wrapping_mul(2_654_435_761) ^ iz.wrapping_mul(805_459_861)) & mask };
-        let wx = if bx == 1 { fr[0] } else { R::ONE - fr[0] };
-        let wy = if by == 1 { fr[1] } else { R::ONE - fr[1] };
-        let wz = if bz == 1 { fr[2] } else { R::ONE - fr[2] };
-        w[c as usize] = wx * wy * wz;
-    }
+    // The gradients are dead code here and compiled away after inlining.
+    let (idx, w, _) = corner_gradients::<R, DENSE>(p, n, mask);
     (idx, w)
 }
 

@@ -222,13 +222,7 @@ impl<R: Real> Module<R> for Mlp {
                     let (head, rest) = ctx[at..].split_at_mut(rows * ip);
                     let (d, next) = rest.split_at_mut(rows * op);
                     let a = &*head;
-                    let (act, scale) = if l == last {
-                        (self.config.output_activation, R::ONE)
-                    } else if self.config.skip == Some(l + 1) {
-                        (self.config.hidden_activation, inv_sqrt2)
-                    } else {
-                        (self.config.hidden_activation, R::ONE)
-                    };
+                    let (act, scale) = self.layer_activation::<R>(l);
                     if l == last {
                         // Into a padded temporary, then the unpadded output.
                         let mut y = Buf::<R>::zeroed(rows * op);

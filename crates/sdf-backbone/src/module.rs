@@ -90,7 +90,9 @@ pub trait Module<R: Real>: Sync {
 
     // Forward-mode derivatives with respect to the input (analytic normals ∇ₓS), and the
     // reverse pass through them. A module without them says so with `has_tangents` = false (the
-    // default; the pipeline refuses analytic normals then) and the other methods do nothing.
+    // default), and the other methods then do nothing: callers check `has_tangents` first (the
+    // trainer's configuration refuses analytic normals for such networks; the pipeline asserts it
+    // in debug builds).
 
     /// Whether [`Module::forward_tangents`] and the tangent backward passes are implemented.
     fn has_tangents(&self) -> bool {

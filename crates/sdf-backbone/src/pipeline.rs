@@ -169,14 +169,6 @@ impl<R: Real> DeferredGradient<R> {
     }
 }
 
-impl<R: Real> Drop for DeferredGradient<R> {
-    fn drop(&mut self) {
-        use rayon::prelude::*;
-        // Back to the workers' pools (not the calling thread's).
-        std::mem::take(&mut self.records).into_par_iter().for_each(drop);
-    }
-}
-
 /// A chunk's loss, gradient (all but the deferred parameters), outputs and deferred record.
 type Part<R> = (R, Buf<R>, Vec<RayOutput<R>>, Deferred<R>);
 
@@ -352,8 +344,6 @@ impl<S, C> Pipeline<S, C> {
                 }
             }
         });
-        // Back to the workers' pools (not the calling thread's).
-        grads.into_par_iter().for_each(drop);
         (loss, outputs, DeferredGradient { records, tangent: self.config.normals == NormalScheme::Analytic })
     }
 

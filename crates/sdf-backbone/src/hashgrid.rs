@@ -176,8 +176,9 @@ impl<R: Real> Module<R> for HashGrid {
             },
         );
     }
+    /// For the feature counts the kernels are compiled for (1, 2, 4, 8: every preset's).
     fn has_tangents(&self) -> bool {
-        true
+        matches!(self.config.features, 1 | 2 | 4 | 8)
     }
     /// ∂(features)/∂x · ẋ = Σ_c (∇ₓw_c · ẋ) T[c]: the same 8 corners as the features, weighted by
     /// the trilinear weights' gradients (zero outside the grid, where inputs are clamped).
@@ -207,21 +208,8 @@ impl<R: Real> Module<R> for HashGrid {
                         2 => run!(2),
                         4 => run!(4),
                         8 => run!(8),
-                        _ => {
-                            for (r, x) in input.chunks_exact(3).enumerate() {
-                                let (idx, _, dw) = self.corners(level, x);
-                                for j in 0..k {
-                                    let t = &tangents_in[3 * (r * k + j)..3 * (r * k + j) + 3];
-                                    let out = &mut tangents_out[(r * k + j) * n_out + level * f..(r * k + j) * n_out + (level + 1) * f];
-                                    for c in 0..8 {
-                                        let s = dw[c][0] * t[0] + dw[c][1] * t[1] + dw[c][2] * t[2];
-                                        for q in 0..f {
-                                            out[q] = s.mul_add(table[idx[c] * f + q], out[q]);
-                                        }
-                                    }
-                                }
-                            }
-                        }
+                        // Other feature counts have no tangents (`has_tangents`).
+                        _ => {}
                     }
                 }
             },
@@ -506,20 +494,8 @@ impl HashGrid {
                     2 => run!(2),
                     4 => run!(4),
                     8 => run!(8),
-                    _ => {
-                        for (r, x) in input.chunks_exact(3).enumerate() {
-                            let (idx, w, dw) = self.corners(level, x);
-                            let t = &v[3 * r..3 * r + 3];
-                            let dy = &d_output[r * n_out + level * f..r * n_out + (level + 1) * f];
-                            let dt = &d_tangent_out[r * n_out + level * f..r * n_out + (level + 1) * f];
-                            for c in 0..8 {
-                                let s = dw[c][0] * t[0] + dw[c][1] * t[1] + dw[c][2] * t[2];
-                                for q in 0..f {
-                                    d_table[idx[c] * f + q] += w[c] * dy[q] + s * dt[q];
-                                }
-                            }
-                        }
-                    }
+                    // Other feature counts have no tangents (`has_tangents`).
+                    _ => {}
                 }
             },
         );

@@ -191,11 +191,7 @@ fn preset_figures(preset: Preset, reps: usize, gemm_best: f64) -> Vec<Value> {
         // Forward 2·MACs, backward 4·MACs (input and weight gradients) per SDF row: 1 + probes
         // rows per sample. Analytic normals: forward 2 (values) + 3·2 (tangents along x, y, z),
         // backward 2 (the tangent along ∂L/∂n) + 2·4 (values and tangents): 18 MACs, as 3 rows.
-        let sdf_rows_per_sample = match normals {
-            NormalScheme::Tetrahedral => 5,
-            NormalScheme::Central => 7,
-            NormalScheme::Analytic => 3,
-        };
+        let sdf_rows_per_sample = if normals == NormalScheme::Analytic { 3 } else { 1 + normals.probe_count() };
         let flop_per_sample = 6.0 * (sdf_rows_per_sample as f64 * sdf_macs + color_macs);
         let sdf_rows = n_rays * (sdf_rows_per_sample * n_samples + 1);
         let t_mlp = time_mlp(&sdf_mlp, &params[layout.sdf_mlp.clone()], sdf_rows)

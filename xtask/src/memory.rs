@@ -86,7 +86,7 @@ impl MemoryEstimate {
 
 /// Bytes of one work item's forward + backward buffers for `rays` rays of `samples` intervals.
 fn work_item_bytes(backbone: &Backbone, rays: usize, samples: usize, backward: bool) -> f64 {
-    let probes = probes(backbone);
+    let probes = backbone.config.normals.probe_count();
     let sdf_rows = (rays * ((probes + 1) * samples + 1)) as f64;
     let col_rows = (rays * samples) as f64;
     let sdf_out = Module::<f32>::n_outputs(&backbone.sdf) as f64;
@@ -108,15 +108,6 @@ fn work_item_bytes(backbone: &Backbone, rays: usize, samples: usize, backward: b
     F32 * (forward + backward + tangents)
 }
 
-/// Probe rows per sample of the normals.
-fn probes(backbone: &Backbone) -> usize {
-    match backbone.config.normals {
-        NormalScheme::Tetrahedral => 4,
-        NormalScheme::Central => 6,
-        NormalScheme::Analytic => 0,
-    }
-}
-
 /// The memory model of `config` with `backbone` on a scene of `views` views and `pixel_bytes`
 /// of images, with `threads` worker threads.
 pub fn estimate(config: &TrainConfig, backbone: &Backbone, n_params: usize, views: usize, pixel_bytes: usize, threads: usize) -> MemoryEstimate {
@@ -125,7 +116,7 @@ pub fn estimate(config: &TrainConfig, backbone: &Backbone, n_params: usize, view
     let tables = backbone.layout().encoding.len() as f64;
     let samples = config.render.coarse + config.render.fine;
     let chunks = config.render.rays.div_ceil(config.render.chunk) as f64;
-    let rows_per_chunk = (config.render.chunk * ((probes(backbone) + 1) * samples + 1)) as f64;
+    let rows_per_chunk = (config.render.chunk * ((backbone.config.normals.probe_count() + 1) * samples + 1)) as f64;
     // Analytic normals record the tangents too: twice the width, twice the points.
     let twice = if backbone.config.normals == NormalScheme::Analytic { 2.0 } else { 1.0 };
     let record = twice * (Module::<f32>::deferred_width(&backbone.sdf) as f64 + 3.0);

@@ -263,13 +263,7 @@ impl<R: Real> Module<R> for Mlp {
             return;
         }
         let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
-        // Block offsets of each layer's A and act'(Z) in the context.
-        let mut starts = Vec::with_capacity(self.layers.len());
-        let mut at = 0;
-        for &(n_in, n_out, _) in &self.layers {
-            starts.push((at, at + rows * pad(n_in)));
-            at += rows * (pad(n_in) + pad(n_out));
-        }
+        let starts = self.ctx_starts(rows);
         let mut d_input = d_input;
         crate::kernels::dispatch(
             #[inline(always)]

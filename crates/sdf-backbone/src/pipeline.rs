@@ -60,6 +60,11 @@ pub enum NormalScheme {
 }
 
 impl NormalScheme {
+    /// Extra SDF evaluations (probe rows) per sample: 6 central, 4 tetrahedral, 0 analytic.
+    pub fn probe_count(self) -> usize {
+        self.probes().len()
+    }
+
     /// Probe offsets (in units of the step h) and the weight of each probe in `nᵢ` per unit h.
     fn probes(self) -> &'static [([f64; 3], f64)] {
         const C: [([f64; 3], f64); 6] = [

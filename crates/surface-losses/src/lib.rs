@@ -16,7 +16,8 @@
 //! **What they buy (the ablation, BENCHMARKS.md):** at equal wall time (60 s; Spot, Bob and the
 //! built-in scene with backdrops and masks; 3 seeds each), the surface losses at weight 1 did not
 //! lower the Chamfer against weight 0 (L0): level on Spot and the built-in scene, 12 % higher on
-//! Bob (0.0131 ± 0.0005 vs 0.0117 ± 0.0005); uniform extra points (RU) were level too. The guided
+//! Bob (0.0131 ± 0.0005 vs 0.0117 ± 0.0005); uniform extra points (RU) and log-variance ones
+//! (`guide.extra=log`, 1.01× the default's mean Chamfer) were level too. The guided
 //! rays carry the gain in runs this short; the losses stay on (weight 1) as the paper's method,
 //! and `surface.weight=0` is one key away.
 //!

@@ -39,13 +39,14 @@ TorchInductor caches on disk between runs (/tmp/torchinductor_$USER): for a cold
 set `TORCHINDUCTOR_CACHE_DIR=$(mktemp -d)`. torch.compile cannot differentiate its own backward
 (double backward), so `autograd` / `compile` reports an error figure.
 
-The model (preset neuralangelo-cpu, 1 061 844 parameters):
+The model (preset neuralangelo-cpu, 799 414 parameters):
   * SDF network: [x, HashGrid(x)] (3 + 8·2 = 19) → 64 → 64 → 16 (SDF + 15 features), softplus
     β = 100 (linear where βz > 20). Hash grid: 8 levels × 2 features, 2^16 entries per level,
     resolutions ⌊16·b^l + 1e-9⌋ with b = 16^(1/7) (16, 23, 35, 52, 78, 115, 172, 256), dense
-    indexing where (N+1)³ ≤ 2^16 (the first three levels), else the
-    hash (i ^ j·2654435761 ^ k·805459861) mod 2^16 on u32; x ∈ [−1, 1] maps to p = (x+1)/2·N,
-    clamped to [0, N − 1e-6] (zero gradient where clamped); trilinear interpolation.
+    indexing where (N+1)³ ≤ 2^16 (the first three levels, whose tables hold their (N+1)³
+    vertices), else the hash (i ^ j·2654435761 ^ k·805459861) mod 2^16 on u32; x ∈ [−1, 1] maps
+    to p = (x+1)/2·N, clamped to [0, N] (zero gradient where clamped), its cell to N − 1;
+    trilinear interpolation.
   * Colour network: [x, n, SH₄(d), features] (3 + 3 + 16 + 15 = 37) → 64 → 64 → 3, ReLU, sigmoid.
   * Normals: central (6 probes x ± h e_k), tetrahedral (4 probes x + h v_j) with h = 1/256
     (1 / the finest resolution), or autograd (∇S by torch.autograd.grad with create_graph=True,
@@ -73,7 +74,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 PRESET = "neuralangelo-cpu"
-RUST_PARAMS = 1061844  # `cargo xtask bench backbone` for neuralangelo-cpu
+RUST_PARAMS = 799414  # `cargo xtask bench backbone` for neuralangelo-cpu
 GRID = dict(levels=8, features=2, log2_table=16, base_resolution=16, finest_resolution=256)
 SDF_HIDDEN = [64, 64]
 COLOUR_HIDDEN = [64, 64]
@@ -101,8 +102,8 @@ def log(*a):
 
 
 class HashGrid(nn.Module):
-    """hashgrid.rs `HashGrid`: L tables of T × F features (one (L·T, F) parameter, level-major as
-    the Rust flat buffer), output the L·F interpolated features, level-major."""
+    """hashgrid.rs `HashGrid`: L tables of min(T, (N_l + 1)³) × F features (one parameter, level
+    after level as the Rust flat buffer), output the L·F interpolated features, level-major."""
 
     P1, P2 = 2654435761, 805459861
 
@@ -116,15 +117,16 @@ class HashGrid(nn.Module):
         # Resolutions grow, so the dense levels are a prefix.
         self.n_dense = sum(self.dense)
         assert all(self.dense[: self.n_dense]) and not any(self.dense[self.n_dense :])
-        for n in self.resolutions[: self.n_dense]:
-            # Largest dense index, corner (n+1, n+1, n+1) of a clamped point (f32 can round
-            # N − 1e-6 up to N): must stay inside the level's table, as in Rust.
-            assert (n + 1) * (1 + (n + 1) + (n + 1) ** 2) < self.T
-        self.table = nn.Parameter(torch.empty(self.L * self.T, self.F).uniform_(-1e-4, 1e-4))
+        # A dense level's table holds its (N + 1)³ vertices (tiny-cuda-nn's layout, as in Rust).
+        sizes = [(n + 1) ** 3 if d else self.T for n, d in zip(self.resolutions, self.dense)]
+        offsets = np.concatenate([[0], np.cumsum(sizes)])
+        self.table = nn.Parameter(torch.empty(int(offsets[-1]), self.F).uniform_(-1e-4, 1e-4))
         res32 = np.array(self.resolutions, dtype=np.float32)
-        # Rust: R::of(n as f64 * 0.5) and R::of(n) − R::of(1e-6), both in f32.
+        # Rust: R::of(n as f64 * 0.5); p clamped to [0, N], its cell to N − 1 (the last cell is
+        # closed: p = N is its far face).
         self.register_buffer("scale", torch.from_numpy((res32 * np.float32(0.5)).reshape(1, -1, 1)), persistent=False)
-        self.register_buffer("upper", torch.from_numpy((res32 - np.float32(1e-6)).reshape(1, -1, 1)), persistent=False)
+        self.register_buffer("upper", torch.from_numpy(res32.reshape(1, -1, 1)), persistent=False)
+        self.register_buffer("last", torch.from_numpy((res32 - np.float32(1.0)).reshape(1, -1, 1)), persistent=False)
         self.register_buffer("lower", torch.zeros(1, self.L, 1), persistent=False)
         nd = torch.tensor([n + 1 for n in self.resolutions[: self.n_dense]], dtype=torch.int64)
         self.register_buffer("dense_stride", nd.reshape(1, -1), persistent=False)
@@ -134,7 +136,7 @@ class HashGrid(nn.Module):
             (bits[None, :, 0] + nd[:, None] * (bits[None, :, 1] + nd[:, None] * bits[None, :, 2])).reshape(1, -1, 8),
             persistent=False,
         )
-        self.register_buffer("level_base", (torch.arange(self.L, dtype=torch.int64) * self.T).reshape(1, -1, 1), persistent=False)
+        self.register_buffer("level_base", torch.from_numpy(offsets[:-1].astype(np.int64)).reshape(1, -1, 1), persistent=False)
         self.register_buffer("unit", torch.tensor([0, 1], dtype=torch.int64), persistent=False)
 
     def n_outputs(self):
@@ -144,7 +146,7 @@ class HashGrid(nn.Module):
         n = x.shape[0]
         raw = (x[:, None, :] + 1.0) * self.scale  # (N, L, 3)
         p = torch.clamp(raw, self.lower, self.upper)  # gradient 0 where clamped, as in Rust
-        cell = torch.floor(p)
+        cell = torch.minimum(torch.floor(p), self.last)
         frac = p - cell  # (floor has zero gradient)
         c = cell.to(torch.int64)
         idx = []

@@ -31,6 +31,17 @@ pub enum SamplerKind {
     Uniform,
 }
 
+/// How Adam stores the hash tables' moments.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MomentStorage {
+    /// f32, like every other parameter's.
+    #[default]
+    F32,
+    /// bf16 with stochastic rounding: half the memory of the moments (sdf-backbone `optim`).
+    Bf16,
+}
+
 /// Which connected components of the extracted mesh are kept.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -229,6 +240,9 @@ pub struct OptimConfig {
     pub schedule: LrSchedule,
     /// Clip the gradient's global norm (0: off).
     pub clip_norm: f64,
+    /// Storage of the hash tables' Adam moments: `f32` (default) or `bf16` (hash-grid presets;
+    /// paper-scale Neuralangelo then fits a step in 4 GB).
+    pub table_moments: MomentStorage,
 }
 
 /// The probability-guided sampler (the paper's knobs and ablation switches).
@@ -353,7 +367,7 @@ impl Default for RenderConfig {
 
 impl Default for OptimConfig {
     fn default() -> Self {
-        OptimConfig { lr: 5e-3, lr_grid: 1e-2, schedule: LrSchedule::default(), clip_norm: 0.0 }
+        OptimConfig { lr: 5e-3, lr_grid: 1e-2, schedule: LrSchedule::default(), clip_norm: 0.0, table_moments: MomentStorage::F32 }
     }
 }
 
@@ -535,6 +549,12 @@ impl TrainConfig {
         need(non_neg(self.optim.lr_grid), "optim.lr_grid", self.optim.lr_grid, "≥ 0")?;
         self.optim.schedule.validate().map_err(|e| anyhow::anyhow!("optim.schedule.{e}"))?;
         need(non_neg(self.optim.clip_norm), "optim.clip_norm", self.optim.clip_norm, "≥ 0")?;
+        need(
+            self.optim.table_moments == MomentStorage::F32 || matches!(self.model.preset, Preset::NeuralangeloCpu | Preset::Neuralangelo),
+            "model.preset",
+            self.model.preset.name(),
+            "a hash-grid preset (neuralangelo-cpu, neuralangelo) with optim.table_moments = \"bf16\"",
+        )?;
         need(self.guide.updates >= 1, "guide.updates", self.guide.updates, "≥ 1")?;
         self.guide.scene.validate().map_err(|e| anyhow::anyhow!("guide.scene: {e}"))?;
         self.guide.camera.validate().map_err(|e| anyhow::anyhow!("guide.camera: {e}"))?;
@@ -660,11 +680,16 @@ mod tests {
             ("guide.camera.view_dependency=sometimes", "sometimes"),
             ("output.mesh_formats=[\"stl\"]", "stl"),
             ("optim.schedule.warmup=1.5", "optim.schedule.warmup"),
+            ("optim.table_moments=f16", "f16"),
             ("steps", "key=value"),
         ] {
             let err = TrainConfig::load(None, &[o.into()]).unwrap_err();
             assert!(format!("{err:#}").contains(expect), "{o}: {err:#}");
         }
+        // bf16 moments are for hash tables.
+        let err = TrainConfig::load(None, &["model.preset=\"neus-cpu\"".into(), "optim.table_moments=\"bf16\"".into()]).unwrap_err();
+        assert!(format!("{err:#}").contains("optim.table_moments"), "{err:#}");
+        assert_eq!(TrainConfig::load(None, &["optim.table_moments=\"bf16\"".into()]).unwrap().optim.table_moments, MomentStorage::Bf16);
         let dir = tempfile::tempdir().unwrap();
         let file = dir.path().join("bad.toml");
         std::fs::write(&file, "[render]\nrayz = 5\n").unwrap();

@@ -70,7 +70,14 @@ impl MemoryEstimate {
     /// What to change to bring the peak under `limit`, largest part first.
     pub fn advice(&self, config: &TrainConfig) -> String {
         let mut parts = [
-            (self.parameters, format!("model.preset (now {}; neuralangelo-cpu needs ~13 MB)", config.model.preset.name())),
+            (
+                self.parameters,
+                format!(
+                    "model.preset (now {}; neuralangelo-cpu needs ~10 MB) or, for a hash-grid preset, optim.table_moments = \"bf16\" (now {})",
+                    config.model.preset.name(),
+                    format!("{:?}", config.optim.table_moments).to_lowercase()
+                ),
+            ),
             (
                 self.step,
                 format!("render.rays (now {}), render.chunk (now {}), or fewer threads (RAYON_NUM_THREADS)", config.render.rays, config.render.chunk),
@@ -120,10 +127,11 @@ pub fn estimate(config: &TrainConfig, backbone: &Backbone, n_params: usize, view
     // Analytic normals record the tangents too: twice the width, twice the points.
     let twice = if backbone.config.normals == NormalScheme::Analytic { 2.0 } else { 1.0 };
     let record = twice * (Module::<f32>::deferred_width(&backbone.sdf) as f64 + 3.0);
-    let levels = backbone.levels().unwrap_or(1) as f64;
+    // The table update's buffer: one level's gradient per thread (the largest level's).
+    let level = (0..Module::<f32>::deferred_blocks(&backbone.sdf)).map(|b| Module::<f32>::deferred_block_range(&backbone.sdf, b).len()).max().unwrap_or(0) as f64;
     // Every work item's gradient (without the tables) and table record live until the sum.
     let batch = chunks * F32 * ((n - tables) + rows_per_chunk * record);
-    let step = batch + t * work_item_bytes(backbone, config.render.chunk, samples, true) + t * F32 * tables / levels + F32 * (n - tables);
+    let step = batch + t * work_item_bytes(backbone, config.render.chunk, samples, true) + t * F32 * level + F32 * (n - tables);
     // Evaluation renders: work items of 64 rays, forward only, one per thread.
     let evaluation = t * work_item_bytes(backbone, 64, samples, false);
     // Meshing: a block of 17³ corners per thread through the SDF network (chunks of 1024
@@ -139,7 +147,12 @@ pub fn estimate(config: &TrainConfig, backbone: &Backbone, n_params: usize, view
     // threshold (32 MiB on 64-bit Linux).
     let sdf_ctx_bytes = F32 * rows_per_chunk * Module::<f32>::ctx_per_row(&backbone.sdf) as f64;
     let step_retained = sdf_ctx_bytes < 32.0 * 1024.0 * 1024.0;
-    MemoryEstimate { parameters: 3.0 * F32 * n, images: pixel_bytes as f64, guide, step, evaluation, meshing, step_retained }
+    // Parameters in f32; Adam's two moments in f32, or bf16 for the tables (`optim.table_moments`).
+    let moments = match config.optim.table_moments {
+        crate::config::MomentStorage::F32 => 2.0 * F32 * n,
+        crate::config::MomentStorage::Bf16 => 2.0 * F32 * (n - tables) + 2.0 * 2.0 * tables,
+    };
+    MemoryEstimate { parameters: F32 * n + moments, images: pixel_bytes as f64, guide, step, evaluation, meshing, step_retained }
 }
 
 /// The memory the kernel says is available for new work (`MemAvailable`), in bytes.

@@ -27,7 +27,7 @@
 //! bounded by steps (deterministic: the same bits for any thread count, and a resumed run equals
 //! an uninterrupted one) or by a time budget (the schedules follow the fraction of time spent).
 
-use crate::config::{MeshFilter, SamplerKind, TrainConfig};
+use crate::config::{MeshFilter, MomentStorage, SamplerKind, TrainConfig};
 use crate::data::{SceneData, ViewSplit, uses_masks};
 use crate::outputs::{ViewRender, filter_components, heat_map};
 use crate::rays::{Batch, Sampling, build_batch, pixel_ray};
@@ -167,7 +167,10 @@ impl Trainer {
         let (backbone, params) = configured_backbone(&config, use_masks);
         let cameras = split.train.iter().map(|&i| data.scene.views[i].camera).collect();
         let estimator = Estimator::new(cameras, estimator_config(&config)).context("the guide's configuration")?;
-        let mut adam = Adam::new(params.len());
+        let mut adam = match config.optim.table_moments {
+            MomentStorage::F32 => Adam::new(params.len()),
+            MomentStorage::Bf16 => Adam::with_compact_prefix(params.len(), backbone.layout().encoding.len()),
+        };
         adam.epsilon = 1e-15;
         let state = TrainState { step: 0, params, adam, update_part: None, lipschitz: 1.5, train_seconds: 0.0 };
         Ok(Trainer {

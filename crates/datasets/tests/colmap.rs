@@ -753,11 +753,10 @@ fn write_colmap_fixture_inputs() {
     let dtu = shared_data("dtu_scan24").expect("DTU scan 24");
     let dtu_out = out.join("dtu_scan24_800/images");
     std::fs::create_dir_all(&dtu_out).unwrap();
+    // Read as the loaders read them (area average, then the mask threshold).
     for entry in std::fs::read_dir(dtu.join("image")).unwrap() {
         let path = entry.unwrap().path();
-        let img = image::open(&path).unwrap().into_rgb8();
-        let (w, h) = img.dimensions();
-        let rgb = RgbImage { width: w, height: h, data: img.into_raw() }.downscaled(2);
+        let (rgb, _) = datasets::parse::image(&std::fs::read(&path).unwrap(), &path, 2, [0.0; 3]).unwrap();
         rgb.save_png(&dtu_out.join(path.file_name().unwrap())).unwrap();
     }
     // The masks alike, under the images' names (for `import colmap --masks`).
@@ -765,12 +764,7 @@ fn write_colmap_fixture_inputs() {
     std::fs::create_dir_all(&masks_out).unwrap();
     for entry in std::fs::read_dir(dtu.join("mask")).unwrap() {
         let path = entry.unwrap().path();
-        let grey = image::open(&path).unwrap().into_luma8();
-        let (w, h) = grey.dimensions();
-        let mut mask = Mask::new(w, h);
-        for (i, v) in grey.as_raw().iter().enumerate() {
-            mask.set(i as u32 % w, i as u32 / w, *v > 127);
-        }
-        mask.downscaled(2).save_png(&masks_out.join(path.file_name().unwrap())).unwrap();
+        let mask = datasets::parse::mask(&std::fs::read(&path).unwrap(), &path, 2).unwrap();
+        mask.save_png(&masks_out.join(path.file_name().unwrap())).unwrap();
     }
 }

@@ -95,6 +95,12 @@ impl<R: Real> Module<R> for InputEncoding {
             InputEncoding::Positional(_) => 1,
         }
     }
+    fn gradient_block_range(&self, block: usize) -> Range<usize> {
+        match self {
+            InputEncoding::HashGrid(g) => Module::<R>::gradient_block_range(g, block),
+            InputEncoding::Positional(p) => Module::<R>::gradient_block_range(p, block),
+        }
+    }
     fn backward_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
         match self {
             InputEncoding::HashGrid(g) => g.backward_parts_block(parts, block, d_block),
@@ -421,8 +427,8 @@ pub struct StepRates {
 impl Backbone {
     /// One training step on `rays`: the loss and its gradient ([`Pipeline::loss_parallel_split`]),
     /// then Adam, the hash tables updated one level at a time from their deferred gradient (no
-    /// gradient buffer the size of the tables: paper-scale Neuralangelo's 537 M table entries
-    /// need only their parameters and Adam's moments). The same update as a dense gradient and
+    /// gradient buffer the size of the tables: paper-scale Neuralangelo's 365 M table parameters
+    /// need only themselves and Adam's moments). The same update as a dense gradient and
     /// [`adam_step`] (tested); the same bits for any thread count. Returns the loss and the
     /// per-ray outputs.
     pub fn train_step(
@@ -441,15 +447,20 @@ impl Backbone {
         debug_assert!(n_def == 0 || n_def == layout.encoding.len(), "the encoding's parameters are deferred whole");
         let mut rest = crate::scratch::Buf::<f32>::zeroed(n - n_def);
         let (loss, outputs, deferred) = self.loss_parallel_split(params, rays, &mut rest, chunk, extra);
-        let blocks = Module::<f32>::deferred_blocks(&self.sdf).max(1);
-        let block_len = n_def / blocks;
+        // The table blocks (levels; dense coarse levels are smaller than hashed ones).
+        let blocks: Vec<Range<usize>> = if n_def > 0 {
+            (0..Module::<f32>::deferred_blocks(&self.sdf).max(1)).map(|b| Module::<f32>::deferred_block_range(&self.sdf, b)).collect()
+        } else {
+            Vec::new()
+        };
         // The global norm for clipping (a first pass over the table blocks).
         let mut scale = 1.0f32;
         if let Some(max) = rates.clip_norm {
-            let tables: f64 = (0..if n_def > 0 { blocks } else { 0 })
-                .into_par_iter()
-                .map(|b| {
-                    let mut g = crate::scratch::Buf::<f32>::zeroed(block_len);
+            let tables: f64 = blocks
+                .par_iter()
+                .enumerate()
+                .map(|(b, range)| {
+                    let mut g = crate::scratch::Buf::<f32>::zeroed(range.len());
                     deferred.apply_block(&self.sdf, b, &mut g);
                     g.iter().map(|x| f64::from(*x) * f64::from(*x)).sum::<f64>()
                 })
@@ -464,8 +475,8 @@ impl Backbone {
         }
         let step = adam.begin_step();
         let (p_tables, p_rest) = params.split_at_mut(n_def);
-        let (m_tables, m_rest) = adam.m.split_at_mut(n_def);
-        let (v_tables, v_rest) = adam.v.split_at_mut(n_def);
+        // The tables' moments may be bf16 (`Adam::with_compact_prefix`), the rest's are f32.
+        let (m_tables, m_rest, v_rest) = adam.split_moments(n_def);
         // Parameters after the tables: the encoding's own (none when deferred) at the table rate.
         let enc_rest = layout.encoding.len() - n_def;
         let (pe, pr) = p_rest.split_at_mut(enc_rest);
@@ -476,14 +487,16 @@ impl Backbone {
         if n_def > 0 {
             // Each level: its gradient from the records (a scatter that reads no parameter), then
             // Adam on that level alone.
-            p_tables.par_chunks_mut(block_len).zip(m_tables.par_chunks_mut(block_len)).zip(v_tables.par_chunks_mut(block_len)).enumerate().for_each(
-                |(b, ((p, m), v))| {
-                    let mut g = crate::scratch::Buf::<f32>::zeroed(block_len);
+            let p_blocks = crate::module::split_blocks(p_tables, blocks.iter().cloned());
+            let m_blocks = m_tables.split_blocks(&blocks);
+            p_blocks.into_par_iter().zip(m_blocks).enumerate().for_each(
+                |(b, (p, moments))| {
+                    let mut g = crate::scratch::Buf::<f32>::zeroed(p.len());
                     deferred.apply_block(&self.sdf, b, &mut g);
                     if scale != 1.0 {
                         g.iter_mut().for_each(|x| *x *= scale);
                     }
-                    step.apply(p, m, v, &g, rates.tables);
+                    step.apply_moments(p, moments, &g, rates.tables, blocks[b].start);
                 },
             );
         }
@@ -580,18 +593,21 @@ mod tests {
             .collect();
         let layout = backbone.layout();
         let n = params.len();
-        for clip in [None, Some(1e-3)] {
+        // bf16 table moments too: the level-by-level update and the dense one round alike.
+        for (clip, compact) in [(None, false), (Some(1e-3), false), (None, true)] {
             let rates = StepRates { tables: 1e-2, rest: 5e-3, clip_norm: clip };
-            let (mut fused, mut adam_f) = (params.clone(), Adam::new(n));
+            let adam = || if compact { Adam::with_compact_prefix(n, layout.encoding.len()) } else { Adam::new(n) };
+            let (mut fused, mut adam_f) = (params.clone(), adam());
             let (lf, _) = backbone.train_step(&mut fused, &mut adam_f, &rays, 8, &crate::pipeline::NoSampleLoss, rates);
-            let (mut dense, mut adam_d) = (params.clone(), Adam::new(n));
+            let (mut dense, mut adam_d) = (params.clone(), adam());
             let mut grads = vec![0.0f32; n];
             let (ld, _) = backbone.loss_parallel(&dense, &rays, &mut grads, 8, &crate::pipeline::NoSampleLoss);
             adam_step(&mut adam_d, &mut dense, &mut grads, &[(layout.encoding.clone(), 1e-2), (layout.encoding.end..n, 5e-3)], clip);
             assert_eq!(lf, ld);
             let worst = fused.iter().zip(&dense).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
-            assert!(worst <= 1e-7, "clip {clip:?}: parameters differ by {worst}");
+            assert!(worst <= 1e-7, "clip {clip:?}, compact {compact}: parameters differ by {worst}");
             assert_eq!(adam_f.step, adam_d.step);
+            assert_eq!(adam_f.compact.as_ref().map(|c| &c.v), adam_d.compact.as_ref().map(|c| &c.v));
         }
     }
 

@@ -1,5 +1,5 @@
 //! Checkpoints as safetensors files (readable from Python with `safetensors.numpy.load_file`):
-//! named 1-D f32 tensors and string metadata.
+//! named 1-D f32 tensors (and BF16 ones: Adam's compact moments) and string metadata.
 //!
 //! Both directions stream: [`CheckpointWriter`] writes tensors from borrowed slices and
 //! [`CheckpointReader`] reads each tensor straight into the caller's slice, so a checkpoint of
@@ -23,10 +23,39 @@ fn err(message: impl Into<String>) -> BackboneError {
     BackboneError::Checkpoint(message.into())
 }
 
+/// A tensor to write, borrowed.
+#[derive(Debug, Clone, Copy)]
+enum Tensor<'a> {
+    F32(&'a [f32]),
+    /// bf16 bit patterns.
+    Bf16(&'a [u16]),
+}
+
+impl Tensor<'_> {
+    fn dtype(&self) -> &'static str {
+        match self {
+            Tensor::F32(_) => "F32",
+            Tensor::Bf16(_) => "BF16",
+        }
+    }
+    fn bytes(&self) -> usize {
+        match self {
+            Tensor::F32(v) => 4 * v.len(),
+            Tensor::Bf16(v) => 2 * v.len(),
+        }
+    }
+    fn len(&self) -> usize {
+        match self {
+            Tensor::F32(v) => v.len(),
+            Tensor::Bf16(v) => v.len(),
+        }
+    }
+}
+
 /// A checkpoint to write: tensors borrowed from the caller, in name order.
 #[derive(Debug, Default)]
 pub struct CheckpointWriter<'a> {
-    tensors: BTreeMap<String, &'a [f32]>,
+    tensors: BTreeMap<String, Tensor<'a>>,
     metadata: BTreeMap<String, String>,
 }
 
@@ -36,19 +65,24 @@ impl<'a> CheckpointWriter<'a> {
         CheckpointWriter::default()
     }
 
-    /// The model and optimiser state: `params`, `adam.m`, `adam.v`, metadata `adam_step`.
+    /// The model and optimiser state: `params`, `adam.m`, `adam.v` (and, with compact moments,
+    /// `adam.m_bf16`, `adam.v_bf16` for the leading parameters), metadata `adam_step`.
     pub fn with_state(params: &'a [f32], adam: &'a Adam) -> Self {
         let mut w = CheckpointWriter::new();
         w.tensor("params", params);
         w.tensor("adam.m", &adam.m);
         w.tensor("adam.v", &adam.v);
+        if let Some(c) = &adam.compact {
+            w.tensors.insert("adam.m_bf16".into(), Tensor::Bf16(&c.m));
+            w.tensors.insert("adam.v_bf16".into(), Tensor::Bf16(&c.v));
+        }
         w.meta("adam_step", adam.step.to_string());
         w
     }
 
     /// Adds (or replaces) a tensor.
     pub fn tensor(&mut self, name: &str, values: &'a [f32]) -> &mut Self {
-        self.tensors.insert(name.to_string(), values);
+        self.tensors.insert(name.to_string(), Tensor::F32(values));
         self
     }
 
@@ -65,8 +99,8 @@ impl<'a> CheckpointWriter<'a> {
         }
         let mut offset = 0usize;
         for (name, values) in &self.tensors {
-            let end = offset + 4 * values.len();
-            header.insert(name.clone(), serde_json::json!({"dtype": "F32", "shape": [values.len()], "data_offsets": [offset, end]}));
+            let end = offset + values.bytes();
+            header.insert(name.clone(), serde_json::json!({"dtype": values.dtype(), "shape": [values.len()], "data_offsets": [offset, end]}));
             offset = end;
         }
         let mut bytes = serde_json::to_vec(&serde_json::Value::Object(header)).expect("a JSON map serialises");
@@ -82,10 +116,9 @@ impl<'a> CheckpointWriter<'a> {
         out.write_all(&(header.len() as u64).to_le_bytes())?;
         out.write_all(&header)?;
         for values in self.tensors.values() {
-            // f32 → little-endian bytes, a block at a time (no copy of the whole tensor).
-            for block in values.chunks(1 << 16) {
-                let bytes: Vec<u8> = block.iter().flat_map(|v| v.to_le_bytes()).collect();
-                out.write_all(&bytes)?;
+            match values {
+                Tensor::F32(values) => write_le(out, values, f32::to_le_bytes)?,
+                Tensor::Bf16(values) => write_le(out, values, u16::to_le_bytes)?,
             }
         }
         Ok(())
@@ -99,13 +132,21 @@ impl<'a> CheckpointWriter<'a> {
     }
 }
 
+/// Little-endian bytes of `values`, a block at a time (no copy of the whole tensor).
+fn write_le<T: Copy, const N: usize>(out: &mut dyn Write, values: &[T], bytes: impl Fn(T) -> [u8; N]) -> std::io::Result<()> {
+    for block in values.chunks(1 << 16) {
+        out.write_all(&block.iter().flat_map(|v| bytes(*v)).collect::<Vec<u8>>())?;
+    }
+    Ok(())
+}
+
 /// A checkpoint being read: its header parsed and checked; tensors are read on demand.
 #[derive(Debug, Clone)]
 pub struct CheckpointReader {
     /// Metadata (step, configuration, …).
     pub metadata: HashMap<String, String>,
-    /// Tensors: name → (byte offset in the file, values).
-    entries: HashMap<String, (u64, usize)>,
+    /// Tensors: name → (byte offset in the file, values, bytes per value: 4 for F32, 2 for BF16).
+    entries: HashMap<String, (u64, usize, u64)>,
 }
 
 impl CheckpointReader {
@@ -133,10 +174,11 @@ impl CheckpointReader {
                 }
                 continue;
             }
-            let dtype = value["dtype"].as_str().unwrap_or("?");
-            if dtype != "F32" {
-                return Err(err(format!("tensor {name:?} is {dtype}, expected F32")));
-            }
+            let width: u64 = match value["dtype"].as_str().unwrap_or("?") {
+                "F32" => 4,
+                "BF16" => 2,
+                dtype => return Err(err(format!("tensor {name:?} is {dtype}, expected F32 or BF16"))),
+            };
             let offsets =
                 value["data_offsets"].as_array().filter(|a| a.len() == 2).ok_or_else(|| err(format!("tensor {name:?}: bad data_offsets")))?;
             let (begin, end) = (offsets[0].as_u64().unwrap_or(u64::MAX), offsets[1].as_u64().unwrap_or(u64::MAX));
@@ -146,10 +188,10 @@ impl CheckpointReader {
                 .iter()
                 .map(|d| d.as_u64().ok_or_else(|| err(format!("tensor {name:?}: bad shape"))))
                 .try_fold(1u64, |acc, d| d.map(|d| acc.saturating_mul(d)))?;
-            if begin > end || end > data_len || (end - begin) != count.saturating_mul(4) {
+            if begin > end || end > data_len || (end - begin) != count.saturating_mul(width) {
                 return Err(err(format!("tensor {name:?}: offsets {begin}..{end} and shape disagree or exceed the file: truncated or corrupt")));
             }
-            entries.insert(name, (data_start + begin, count as usize));
+            entries.insert(name, (data_start + begin, count as usize, width));
         }
         Ok(CheckpointReader { metadata, entries })
     }
@@ -169,19 +211,34 @@ impl CheckpointReader {
         self.entries.keys().map(String::as_str)
     }
 
-    /// Reads tensor `name` into `dest`, which must have exactly its length.
+    /// Reads F32 tensor `name` into `dest`, which must have exactly its length.
     pub fn read_into(&self, input: &mut (impl Read + Seek), name: &str, dest: &mut [f32]) -> Result<(), BackboneError> {
-        let &(offset, count) = self.entries.get(name).ok_or_else(|| err(format!("no tensor {name:?}")))?;
+        self.read_le(input, name, dest, f32::from_le_bytes)
+    }
+
+    /// Reads BF16 tensor `name` (bit patterns) into `dest`, which must have exactly its length.
+    pub fn read_into_bf16(&self, input: &mut (impl Read + Seek), name: &str, dest: &mut [u16]) -> Result<(), BackboneError> {
+        self.read_le(input, name, dest, u16::from_le_bytes)
+    }
+
+    /// Reads tensor `name` of `N`-byte little-endian values into `dest` after checking its
+    /// element width and length.
+    fn read_le<T, const N: usize>(&self, input: &mut (impl Read + Seek), name: &str, dest: &mut [T], value: impl Fn([u8; N]) -> T) -> Result<(), BackboneError> {
+        let &(offset, count, width) = self.entries.get(name).ok_or_else(|| err(format!("no tensor {name:?}")))?;
+        if width != N as u64 {
+            let dtype = |w: u64| if w == 2 { "BF16" } else { "F32" };
+            return Err(err(format!("tensor {name:?} is {}, expected {}", dtype(width), dtype(N as u64))));
+        }
         if count != dest.len() {
             return Err(BackboneError::SizeMismatch { name: name.into(), found: count, expected: dest.len() });
         }
         input.seek(SeekFrom::Start(offset)).map_err(|e| err(format!("tensor {name:?}: {e}")))?;
-        let mut bytes = vec![0u8; 4 << 16];
+        let mut bytes = vec![0u8; N << 16];
         for block in dest.chunks_mut(1 << 16) {
-            let b = &mut bytes[..4 * block.len()];
+            let b = &mut bytes[..N * block.len()];
             input.read_exact(b).map_err(|_| err(format!("tensor {name:?} is cut short: truncated")))?;
-            for (v, c) in block.iter_mut().zip(b.chunks_exact(4)) {
-                *v = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+            for (v, c) in block.iter_mut().zip(b.chunks_exact(N)) {
+                *v = value(std::array::from_fn(|k| c[k]));
             }
         }
         Ok(())
@@ -195,12 +252,22 @@ impl CheckpointReader {
         Ok(v)
     }
 
-    /// Restores `params` and `adam` (sizes must match the model) from `params`, `adam.m`,
-    /// `adam.v` and the metadata `adam_step`.
+    /// Restores `params` and `adam` (sizes must match the model, and the moments' storage
+    /// `adam`'s) from `params`, `adam.m`, `adam.v` (`adam.m_bf16`, `adam.v_bf16`) and the
+    /// metadata `adam_step`.
     pub fn restore_state(&self, input: &mut (impl Read + Seek), params: &mut [f32], adam: &mut Adam) -> Result<(), BackboneError> {
+        let stored = self.entries.contains_key("adam.m_bf16");
+        if stored != adam.compact.is_some() {
+            let kind = |bf16: bool| if bf16 { "bf16 table moments" } else { "f32 moments only" };
+            return Err(err(format!("the checkpoint has {}, this run keeps {} (the optimiser setting differs)", kind(stored), kind(adam.compact.is_some()))));
+        }
         self.read_into(input, "params", params)?;
         self.read_into(input, "adam.m", &mut adam.m)?;
         self.read_into(input, "adam.v", &mut adam.v)?;
+        if let Some(c) = &mut adam.compact {
+            self.read_into_bf16(input, "adam.m_bf16", &mut c.m)?;
+            self.read_into_bf16(input, "adam.v_bf16", &mut c.v)?;
+        }
         adam.step = self.metadata.get("adam_step").and_then(|s| s.parse().ok()).ok_or_else(|| err("missing or bad metadata adam_step"))?;
         Ok(())
     }
@@ -250,5 +317,27 @@ mod tests {
         // The standard reader accepts what we write.
         let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
         assert_eq!(st.tensor("grid").unwrap().shape(), &[10]);
+    }
+
+    #[test]
+    fn compact_moments_round_trip_and_a_storage_mismatch_is_named() {
+        let params: Vec<f32> = (0..100).map(|i| i as f32).collect();
+        let mut adam = Adam::with_compact_prefix(100, 60);
+        let c = adam.compact.as_mut().unwrap();
+        c.m.iter_mut().enumerate().for_each(|(i, m)| *m = i as u16 * 3);
+        c.v.iter_mut().enumerate().for_each(|(i, v)| *v = 0x3F80 + i as u16);
+        adam.m.iter_mut().enumerate().for_each(|(i, m)| *m = i as f32 * 0.25);
+        adam.step = 4;
+        let bytes = CheckpointWriter::with_state(&params, &adam).to_bytes();
+        let mut input = Cursor::new(&bytes);
+        let r = CheckpointReader::open(&mut input, bytes.len() as u64).unwrap();
+        let (mut p, mut a) = (vec![0.0; 100], Adam::with_compact_prefix(100, 60));
+        r.restore_state(&mut input, &mut p, &mut a).unwrap();
+        assert_eq!((p, &a.m, a.step), (params.clone(), &adam.m, 4));
+        assert_eq!((&a.compact.as_ref().unwrap().m, &a.compact.as_ref().unwrap().v), (&adam.compact.as_ref().unwrap().m, &adam.compact.as_ref().unwrap().v));
+        let e = r.restore_state(&mut input, &mut vec![0.0; 100], &mut Adam::new(100)).unwrap_err();
+        assert!(e.to_string().contains("bf16 table moments"), "{e}");
+        let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
+        assert_eq!(st.tensor("adam.v_bf16").unwrap().dtype(), safetensors::Dtype::BF16);
     }
 }

@@ -192,6 +192,9 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
     fn gradient_blocks(&self) -> usize {
         self.encoding.gradient_blocks()
     }
+    fn gradient_block_range(&self, block: usize) -> std::ops::Range<usize> {
+        self.encoding.gradient_block_range(block)
+    }
     fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
         let inner = self.encoding_parts(parts);
         let inner: Vec<(&[R], &[R])> = parts.iter().zip(&inner).map(|((input, _), d)| (*input, &d[..])).collect();

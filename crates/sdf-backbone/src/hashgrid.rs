@@ -2,9 +2,12 @@
 //!
 //! Level l has resolution `N_l = ⌊N_min · b^l⌋` with `b = exp((ln N_max − ln N_min)/(L − 1))`.
 //! A point x ∈ [−1, 1]³ maps to `p = (x + 1)/2 · N_l`; its 8 surrounding vertices are looked up
-//! in the level's table of T entries — directly when `(N_l + 1)³ ≤ T` (dense coarse levels),
-//! otherwise by the spatial hash `(i · 1 ⊕ j · 2654435761 ⊕ k · 805459861) mod T` — and their
+//! in the level's table — directly when `(N_l + 1)³ ≤ T` (dense coarse levels, whose table has
+//! exactly `(N_l + 1)³` entries), otherwise by the spatial hash
+//! `(i · 1 ⊕ j · 2654435761 ⊕ k · 805459861) mod T` in a table of T entries — and their
 //! F-dimensional features trilinearly interpolated. Output: the L·F features, level-major.
+//! Parameters: the levels' tables one after the other, `min(T, (N_l + 1)³) · F` each (tiny-cuda-nn's
+//! layout; a table of T entries for a dense level would leave most of it untouched).
 //! Levels above `active_levels` output zeros (coarse-to-fine activation, Neuralangelo).
 
 use crate::module::Module;
@@ -33,13 +36,15 @@ impl HashGridConfig {
     }
 }
 
-/// The encoding. Parameters: L tables of T × F features.
+/// The encoding. Parameters: L tables of `min(T, (N_l + 1)³)` × F features, level after level.
 #[derive(Debug, Clone)]
 pub struct HashGrid {
     config: HashGridConfig,
     resolutions: Vec<u32>,
     dense: Vec<bool>,
     table: usize,
+    /// Where each level's table starts, in entries (levels + 1 values: the last is the total).
+    offsets: Vec<usize>,
     /// Levels that output features; the rest output zeros and get no gradient.
     pub active_levels: usize,
 }
@@ -53,9 +58,20 @@ impl HashGrid {
         let growth = if config.levels > 1 { ((hi.ln() - lo.ln()) / (config.levels - 1) as f64).exp() } else { 1.0 };
         // (+1e-9: N_min · b^{L−1} must give N_max exactly despite rounding.)
         let resolutions: Vec<u32> = (0..config.levels).map(|l| (lo * growth.powi(l as i32) + 1e-9).floor().max(1.0) as u32).collect();
-        let dense = resolutions.iter().map(|&n| ((n as u64 + 1).pow(3)) <= table as u64).collect();
+        let dense: Vec<bool> = resolutions.iter().map(|&n| ((n as u64 + 1).pow(3)) <= table as u64).collect();
+        let mut offsets = vec![0usize];
+        for (&n, &d) in resolutions.iter().zip(&dense) {
+            let entries = if d { (n as usize + 1).pow(3) } else { table };
+            offsets.push(offsets[offsets.len() - 1] + entries);
+        }
         let levels = config.levels;
-        HashGrid { config, resolutions, dense, table, active_levels: levels }
+        HashGrid { config, resolutions, dense, table, offsets, active_levels: levels }
+    }
+
+    /// The parameters of level `level`'s table (entries × F).
+    pub fn level_params(&self, level: usize) -> std::ops::Range<usize> {
+        let f = self.config.features;
+        self.offsets[level] * f..self.offsets[level + 1] * f
     }
 
     /// The configuration.
@@ -126,7 +142,7 @@ impl HashGrid {
 
 impl<R: Real> Module<R> for HashGrid {
     fn n_params(&self) -> usize {
-        self.config.levels * self.table * self.config.features
+        self.offsets[self.config.levels] * self.config.features
     }
     fn n_inputs(&self) -> usize {
         3
@@ -156,12 +172,15 @@ impl<R: Real> Module<R> for HashGrid {
     /// level taking the parts in order: deterministic for any thread count.
     fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
         use rayon::prelude::*;
-        let f = self.config.features;
-        d_params.par_chunks_mut(self.table * f).enumerate().for_each(|(level, d_table)| self.backward_parts_block(parts, level, d_table));
+        let tables = crate::module::split_blocks(d_params, (0..self.config.levels).map(|level| self.level_params(level)));
+        tables.into_par_iter().enumerate().for_each(|(level, d_table)| self.backward_parts_block(parts, level, d_table));
     }
     /// One level's table.
     fn gradient_blocks(&self) -> usize {
         self.config.levels
+    }
+    fn gradient_block_range(&self, block: usize) -> std::ops::Range<usize> {
+        self.level_params(block)
     }
     fn backward_parts_block(&self, parts: &[(&[R], &[R])], level: usize, d_table: &mut [R]) {
         if level >= self.active_levels.min(self.config.levels) {
@@ -191,8 +210,7 @@ impl<R: Real> Module<R> for HashGrid {
             #[inline(always)]
             || {
                 for level in 0..self.active_levels.min(self.config.levels) {
-                    let base = level * self.table * f;
-                    let table = &params[base..base + self.table * f];
+                    let table = &params[self.level_params(level)];
                     let (n, dense) = (self.resolutions[level], self.dense[level]);
                     macro_rules! run {
                         ($f:expr) => {
@@ -234,9 +252,8 @@ impl<R: Real> Module<R> for HashGrid {
             a.fill(R::ZERO);
             b.fill(R::ZERO);
         }
-        let size = self.table * self.config.features;
         for level in 0..self.active_levels.min(self.config.levels) {
-            self.scatter_tangent_level(level, input, tangent_in, d_output, d_tangent_out, &mut d_params[level * size..(level + 1) * size]);
+            self.scatter_tangent_level(level, input, tangent_in, d_output, d_tangent_out, &mut d_params[self.level_params(level)]);
         }
     }
     fn tangent_parts_block(&self, parts: &[(&[R], &[R])], level: usize, d_table: &mut [R]) {
@@ -408,8 +425,7 @@ impl HashGrid {
         let mut level_out = Buf::<R>::zeroed(rows * f);
         let mask = (self.table - 1) as u32;
         for level in 0..self.active_levels.min(self.config.levels) {
-            let base = level * self.table * f;
-            let table = &params[base..base + self.table * f];
+            let table = &params[self.level_params(level)];
             let (n, dense) = (self.resolutions[level], self.dense[level]);
             macro_rules! run {
                 ($f:expr) => {
@@ -509,10 +525,9 @@ impl HashGrid {
             d_in.fill(R::ZERO);
         }
         for level in 0..self.active_levels.min(self.config.levels) {
-            let base = level * self.table * f;
-            self.scatter_level(level, input, d_output, &mut d_params[base..base + self.table * f]);
+            self.scatter_level(level, input, d_output, &mut d_params[self.level_params(level)]);
             if let Some(d_in) = d_input.as_deref_mut() {
-                let table = &params[base..base + self.table * f];
+                let table = &params[self.level_params(level)];
                 for (row, (x, dy)) in input.chunks_exact(3).zip(d_output.chunks_exact(n_out)).enumerate() {
                     let dy = &dy[level * f..level * f + f];
                     let (idx, _, dw) = self.corners(level, x);

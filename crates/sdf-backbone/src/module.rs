@@ -45,9 +45,16 @@ pub trait Module<R: Real>: Sync {
         1
     }
 
-    /// [`Module::backward_parts`] for one block of equal-sized parameter blocks: `d_block` is that
-    /// block's gradient (so blocks can be done in parallel, or one at a time into a small buffer).
-    /// Default: the one block, the whole gradient.
+    /// The parameters of block `block` (< [`Module::gradient_blocks`]): the blocks are
+    /// contiguous and in order, and may differ in size (a hash grid's dense coarse levels are
+    /// smaller than its hashed ones). Default: the one block, every parameter.
+    fn gradient_block_range(&self, block: usize) -> std::ops::Range<usize> {
+        if block == 0 { 0..self.n_params() } else { self.n_params()..self.n_params() }
+    }
+
+    /// [`Module::backward_parts`] for one of the parameter blocks: `d_block` is that block's
+    /// gradient ([`Module::gradient_block_range`]; so blocks can be done in parallel, or one at a
+    /// time into a small buffer). Default: the one block, the whole gradient.
     fn backward_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
         if block == 0 {
             self.backward_parts(parts, d_block);
@@ -76,9 +83,15 @@ pub trait Module<R: Real>: Sync {
     /// order, to `d_deferred` (the first [`Module::deferred_params`] parameters' gradient).
     fn apply_deferred(&self, _parts: &[(&[R], &[R])], _d_deferred: &mut [R]) {}
 
-    /// Blocks of the deferred parameters (equal-sized) for [`Module::apply_deferred_block`].
+    /// Blocks of the deferred parameters for [`Module::apply_deferred_block`].
     fn deferred_blocks(&self) -> usize {
         1
+    }
+
+    /// The deferred parameters of block `block` (contiguous, in order; sizes may differ).
+    fn deferred_block_range(&self, block: usize) -> std::ops::Range<usize> {
+        let n = self.deferred_params();
+        if block == 0 { 0..n } else { n..n }
     }
 
     /// [`Module::apply_deferred`] for one block of the deferred parameters into `d_block`.
@@ -253,6 +266,22 @@ pub fn sigmoid<R: Real>(z: R) -> R {
     }
 }
 
+/// Splits `values` into consecutive blocks, `ranges` starting at 0 and each starting where the
+/// last ended (e.g. a module's [`Module::gradient_block_range`]s).
+pub fn split_blocks<T>(values: &mut [T], ranges: impl IntoIterator<Item = std::ops::Range<usize>>) -> Vec<&mut [T]> {
+    let mut rest = values;
+    let mut at = 0;
+    let mut blocks = Vec::new();
+    for range in ranges {
+        assert_eq!(range.start, at, "split_blocks: blocks must follow each other");
+        let (block, tail) = std::mem::take(&mut rest).split_at_mut(range.len());
+        blocks.push(block);
+        rest = tail;
+        at = range.end;
+    }
+    blocks
+}
+
 /// Two modules in sequence: `b(a(x))`. Parameters `[a | b]`; context `[a ctx | a output | b ctx]`.
 #[derive(Debug, Clone)]
 pub struct Chain<A, B> {
@@ -318,6 +347,9 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
     }
     fn deferred_blocks(&self) -> usize {
         self.a.gradient_blocks()
+    }
+    fn deferred_block_range(&self, block: usize) -> std::ops::Range<usize> {
+        if self.a.defers_gradient() { self.a.gradient_block_range(block) } else { 0..0 }
     }
     fn apply_deferred_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
         if self.a.defers_gradient() {

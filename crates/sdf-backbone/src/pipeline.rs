@@ -168,9 +168,8 @@ impl<R: Real> DeferredGradient<R> {
         if !self.tangent {
             return net.apply_deferred(&self.parts(), d_deferred);
         }
-        let blocks = net.deferred_blocks().max(1);
-        let size = d_deferred.len() / blocks;
-        d_deferred.par_chunks_mut(size.max(1)).enumerate().for_each(|(block, d)| self.apply_block(net, block, d));
+        let blocks = crate::module::split_blocks(d_deferred, (0..net.deferred_blocks().max(1)).map(|b| net.deferred_block_range(b)));
+        blocks.into_par_iter().enumerate().for_each(|(block, d)| self.apply_block(net, block, d));
     }
 }
 

@@ -199,7 +199,23 @@ fn hash_grid_inactive_levels_output_zero_and_get_no_gradient() {
     assert!(out[0] != 0.0 && out[2..].iter().all(|v| *v == 0.0));
     let mut d_params = vec![0.0; params.len()];
     grid.backward(&params, &x, &[], &[1.0; 6], &mut d_params, None);
-    assert!(d_params[256 * 2..].iter().all(|v| *v == 0.0));
+    assert!(d_params[grid.level_params(1).start..].iter().all(|v| *v == 0.0));
+}
+
+/// tiny-cuda-nn's layout: a dense level's table holds its (N + 1)³ vertices, not T entries (the
+/// default preset's three dense levels would otherwise carry 131 k unused entries, paper-scale
+/// Neuralangelo's six 171 M unused parameters, 2 GB with Adam's moments).
+#[test]
+fn hash_grid_dense_levels_hold_only_their_vertices() {
+    let grid = HashGrid::new(HashGridConfig::neuralangelo_cpu());
+    assert_eq!(grid.resolutions(), &[16, 23, 35, 52, 78, 115, 172, 256]);
+    let dense = [17usize.pow(3), 24usize.pow(3), 36usize.pow(3)];
+    assert_eq!(grid.level_params(0), 0..dense[0] * 2);
+    let hashed = dense.iter().sum::<usize>() * 2;
+    assert_eq!(grid.level_params(3), hashed..hashed + (1 << 16) * 2);
+    assert_eq!(Module::<f32>::n_params(&grid), hashed + 5 * (1 << 16) * 2);
+    let paper = HashGrid::new(HashGridConfig { levels: 16, features: 8, log2_table: 22, base_resolution: 32, finest_resolution: 2048 });
+    assert_eq!(Module::<f32>::n_params(&paper), 365_817_640);
 }
 
 #[test]

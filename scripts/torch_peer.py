@@ -485,7 +485,7 @@ def run_figure(args, normals, mode):
 def hash_grid_reference(grid, table, x):
     """hashgrid.rs `HashGrid::forward` point by point in numpy f32 (u32 arithmetic for the hash):
     the vectorised torch version is checked against it."""
-    table = table.reshape(grid.L, grid.T, grid.F)
+    base = grid.level_base.reshape(-1).tolist()
     out = np.zeros((x.shape[0], grid.L * grid.F), dtype=np.float32)
     for r, pt in enumerate(x.astype(np.float32)):
         for level, n in enumerate(grid.resolutions):
@@ -493,8 +493,8 @@ def hash_grid_reference(grid, table, x):
             cell, frac = [0, 0, 0], [np.float32(0)] * 3
             for d in range(3):
                 raw = (pt[d] + np.float32(1.0)) * scale
-                p = min(max(raw, np.float32(0.0)), np.float32(n) - np.float32(1e-6))
-                c = math.floor(float(p))
+                p = min(max(raw, np.float32(0.0)), np.float32(n))
+                c = min(math.floor(float(p)), n - 1)
                 cell[d], frac[d] = c, np.float32(p - np.float32(c))
             for c in range(8):
                 bit = [c & 1, (c >> 1) & 1, (c >> 2) & 1]
@@ -508,7 +508,7 @@ def hash_grid_reference(grid, table, x):
                     idx = h & (grid.T - 1)
                 f = [frac[d] if bit[d] else np.float32(1.0) - frac[d] for d in range(3)]
                 w = np.float32(f[0] * f[1] * f[2])
-                out[r, level * grid.F : (level + 1) * grid.F] += w * table[level, idx]
+                out[r, level * grid.F : (level + 1) * grid.F] += w * table[base[level] + idx]
     return out
 
 

@@ -427,7 +427,7 @@ pub struct StepRates {
 impl Backbone {
     /// One training step on `rays`: the loss and its gradient ([`Pipeline::loss_parallel_split`]),
     /// then Adam, the hash tables updated one level at a time from their deferred gradient (no
-    /// gradient buffer the size of the tables: paper-scale Neuralangelo's 365 M table parameters
+    /// gradient buffer the size of the tables: paper-scale Neuralangelo's 366 M table parameters
     /// need only themselves and Adam's moments). The same update as a dense gradient and
     /// [`adam_step`] (tested); the same bits for any thread count. Returns the loss and the
     /// per-ray outputs.
@@ -489,16 +489,14 @@ impl Backbone {
             // Adam on that level alone.
             let p_blocks = crate::module::split_blocks(p_tables, blocks.iter().cloned());
             let m_blocks = m_tables.split_blocks(&blocks);
-            p_blocks.into_par_iter().zip(m_blocks).enumerate().for_each(
-                |(b, (p, moments))| {
-                    let mut g = crate::scratch::Buf::<f32>::zeroed(p.len());
-                    deferred.apply_block(&self.sdf, b, &mut g);
-                    if scale != 1.0 {
-                        g.iter_mut().for_each(|x| *x *= scale);
-                    }
-                    step.apply_moments(p, moments, &g, rates.tables, blocks[b].start);
-                },
-            );
+            p_blocks.into_par_iter().zip(m_blocks).enumerate().for_each(|(b, (p, moments))| {
+                let mut g = crate::scratch::Buf::<f32>::zeroed(p.len());
+                deferred.apply_block(&self.sdf, b, &mut g);
+                if scale != 1.0 {
+                    g.iter_mut().for_each(|x| *x *= scale);
+                }
+                step.apply_moments(p, moments, &g, rates.tables, blocks[b].start);
+            });
         }
         (loss, outputs)
     }

@@ -223,7 +223,13 @@ impl CheckpointReader {
 
     /// Reads tensor `name` of `N`-byte little-endian values into `dest` after checking its
     /// element width and length.
-    fn read_le<T, const N: usize>(&self, input: &mut (impl Read + Seek), name: &str, dest: &mut [T], value: impl Fn([u8; N]) -> T) -> Result<(), BackboneError> {
+    fn read_le<T, const N: usize>(
+        &self,
+        input: &mut (impl Read + Seek),
+        name: &str,
+        dest: &mut [T],
+        value: impl Fn([u8; N]) -> T,
+    ) -> Result<(), BackboneError> {
         let &(offset, count, width) = self.entries.get(name).ok_or_else(|| err(format!("no tensor {name:?}")))?;
         if width != N as u64 {
             let dtype = |w: u64| if w == 2 { "BF16" } else { "F32" };
@@ -259,7 +265,11 @@ impl CheckpointReader {
         let stored = self.entries.contains_key("adam.m_bf16");
         if stored != adam.compact.is_some() {
             let kind = |bf16: bool| if bf16 { "bf16 table moments" } else { "f32 moments only" };
-            return Err(err(format!("the checkpoint has {}, this run keeps {} (the optimiser setting differs)", kind(stored), kind(adam.compact.is_some()))));
+            return Err(err(format!(
+                "the checkpoint has {}, this run keeps {} (the optimiser setting differs)",
+                kind(stored),
+                kind(adam.compact.is_some())
+            )));
         }
         self.read_into(input, "params", params)?;
         self.read_into(input, "adam.m", &mut adam.m)?;
@@ -334,7 +344,10 @@ mod tests {
         let (mut p, mut a) = (vec![0.0; 100], Adam::with_compact_prefix(100, 60));
         r.restore_state(&mut input, &mut p, &mut a).unwrap();
         assert_eq!((p, &a.m, a.step), (params.clone(), &adam.m, 4));
-        assert_eq!((&a.compact.as_ref().unwrap().m, &a.compact.as_ref().unwrap().v), (&adam.compact.as_ref().unwrap().m, &adam.compact.as_ref().unwrap().v));
+        assert_eq!(
+            (&a.compact.as_ref().unwrap().m, &a.compact.as_ref().unwrap().v),
+            (&adam.compact.as_ref().unwrap().m, &adam.compact.as_ref().unwrap().v)
+        );
         let e = r.restore_state(&mut input, &mut vec![0.0; 100], &mut Adam::new(100)).unwrap_err();
         assert!(e.to_string().contains("bf16 table moments"), "{e}");
         let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();

@@ -71,12 +71,16 @@ impl<'a> Moments<'a> {
     pub fn split_blocks(self, ranges: &[std::ops::Range<usize>]) -> Vec<Moments<'a>> {
         use crate::module::split_blocks;
         match self {
-            Moments::F32 { m, v } => {
-                split_blocks(m, ranges.iter().cloned()).into_iter().zip(split_blocks(v, ranges.iter().cloned())).map(|(m, v)| Moments::F32 { m, v }).collect()
-            }
-            Moments::Bf16 { m, v } => {
-                split_blocks(m, ranges.iter().cloned()).into_iter().zip(split_blocks(v, ranges.iter().cloned())).map(|(m, v)| Moments::Bf16 { m, v }).collect()
-            }
+            Moments::F32 { m, v } => split_blocks(m, ranges.iter().cloned())
+                .into_iter()
+                .zip(split_blocks(v, ranges.iter().cloned()))
+                .map(|(m, v)| Moments::F32 { m, v })
+                .collect(),
+            Moments::Bf16 { m, v } => split_blocks(m, ranges.iter().cloned())
+                .into_iter()
+                .zip(split_blocks(v, ranges.iter().cloned()))
+                .map(|(m, v)| Moments::Bf16 { m, v })
+                .collect(),
         }
     }
 }

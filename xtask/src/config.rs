@@ -527,7 +527,7 @@ impl TrainConfig {
                 "0 with model.normals = \"analytic\" (the curvature's Laplacian comes from the probes of numerical normals)",
             )?;
             need(
-                matches!(self.model.preset, Preset::NeuralangeloCpu | Preset::Neuralangelo),
+                self.model.preset.has_hash_grid(),
                 "model.preset",
                 self.model.preset.name(),
                 "a hash-grid preset (neuralangelo-cpu, neuralangelo) with model.normals = \"analytic\"",
@@ -550,7 +550,7 @@ impl TrainConfig {
         self.optim.schedule.validate().map_err(|e| anyhow::anyhow!("optim.schedule.{e}"))?;
         need(non_neg(self.optim.clip_norm), "optim.clip_norm", self.optim.clip_norm, "≥ 0")?;
         need(
-            self.optim.table_moments == MomentStorage::F32 || matches!(self.model.preset, Preset::NeuralangeloCpu | Preset::Neuralangelo),
+            self.optim.table_moments == MomentStorage::F32 || self.model.preset.has_hash_grid(),
             "model.preset",
             self.model.preset.name(),
             "a hash-grid preset (neuralangelo-cpu, neuralangelo) with optim.table_moments = \"bf16\"",

@@ -185,6 +185,12 @@ impl Preset {
             Preset::Neus => "neus",
         }
     }
+
+    /// Whether the SDF network starts with a hash grid (the Neuralangelo presets): the ones with
+    /// input tangents (analytic normals) and hash tables (bf16 table moments).
+    pub fn has_hash_grid(self) -> bool {
+        matches!(self, Preset::NeuralangeloCpu | Preset::Neuralangelo)
+    }
 }
 
 /// Where each part of the flat parameter buffer lives.

@@ -31,6 +31,10 @@ pub struct BackboneArgs {
     /// figure's peak memory is its own).
     #[arg(long, hide = true)]
     pub preset: Option<String>,
+    /// With `--preset`: only this normal scheme (tetrahedral, central, analytic), e.g. to profile
+    /// one step with `perf record`.
+    #[arg(long, requires = "preset")]
+    pub normals: Option<String>,
 }
 
 /// Multiply-adds of one row through an MLP.
@@ -170,8 +174,8 @@ fn batch_of(preset: Preset) -> (usize, usize) {
     }
 }
 
-/// The figures of one preset (both normal schemes), in this process.
-fn preset_figures(preset: Preset, reps: usize, gemm_best: f64) -> Vec<Value> {
+/// The figures of one preset (every normal scheme it has, or `only`), in this process.
+fn preset_figures(preset: Preset, reps: usize, gemm_best: f64, only: Option<NormalScheme>) -> Vec<Value> {
     let (mut backbone, mut params) = build(preset, 0.5, 1);
     let (n_rays, n_samples) = batch_of(preset);
     let rays = rays(n_rays, n_samples);
@@ -184,7 +188,8 @@ fn preset_figures(preset: Preset, reps: usize, gemm_best: f64) -> Vec<Value> {
     };
     let mut out = Vec::new();
     let analytic = Module::<f32>::has_tangents(&backbone.sdf).then_some(NormalScheme::Analytic);
-    for normals in [Some(NormalScheme::Tetrahedral), Some(NormalScheme::Central), analytic].into_iter().flatten() {
+    let schemes = [Some(NormalScheme::Tetrahedral), Some(NormalScheme::Central), analytic].into_iter().flatten();
+    for normals in schemes.filter(|n| only.is_none_or(|o| o == *n)) {
         backbone.config.normals = normals;
         let step = time_step(&backbone, &mut params, &rays, reps);
         let samples = (n_rays * n_samples) as f64;
@@ -277,7 +282,11 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
             .ok()
             .and_then(|s| s.parse().ok())
             .unwrap_or_else(|| gemm_rates().iter().map(|g| g.1).fold(0.0, f64::max));
-        for f in preset_figures(preset, args.reps, gemm_best) {
+        let only: Option<NormalScheme> = match &args.normals {
+            Some(n) => Some(serde_json::from_value(json!(n)).with_context(|| format!("unknown normal scheme {n:?}"))?),
+            None => None,
+        };
+        for f in preset_figures(preset, args.reps, gemm_best, only) {
             println!("{f}");
         }
         return Ok(());

@@ -267,6 +267,10 @@ pub struct GuideConfig {
     pub extra_points: usize,
     /// How the extra points are drawn: gaussian (paper), uniform (RU), log (Log).
     pub extra: ExtraPoints,
+    /// Widen the extra points' spread by λ̃'s resolution, one λ bin of the camera grid, in
+    /// quadrature (docs/DECISIONS.md §18; false: the paper's σ of the logistic at s alone, which
+    /// late in a run is a tenth of a bin).
+    pub extra_bin_spread: bool,
 }
 
 /// Outputs.
@@ -384,6 +388,7 @@ impl Default for GuideConfig {
             uniform_fractions: vec![0.2, 0.4, 0.6, 0.8],
             extra_points: 16,
             extra: ExtraPoints::Gaussian,
+            extra_bin_spread: true,
         }
     }
 }

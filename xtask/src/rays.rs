@@ -25,6 +25,8 @@ pub struct Sampling {
     pub extra_points: usize,
     /// Their law.
     pub extra: ExtraPoints,
+    /// Widen their spread by λ̃'s own resolution (one λ bin of the camera grid), in quadrature.
+    pub extra_bin_spread: bool,
 }
 
 /// The rays of one iteration with the surface-loss information of each.
@@ -93,16 +95,18 @@ pub fn build_batch(
         .map(|((ray, rng), d)| {
             let o = glam::DVec3::from_array(ray.origin.map(f64::from));
             let dir = glam::DVec3::from_array(ray.direction.map(f64::from));
-            let Some((t_surface, background)) = estimator.surface_distance(d, o, dir) else {
+            let Some(surface) = estimator.surface_distance(d, o, dir) else {
                 return RaySurface { depth: 0.0, background: true };
             };
             if n_extra > 0 {
                 let (near, far) = (f64::from(ray.depths[0]), f64::from(*ray.depths.last().expect("depths")));
                 let u: Vec<f64> = (0..n_extra).map(|_| rng.random()).collect();
-                let extra: Vec<f32> = extra_depths(sampling.extra, t_surface, s, near, far, &u).into_iter().map(|t| t as f32).collect();
+                let depth_sigma = if sampling.extra_bin_spread { surface.bin } else { 0.0 };
+                let extra: Vec<f32> =
+                    extra_depths(sampling.extra, surface.distance, s, depth_sigma, near, far, &u).into_iter().map(|t| t as f32).collect();
                 ray.depths = merge_sorted(&ray.depths, &extra);
             }
-            RaySurface { depth: t_surface, background }
+            RaySurface { depth: surface.distance, background: surface.background }
         })
         .collect();
     Batch { drawn, rays, surfaces }

@@ -27,6 +27,12 @@ pub struct SampleArgs {
     /// Logistic scale s.
     #[arg(long, default_value_t = 200.0)]
     pub s: f32,
+    /// Scene-grid resolution (the trainer's default: 64).
+    #[arg(long, default_value_t = 128)]
+    pub scene_resolution: usize,
+    /// Camera-grid cells `RU,RV,RL` (the trainer's default: 32,32,64).
+    #[arg(long, value_delimiter = ',', default_values_t = [64, 64, 128])]
+    pub camera_grid: Vec<usize>,
     /// Output folder for pictures and summary.json.
     #[arg(long, default_value = "out/sample")]
     pub out: PathBuf,
@@ -71,8 +77,10 @@ pub fn run(args: &SampleArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let cameras: Vec<_> = scene.views.iter().map(|v| v.camera).collect();
 
-    let camera_config = CameraGridConfig::default();
+    let &[ru, rv, rl] = args.camera_grid.as_slice() else { bail!("--camera-grid takes three numbers RU,RV,RL") };
+    let camera_config = CameraGridConfig { ru, rv, rl, ..CameraGridConfig::default() };
     let config = EstimatorConfig {
+        scene: prob_grid::SceneGridConfig { resolution: args.scene_resolution, ..Default::default() },
         camera: camera_config.clone(),
         schedule: UniformSchedule { fractions: vec![0.0] },
         skip_empty: false,
@@ -105,11 +113,17 @@ pub fn run(args: &SampleArgs) -> Result<()> {
                 let b = sampler.cameras()[r.camera as usize].bounds();
                 let cell = (b.depth[1] - b.depth[0]) / camera_config.rl as f64;
                 let drawn = r.depth.expect("guided rays have a depth").depth;
-                depth_errors.push((drawn as f64 - d as f64).abs() / cell);
+                depth_errors.push(((drawn as f64 - d as f64).abs(), cell));
             }
         }
     }
-    depth_errors.sort_by(f64::total_cmp);
+    // |λ̃ − true depth| in depth units and in λ bins, medians and 90th percentiles.
+    let quantiles = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        (!v.is_empty()).then(|| [v[v.len() / 2], v[v.len() * 9 / 10]])
+    };
+    let error_depth = quantiles(depth_errors.iter().map(|e| e.0).collect());
+    let error_cells = quantiles(depth_errors.iter().map(|e| e.0 / e.1).collect());
 
     // Pictures for the first views.
     let mut written = Vec::new();
@@ -189,7 +203,12 @@ pub fn run(args: &SampleArgs) -> Result<()> {
         "draw_seconds": draw_seconds,
         "samples_per_second": rays.len() as f64 / draw_seconds,
         "guided_fraction_inside_mask": (with_mask > 0).then(|| in_mask as f64 / with_mask as f64),
-        "median_depth_error_cells": (!depth_errors.is_empty()).then(|| depth_errors[depth_errors.len() / 2]),
+        "median_depth_error_cells": error_cells.map(|q| q[0]),
+        "p90_depth_error_cells": error_cells.map(|q| q[1]),
+        "median_depth_error": error_depth.map(|q| q[0]),
+        "p90_depth_error": error_depth.map(|q| q[1]),
+        // The extra points' spread at this s (the paper's N(λ̃, σ²)), to compare with the errors.
+        "logistic_std": surface_losses::logistic_std(f64::from(args.s)),
         "rays_with_true_depth": depth_errors.len(),
         "empty_cameras": empty,
         "pictures": written,
@@ -199,12 +218,14 @@ pub fn run(args: &SampleArgs) -> Result<()> {
         println!("{summary}");
     } else {
         eprintln!(
-            "{} cameras, update (CDFs included) {:.3} s, {:.1} M draws/s; guided inside mask: {}; median depth error: {} cells; pictures in {}",
+            "{} cameras, update (CDFs included) {:.3} s, {:.1} M draws/s; guided inside mask: {}; median depth error: {} cells ({} against σ = {:.4} at s); pictures in {}",
             scene.views.len(),
             update_seconds,
             rays.len() as f64 / draw_seconds / 1e6,
             summary["guided_fraction_inside_mask"],
             summary["median_depth_error_cells"],
+            summary["median_depth_error"],
+            summary["logistic_std"],
             args.out.display()
         );
     }

@@ -420,6 +420,7 @@ impl Trainer {
             upsample_s: r.upsample_s,
             extra_points: if guided { self.config.guide.extra_points } else { 0 },
             extra: self.config.guide.extra,
+            extra_bin_spread: self.config.guide.extra_bin_spread,
         }
     }
 

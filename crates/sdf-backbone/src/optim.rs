@@ -69,18 +69,13 @@ impl<'a> Moments<'a> {
 
     /// Splits into consecutive blocks ([`crate::module::split_blocks`]).
     pub fn split_blocks(self, ranges: &[std::ops::Range<usize>]) -> Vec<Moments<'a>> {
-        use crate::module::split_blocks;
+        fn pairs<'s, T>(m: &'s mut [T], v: &'s mut [T], ranges: &[std::ops::Range<usize>]) -> impl Iterator<Item = (&'s mut [T], &'s mut [T])> {
+            let split = |x| crate::module::split_blocks(x, ranges.iter().cloned());
+            split(m).into_iter().zip(split(v))
+        }
         match self {
-            Moments::F32 { m, v } => split_blocks(m, ranges.iter().cloned())
-                .into_iter()
-                .zip(split_blocks(v, ranges.iter().cloned()))
-                .map(|(m, v)| Moments::F32 { m, v })
-                .collect(),
-            Moments::Bf16 { m, v } => split_blocks(m, ranges.iter().cloned())
-                .into_iter()
-                .zip(split_blocks(v, ranges.iter().cloned()))
-                .map(|(m, v)| Moments::Bf16 { m, v })
-                .collect(),
+            Moments::F32 { m, v } => pairs(m, v, ranges).map(|(m, v)| Moments::F32 { m, v }).collect(),
+            Moments::Bf16 { m, v } => pairs(m, v, ranges).map(|(m, v)| Moments::Bf16 { m, v }).collect(),
         }
     }
 }

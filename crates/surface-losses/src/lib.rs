@@ -27,7 +27,10 @@
 //! Extra points ([`extra_depths`]): `n` depths ~ N(λ̃, σ²) with σ = π/(√3 s) (the paper), or
 //! uniform along the ray (ablation RU), or σ = π/(√3 ln s) (ablation Log), one explicit uniform
 //! number per point (the normal quantile, [`standard_normal_quantile`]), clamped to the ray's
-//! [near, far].
+//! [near, far]. The caller may add λ̃'s own uncertainty in quadrature (`depth_sigma`): the
+//! trainer passes one λ bin of the camera grid, because late in a run the logistic's σ is a
+//! tenth of a bin while λ̃ is about a bin from the surface (docs/DECISIONS.md §18: 0.90× the
+//! paper's Chamfer at 5 minutes on three scenes, level at 2 minutes).
 #![deny(missing_docs)]
 
 use std::f64::consts::PI;
@@ -205,13 +208,19 @@ pub fn standard_normal_quantile(u: f64) -> f64 {
 
 /// `uniforms.len()` extra depths for a ray with sampled depth `depth` (distance along the ray) at
 /// scale `s`, drawn as `kind` says, clamped to `[near, far]`, sorted. Deterministic in the uniforms.
-pub fn extra_depths(kind: ExtraPoints, depth: f64, s: f64, near: f64, far: f64, uniforms: &[f64]) -> Vec<f64> {
+///
+/// `depth_sigma` is the uncertainty of `depth` itself (0: exact, the paper). λ̃ comes from a grid
+/// whose depth bins do not shrink as s grows: late in a run the logistic's σ (0.004 at s = 486)
+/// is a tenth of a bin, and points drawn that tightly around a λ̃ that is off by a bin all miss
+/// the surface. A Gaussian spread is then `√(σ² + depth_sigma²)`.
+pub fn extra_depths(kind: ExtraPoints, depth: f64, s: f64, depth_sigma: f64, near: f64, far: f64, uniforms: &[f64]) -> Vec<f64> {
     let sigma = match kind {
         ExtraPoints::Gaussian => logistic_std(s.max(f64::MIN_POSITIVE)),
         // ln s ≤ 1 for s ≤ e would give a spread wider than the scene: floor it at 1.
         ExtraPoints::LogVariance => PI / (3.0f64.sqrt() * s.ln().max(1.0)),
         ExtraPoints::Uniform => 0.0,
     };
+    let sigma = sigma.hypot(depth_sigma.max(0.0));
     let mut out: Vec<f64> = match kind {
         ExtraPoints::Uniform => uniforms.iter().map(|u| near + u * (far - near)).collect(),
         _ => uniforms.iter().map(|&u| (depth + sigma * standard_normal_quantile(u)).clamp(near, far)).collect(),
@@ -231,7 +240,7 @@ mod tests {
     fn odd_extra_point_count_does_not_put_the_last_point_exactly_at_the_depth() {
         for n in [1usize, 3, 5, 15] {
             let u: Vec<f64> = (0..n).map(|i| (i as f64 + 0.37) / n as f64).collect();
-            let d = extra_depths(ExtraPoints::Gaussian, 2.0, 50.0, 0.0, 4.0, &u);
+            let d = extra_depths(ExtraPoints::Gaussian, 2.0, 50.0, 0.0, 0.0, 4.0, &u);
             let at_depth = d.iter().filter(|&&t| t == 2.0).count();
             assert_eq!(at_depth, 0, "n = {n}: {d:?}");
         }
@@ -246,7 +255,7 @@ mod tests {
         let z: Vec<f64> = (0..20_000)
             .flat_map(|_| {
                 let u = [next(), next(), next()];
-                extra_depths(ExtraPoints::Gaussian, 0.0, s, -10.0, 10.0, &u)
+                extra_depths(ExtraPoints::Gaussian, 0.0, s, 0.0, -10.0, 10.0, &u)
             })
             .map(|t| t / sigma)
             .collect();
@@ -345,17 +354,21 @@ mod tests {
         // 20 000 Gaussian extra points: mean λ̃, standard deviation π/(√3 s) within 2 %.
         let s = 64.0;
         let u: Vec<f64> = (0..20_000).map(|i| ((i as f64 * 0.618_033_988_749_895) % 1.0 + 0.5 / 20_000.0) % 1.0).collect();
-        let d = extra_depths(ExtraPoints::Gaussian, 2.0, s, 0.0, 4.0, &u);
+        let d = extra_depths(ExtraPoints::Gaussian, 2.0, s, 0.0, 0.0, 4.0, &u);
         let mean = d.iter().sum::<f64>() / d.len() as f64;
         let var = d.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / d.len() as f64;
         assert!((mean - 2.0).abs() < 1e-3, "mean {mean}");
         assert!((var.sqrt() / logistic_std(s) - 1.0).abs() < 0.02, "std {} vs {}", var.sqrt(), logistic_std(s));
+        // With λ̃'s own uncertainty: the two spreads add in quadrature.
+        let g = extra_depths(ExtraPoints::Gaussian, 2.0, s, 0.05, 0.0, 4.0, &u);
+        let std_g = (g.iter().map(|x| (x - 2.0).powi(2)).sum::<f64>() / g.len() as f64).sqrt();
+        assert!((std_g / logistic_std(s).hypot(0.05) - 1.0).abs() < 0.02, "std {std_g}");
         // Log variant: wider (ln 64 ≈ 4.2 < 64).
-        let l = extra_depths(ExtraPoints::LogVariance, 2.0, s, 0.0, 4.0, &u[..2000]);
+        let l = extra_depths(ExtraPoints::LogVariance, 2.0, s, 0.0, 0.0, 4.0, &u[..2000]);
         let spread = |v: &[f64]| v[v.len() * 3 / 4] - v[v.len() / 4];
         assert!(spread(&l) > 5.0 * spread(&d[..2000].to_vec().tap_sort()));
         // Uniform variant covers [near, far].
-        let r = extra_depths(ExtraPoints::Uniform, 2.0, s, 1.0, 3.0, &u[..1000]);
+        let r = extra_depths(ExtraPoints::Uniform, 2.0, s, 0.0, 1.0, 3.0, &u[..1000]);
         assert!(r[0] >= 1.0 && r[999] <= 3.0 && r[0] < 1.01 && r[999] > 2.99);
     }
 
@@ -372,11 +385,11 @@ mod tests {
     proptest! {
         #[test]
         fn extra_depths_stay_in_the_ray_and_are_sorted(
-            depth in -1.0f64..5.0, log_s in -3.0f64..7.0, u in proptest::collection::vec(0.0f64..1.0, 0..40)
+            depth in -1.0f64..5.0, log_s in -3.0f64..7.0, depth_sigma in 0.0f64..2.0, u in proptest::collection::vec(0.0f64..1.0, 0..40)
         ) {
             let s = 10f64.powf(log_s);
             for kind in [ExtraPoints::Gaussian, ExtraPoints::Uniform, ExtraPoints::LogVariance] {
-                let d = extra_depths(kind, depth, s, 0.5, 3.5, &u);
+                let d = extra_depths(kind, depth, s, depth_sigma, 0.5, 3.5, &u);
                 prop_assert_eq!(d.len(), u.len());
                 prop_assert!(d.iter().all(|x| x.is_finite() && (0.5..=3.5).contains(x)));
                 prop_assert!(d.windows(2).all(|w| w[0] <= w[1]));

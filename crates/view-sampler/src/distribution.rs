@@ -269,6 +269,11 @@ impl CameraDistribution {
         self.uniform_fallback
     }
 
+    /// The depth span of one λ bin: the resolution of every λ̃ drawn from this distribution.
+    pub fn depth_bin(&self) -> f64 {
+        self.sizes().2
+    }
+
     fn sizes(&self) -> (f64, f64, f64) {
         let b = &self.bounds;
         ((b.u[1] - b.u[0]) / self.ru as f64, (b.v[1] - b.v[0]) / self.rv as f64, (b.depth[1] - b.depth[0]) / self.rl as f64)

@@ -97,6 +97,19 @@ pub struct Estimator {
     occupancy: Option<Occupancy>,
 }
 
+/// λ̃ of a drawn ray along the ray ([`Estimator::surface_distance`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfaceDistance {
+    /// λ̃ as a distance along the ray's unit direction.
+    pub distance: f64,
+    /// One λ bin of the ray's camera grid as a distance along the ray: how far λ̃ can be from
+    /// the surface the grid holds (0 without a guide).
+    pub bin: f64,
+    /// A *background* ray for the surface losses: no λ̃ from the grid (its column held no
+    /// mass), or λ̃ outside the unit bound sphere.
+    pub background: bool,
+}
+
 /// What an estimator's last update built, to save and restore exactly (a resumed run draws the
 /// same rays as an uninterrupted one): the camera grids' values and the occupancy.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -249,14 +262,15 @@ impl Estimator {
         }
     }
 
-    /// λ̃ of a drawn ray as a distance along its (unit) `direction`, and whether it is a
-    /// *background* ray for the surface losses: no λ̃ from the grid (its column held no mass),
-    /// or λ̃ outside the unit bound sphere. `None` for rays without λ̃.
-    pub fn surface_distance(&self, ray: &RaySample, origin: DVec3, direction: DVec3) -> Option<(f64, bool)> {
+    /// λ̃ of a drawn ray as a distance along its (unit) `direction`, with its resolution and
+    /// whether it is a background ray for the surface losses. `None` for rays without λ̃.
+    pub fn surface_distance(&self, ray: &RaySample, origin: DVec3, direction: DVec3) -> Option<SurfaceDistance> {
         let DepthSample { depth, from_grid, .. } = ray.depth?;
         let camera = &self.cameras[ray.camera as usize];
-        let t = f64::from(depth) / camera.depth_per_distance(direction).max(1e-9);
-        Some((t, !from_grid || (origin + t * direction).length() > 1.0))
+        let per_distance = camera.depth_per_distance(direction).max(1e-9);
+        let distance = f64::from(depth) / per_distance;
+        let bin = self.distributions().get(ray.camera as usize).map_or(0.0, |d| d.depth_bin() / per_distance);
+        Some(SurfaceDistance { distance, bin, background: !from_grid || (origin + distance * direction).length() > 1.0 })
     }
 
     /// The `n + 1` coarse sample depths of the ray `origin + t·direction` (unit direction) within
@@ -339,6 +353,33 @@ mod tests {
         let rays = guided.draw(600, 0.0, 1, 0);
         assert_eq!(rays.iter().filter(|r| r.guided).count(), 480, "20 % uniform at the start");
         assert!(rays.iter().all(|r| r.depth.is_some()));
+    }
+
+    /// Why the extra points' spread includes one λ bin (docs/DECISIONS.md §18): at a large s the
+    /// logistic's σ is a small fraction of a bin, but λ̃ is off the true surface by about a bin.
+    #[test]
+    fn sampled_depth_is_within_a_few_bins_of_the_surface_whatever_s() {
+        let sphere = Shape::Sphere { center: DVec3::ZERO, radius: 0.5 };
+        let mut e = Estimator::new(cameras(), config(true)).unwrap();
+        e.update(&sphere, 1000.0).unwrap();
+        let mut errors = Vec::new();
+        for d in e.draw(2000, 1.0, 3, 0) {
+            let camera = &e.cameras()[d.camera as usize];
+            let ray = camera.ray_through_pixel_index(d.pixel[0], d.pixel[1]);
+            let surface = e.surface_distance(&d, ray.origin, ray.direction).expect("guided rays have λ̃");
+            let bin = e.distributions()[d.camera as usize].depth_bin() / camera.depth_per_distance(ray.direction);
+            assert!(surface.bin > 0.0 && (surface.bin - bin).abs() <= 1e-12 * bin);
+            // The sphere's first intersection, if the ray meets it.
+            let b = ray.origin.dot(ray.direction);
+            let disc = b * b - (ray.origin.length_squared() - 0.25);
+            if disc > 0.0 && !surface.background {
+                errors.push(((surface.distance - (-b - disc.sqrt())).abs(), surface.bin));
+            }
+        }
+        errors.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (median, bin) = errors[errors.len() / 2];
+        let sigma = std::f64::consts::PI / (3.0f64.sqrt() * 1000.0);
+        assert!(errors.len() > 500 && median > 3.0 * sigma && median < 1.5 * bin, "median {median}, σ {sigma}, bin {bin}, {} rays", errors.len());
     }
 
     #[test]

@@ -40,7 +40,7 @@ mod distribution;
 mod estimator;
 
 pub use distribution::{CameraDistribution, ImageSpaceSample, Interpolation};
-pub use estimator::{Estimator, EstimatorConfig, EstimatorState, UpdateReport, near_far};
+pub use estimator::{Estimator, EstimatorConfig, EstimatorState, SurfaceDistance, UpdateReport, near_far};
 
 use camera_geom::PinholeCamera;
 use glam::DVec2;

@@ -12,6 +12,7 @@
 //! `xtask/tests/memory.rs` (within 25 %).
 
 use crate::config::TrainConfig;
+use sdf_backbone::module::deferred_block_ranges;
 use sdf_backbone::{Backbone, Module, NormalScheme};
 
 /// Bytes of f32.
@@ -128,9 +129,7 @@ pub fn estimate(config: &TrainConfig, backbone: &Backbone, n_params: usize, view
     let twice = if backbone.config.normals == NormalScheme::Analytic { 2.0 } else { 1.0 };
     let record = twice * (Module::<f32>::deferred_width(&backbone.sdf) as f64 + 3.0);
     // The table update's buffer: one level's gradient per thread (the largest level's).
-    let level =
-        (0..Module::<f32>::deferred_blocks(&backbone.sdf)).map(|b| Module::<f32>::deferred_block_range(&backbone.sdf, b).len()).max().unwrap_or(0)
-            as f64;
+    let level = deferred_block_ranges::<f32, _>(&backbone.sdf).iter().map(|r| r.len()).max().unwrap_or(0) as f64;
     // Every work item's gradient (without the tables) and table record live until the sum.
     let batch = chunks * F32 * ((n - tables) + rows_per_chunk * record);
     let step = batch + t * work_item_bytes(backbone, config.render.chunk, samples, true) + t * F32 * level + F32 * (n - tables);

@@ -454,11 +454,7 @@ impl Backbone {
         let mut rest = crate::scratch::Buf::<f32>::zeroed(n - n_def);
         let (loss, outputs, deferred) = self.loss_parallel_split(params, rays, &mut rest, chunk, extra);
         // The table blocks (levels; dense coarse levels are smaller than hashed ones).
-        let blocks: Vec<Range<usize>> = if n_def > 0 {
-            (0..Module::<f32>::deferred_blocks(&self.sdf).max(1)).map(|b| Module::<f32>::deferred_block_range(&self.sdf, b)).collect()
-        } else {
-            Vec::new()
-        };
+        let blocks: Vec<Range<usize>> = crate::module::deferred_block_ranges::<f32, _>(&self.sdf);
         // The global norm for clipping (a first pass over the table blocks).
         let mut scale = 1.0f32;
         if let Some(max) = rates.clip_norm {

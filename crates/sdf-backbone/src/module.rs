@@ -282,6 +282,15 @@ pub fn split_blocks<T>(values: &mut [T], ranges: impl IntoIterator<Item = std::o
     blocks
 }
 
+/// The ranges of `net`'s deferred parameter blocks ([`Module::deferred_block_range`]), in order;
+/// none when it defers no gradient.
+pub fn deferred_block_ranges<R: Real, M: Module<R> + ?Sized>(net: &M) -> Vec<std::ops::Range<usize>> {
+    if net.deferred_params() == 0 {
+        return Vec::new();
+    }
+    (0..net.deferred_blocks().max(1)).map(|b| net.deferred_block_range(b)).collect()
+}
+
 /// Two modules in sequence: `b(a(x))`. Parameters `[a | b]`; context `[a ctx | a output | b ctx]`.
 #[derive(Debug, Clone)]
 pub struct Chain<A, B> {

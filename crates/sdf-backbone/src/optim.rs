@@ -209,6 +209,17 @@ pub struct AdamStep {
 }
 
 impl AdamStep {
+    /// One parameter's update from its moments `m`, `v` and gradient `g`: returns the new
+    /// moments (the update uses them unrounded, whatever their storage).
+    #[inline(always)]
+    fn element(&self, p: &mut f32, m: f32, v: f32, g: f32, lr: f32) -> (f32, f32) {
+        let m = self.beta1 * m + (1.0 - self.beta1) * g;
+        let v = self.beta2 * v + (1.0 - self.beta2) * g * g;
+        let update = (m * self.c1) / ((v * self.c2).sqrt() + self.epsilon);
+        *p -= lr * (update + self.weight_decay * *p);
+        (m, v)
+    }
+
     /// Updates `params` (and their moments `m`, `v`) from `grads` with rate `lr` (vectorised).
     pub fn apply(&self, params: &mut [f32], m: &mut [f32], v: &mut [f32], grads: &[f32], lr: f32) {
         let s = *self;
@@ -216,10 +227,7 @@ impl AdamStep {
             #[inline(always)]
             || {
                 for (((p, m), v), g) in params.iter_mut().zip(m.iter_mut()).zip(v.iter_mut()).zip(grads) {
-                    *m = s.beta1 * *m + (1.0 - s.beta1) * g;
-                    *v = s.beta2 * *v + (1.0 - s.beta2) * g * g;
-                    let update = (*m * s.c1) / ((*v * s.c2).sqrt() + s.epsilon);
-                    *p -= lr * (update + s.weight_decay * *p);
+                    (*m, *v) = s.element(p, *m, *v, *g, lr);
                 }
             },
         );
@@ -233,13 +241,10 @@ impl AdamStep {
             #[inline(always)]
             || {
                 for (i, (((p, m), v), g)) in params.iter_mut().zip(m.iter_mut()).zip(v.iter_mut()).zip(grads).enumerate() {
-                    let mf = s.beta1 * bf16_to_f32(*m) + (1.0 - s.beta1) * g;
-                    let vf = s.beta2 * bf16_to_f32(*v) + (1.0 - s.beta2) * g * g;
+                    let (mf, vf) = s.element(p, bf16_to_f32(*m), bf16_to_f32(*v), *g, lr);
                     let bits = rounding_bits((first + i) as u64, s.t);
                     *m = f32_to_bf16_stochastic(mf, bits);
                     *v = f32_to_bf16_stochastic(vf, bits >> 16);
-                    let update = (mf * s.c1) / ((vf * s.c2).sqrt() + s.epsilon);
-                    *p -= lr * (update + s.weight_decay * *p);
                 }
             },
         );

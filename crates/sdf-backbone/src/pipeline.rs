@@ -168,7 +168,7 @@ impl<R: Real> DeferredGradient<R> {
         if !self.tangent {
             return net.apply_deferred(&self.parts(), d_deferred);
         }
-        let blocks = crate::module::split_blocks(d_deferred, (0..net.deferred_blocks().max(1)).map(|b| net.deferred_block_range(b)));
+        let blocks = crate::module::split_blocks(d_deferred, crate::module::deferred_block_ranges::<R, _>(net));
         blocks.into_par_iter().enumerate().for_each(|(block, d)| self.apply_block(net, block, d));
     }
 }

@@ -35,6 +35,13 @@ pub struct BackboneArgs {
     /// one step with `perf record`.
     #[arg(long, requires = "preset")]
     pub normals: Option<String>,
+    /// With `--preset`: where one step's time goes (CPU seconds per stage, summed over threads:
+    /// hash-grid gathers and scatters, MLP passes, the pipeline's own work, Adam), as a table.
+    #[arg(long, requires = "preset")]
+    pub profile: bool,
+    /// With `--profile`: rays per work item (the trainer's `render.chunk`).
+    #[arg(long, requires = "profile", default_value_t = crate::config::RenderConfig::default().chunk)]
+    pub chunk: usize,
 }
 
 /// Multiply-adds of one row through an MLP.
@@ -124,14 +131,21 @@ fn rays(n_rays: usize, n_samples: usize) -> Vec<RayInput<f32>> {
         .collect()
 }
 
+/// The trainer's default rates and clipping (`optim.lr_grid`, `optim.lr`, `optim.clip_norm`: 0
+/// is off; the peer does not clip either).
+fn trainer_rates() -> StepRates {
+    let optim = crate::config::OptimConfig::default();
+    StepRates { tables: optim.lr_grid as f32, rest: optim.lr as f32, clip_norm: (optim.clip_norm > 0.0).then_some(optim.clip_norm as f32) }
+}
+
 /// Seconds per training step: forward + backward of the whole loss + Adam, as the trainer
 /// runs it (`Backbone::train_step`: hash tables updated level by level from their deferred
-/// gradient, the trainer's rates and clipping), the best of `reps` after a warm-up step.
+/// gradient, the trainer's default rates and clipping), the best of `reps` after a warm-up step.
 fn time_step(backbone: &Backbone, params: &mut [f32], rays: &[RayInput<f32>], reps: usize) -> f64 {
     let mut adam = Adam::new(params.len());
-    let rates = StepRates { tables: 1e-2, rest: 5e-3, clip_norm: Some(1.0) };
+    let rates = trainer_rates();
     let mut step = |params: &mut [f32]| {
-        let _ = backbone.train_step(params, &mut adam, rays, 32, &NoSampleLoss, rates);
+        let _ = backbone.train_step(params, &mut adam, rays, crate::config::RenderConfig::default().chunk, &NoSampleLoss, rates);
     };
     step(params);
     (0..reps.max(1))
@@ -141,6 +155,72 @@ fn time_step(backbone: &Backbone, params: &mut [f32], rays: &[RayInput<f32>], re
             t.elapsed().as_secs_f64()
         })
         .fold(f64::INFINITY, f64::min)
+}
+
+/// Where the time of one step of `preset` with `normals` goes: each stage's CPU seconds per
+/// step (summed over threads, mean of `reps` steps after a warm-up), against the step's wall
+/// time × threads, and the MLP stages' rate per thread against the best GEMM's. Printed as a
+/// table.
+fn profile_step(preset: Preset, normals: NormalScheme, reps: usize, chunk: usize, gemm_best: f64) {
+    use sdf_backbone::profile::{self, Stage};
+    let (mut backbone, mut params) = build(preset, 0.5, 1);
+    backbone.config.normals = normals;
+    let (n_rays, n_samples) = batch_of(preset);
+    let rays = rays(n_rays, n_samples);
+    let mut adam = Adam::new(params.len());
+    let rates = trainer_rates();
+    let _ = backbone.train_step(&mut params, &mut adam, &rays, chunk, &NoSampleLoss, rates);
+    let reps = reps.max(1);
+    profile::take();
+    profile::enable(true);
+    let t = Instant::now();
+    for _ in 0..reps {
+        let _ = backbone.train_step(&mut params, &mut adam, &rays, chunk, &NoSampleLoss, rates);
+    }
+    let wall = t.elapsed().as_secs_f64() / reps as f64;
+    profile::enable(false);
+    let stages: Vec<(Stage, f64)> = profile::take().into_iter().map(|(s, t)| (s, t / reps as f64)).collect();
+    let threads = rayon::current_num_threads();
+    let cpu = wall * threads as f64;
+    let of = |stage: Stage| stages.iter().find(|(s, _)| *s == stage).map_or(0.0, |(_, t)| *t);
+    // The MLP stages' FLOP (2·MACs forward, 4·MACs backward per row; analytic normals: the SDF
+    // network's backward is in its tangent stage: 3 · 2 forward tangents, then 2 for the tangent
+    // along ∂L/∂n and 2 · 4 for values and tangents).
+    let sdf_macs = mlp_macs(&backbone.sdf.b);
+    let color_macs = mlp_macs(&backbone.color);
+    let analytic = normals == NormalScheme::Analytic;
+    let sdf_rows = (n_rays * ((if analytic { 1 } else { 1 + normals.probe_count() }) * n_samples + 1)) as f64;
+    let col_rows = (n_rays * n_samples) as f64;
+    let flop = |stage: Stage| match stage {
+        Stage::MlpForward => 2.0 * (sdf_rows * sdf_macs + col_rows * color_macs),
+        Stage::MlpBackward if analytic => 4.0 * col_rows * color_macs,
+        Stage::MlpBackward => 4.0 * (sdf_rows * sdf_macs + col_rows * color_macs),
+        Stage::MlpTangents if analytic => 16.0 * sdf_rows * sdf_macs,
+        _ => 0.0,
+    };
+    let inside = [Stage::HashForward, Stage::HashTangents, Stage::MlpForward, Stage::MlpTangents, Stage::MlpBackward];
+    let modules_inside: f64 = inside.iter().map(|s| of(*s)).sum();
+    let outside = [Stage::LossPass, Stage::HashScatter, Stage::HashTangentScatter, Stage::Adam];
+    let counted: f64 = outside.iter().map(|s| of(*s)).sum();
+    println!(
+        "{} preset, {n_rays} rays × {n_samples} samples ({chunk} rays per work item), {normals:?} normals, {threads} threads: step {wall:.4} s wall ({cpu:.4} CPU-s), mean of {reps}",
+        preset.name()
+    );
+    let per_thread = gemm_best / threads as f64;
+    println!("| stage | CPU s per step | share of the step's CPU time | GFLOP/s per thread (best GEMM {per_thread:.0}) |");
+    println!("|---|---|---|---|");
+    let row = |name: &str, t: f64, flop: f64| {
+        let rate = if flop > 0.0 && t > 0.0 { format!("{:.0} ({:.0} %)", flop / t / 1e9, 100.0 * flop / t / 1e9 / per_thread) } else { "—".into() };
+        println!("| {name} | {t:.4} | {:.1} % | {rate} |", 100.0 * t / cpu)
+    };
+    for stage in inside {
+        row(stage.name(), of(stage), flop(stage));
+    }
+    row("pipeline's own work (points, rendering, losses, buffers)", of(Stage::LossPass) - modules_inside, 0.0);
+    for stage in [Stage::HashScatter, Stage::HashTangentScatter, Stage::Adam] {
+        row(stage.name(), of(stage), 0.0);
+    }
+    row("outside every stage (idle threads, reductions, allocation)", cpu - counted, 0.0);
 }
 
 /// Seconds for forward + backward of `mlp` over `rows` rows (parallel chunks of 1024 rows).
@@ -286,6 +366,10 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
             Some(n) => Some(serde_json::from_value(json!(n)).with_context(|| format!("unknown normal scheme {n:?}"))?),
             None => None,
         };
+        if args.profile {
+            profile_step(preset, only.unwrap_or(NormalScheme::Tetrahedral), args.reps, args.chunk, gemm_best);
+            return Ok(());
+        }
         for f in preset_figures(preset, args.reps, gemm_best, only) {
             println!("{f}");
         }
@@ -311,7 +395,8 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
     if !args.quick {
         presets.extend([Preset::Neus, Preset::Neuralangelo]);
     }
-    let mut default_steps = Vec::new();
+    // The default preset's steps: tetrahedral (the trainer's default normals) and analytic.
+    let (mut default_steps, mut analytic_steps) = (Vec::new(), Vec::new());
     for preset in presets {
         match child_figures(preset, args.reps, gemm_best) {
             Ok(figures) => {
@@ -323,6 +408,9 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
                     }
                     if preset == Preset::NeuralangeloCpu && f["normals"] == "tetrahedral" {
                         default_steps.push(number(f, "step_s"));
+                    }
+                    if preset == Preset::NeuralangeloCpu && f["normals"] == "analytic" {
+                        analytic_steps.push(number(f, "step_s"));
                     }
                 }
             }
@@ -336,8 +424,10 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
         // Our default step again after the peer, so that both sides see the same machine state.
         if let Ok(figures) = child_figures(Preset::NeuralangeloCpu, args.reps, gemm_best) {
             default_steps.extend(figures.iter().filter(|f| f["normals"] == "tetrahedral").map(|f| number(f, "step_s")));
+            analytic_steps.extend(figures.iter().filter(|f| f["normals"] == "analytic").map(|f| number(f, "step_s")));
         }
         let ours = default_steps.iter().copied().fold(f64::INFINITY, f64::min);
+        let ours_analytic = analytic_steps.iter().copied().fold(f64::INFINITY, f64::min);
         let steps: Vec<&Value> = peer.iter().filter(|f| f["figure"] == "torch_step").collect();
         let best = steps.iter().filter(|f| f["step_s"].is_number()).min_by(|a, b| number(a, "step_s").total_cmp(&number(b, "step_s")));
         for f in &steps {
@@ -358,14 +448,16 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
         let best_s = best.map_or(f64::NAN, |b| number(b, "step_s"));
         let ratio = json!({"figure": "peer_ratio", "ours_step_s": ours, "peer_best_step_s": best_s,
             "peer_best": best.map(|b| format!("{} {}", b["normals"].as_str().unwrap_or("?"), b["mode"].as_str().unwrap_or("?"))),
-            "speedup": best_s / ours, "threads": threads});
+            "speedup": best_s / ours, "ours_analytic_step_s": ours_analytic, "speedup_analytic": best_s / ours_analytic,
+            "threads": threads});
         if args.json {
             println!("{ratio}");
         } else {
             println!(
-                "default preset, 512 × 128, tetrahedral: psneus {ours:.3} s per step; best PyTorch-CPU variant {best_s:.3} s ({}); psneus is {:.2}× faster",
+                "default preset, 512 × 128: best PyTorch-CPU variant {best_s:.3} s ({}); psneus tetrahedral (the default) {ours:.3} s per step, {:.2}× faster; analytic {ours_analytic:.3} s, {:.2}× faster",
                 ratio["peer_best"],
-                best_s / ours
+                best_s / ours,
+                best_s / ours_analytic
             );
         }
     }

@@ -484,8 +484,11 @@ impl Backbone {
         let (pe, pr) = p_rest.split_at_mut(enc_rest);
         let (me, mr) = m_rest.split_at_mut(enc_rest);
         let (ve, vr) = v_rest.split_at_mut(enc_rest);
-        step.apply(pe, me, ve, &rest[..enc_rest], rates.tables);
-        step.apply(pr, mr, vr, &rest[enc_rest..], rates.rest);
+        {
+            let _span = crate::profile::span(crate::profile::Stage::Adam);
+            step.apply(pe, me, ve, &rest[..enc_rest], rates.tables);
+            step.apply(pr, mr, vr, &rest[enc_rest..], rates.rest);
+        }
         if n_def > 0 {
             // Each level: its gradient from the records (a scatter that reads no parameter), then
             // Adam on that level alone.
@@ -497,6 +500,7 @@ impl Backbone {
                 if scale != 1.0 {
                     g.iter_mut().for_each(|x| *x *= scale);
                 }
+                let _span = crate::profile::span(crate::profile::Stage::Adam);
                 step.apply_moments(p, moments, &g, rates.tables, blocks[b].start);
             });
         }

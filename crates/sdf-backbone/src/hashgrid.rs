@@ -154,12 +154,14 @@ impl<R: Real> Module<R> for HashGrid {
         0
     }
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], _: &mut [R]) {
+        let _span = crate::profile::span(crate::profile::Stage::HashForward);
         crate::kernels::dispatch(
             #[inline(always)]
             || self.forward_rows(params, input, output),
         );
     }
     fn backward(&self, params: &[R], input: &[R], _: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
+        let _span = crate::profile::span(crate::profile::Stage::HashScatter);
         crate::kernels::dispatch(
             #[inline(always)]
             || self.backward_rows(params, input, d_output, d_params, d_input),
@@ -186,6 +188,7 @@ impl<R: Real> Module<R> for HashGrid {
         if level >= self.active_levels.min(self.config.levels) {
             return;
         }
+        let _span = crate::profile::span(crate::profile::Stage::HashScatter);
         crate::kernels::dispatch(
             #[inline(always)]
             || {
@@ -202,6 +205,7 @@ impl<R: Real> Module<R> for HashGrid {
     /// ∂(features)/∂x · ẋ = Σ_c (∇ₓw_c · ẋ) T[c]: the same 8 corners as the features, weighted by
     /// the trilinear weights' gradients (zero outside the grid, where inputs are clamped).
     fn forward_tangents(&self, params: &[R], input: &[R], _: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
+        let _span = crate::profile::span(crate::profile::Stage::HashTangents);
         let f = self.config.features;
         let n_out = self.config.levels * f;
         tangents_out.fill(R::ZERO);
@@ -247,6 +251,7 @@ impl<R: Real> Module<R> for HashGrid {
         d_params: &mut [R],
         d_input: Option<(&mut [R], &mut [R])>,
     ) {
+        let _span = crate::profile::span(crate::profile::Stage::HashTangentScatter);
         debug_assert!(d_input.is_none(), "a hash grid does not propagate tangent adjoints to its input");
         if let Some((a, b)) = d_input {
             a.fill(R::ZERO);
@@ -260,6 +265,7 @@ impl<R: Real> Module<R> for HashGrid {
         if level >= self.active_levels.min(self.config.levels) {
             return;
         }
+        let _span = crate::profile::span(crate::profile::Stage::HashTangentScatter);
         for (points, record) in parts {
             let (x, v) = points.split_at(points.len() / 2);
             let (d_output, d_tangent_out) = record.split_at(record.len() / 2);

@@ -32,6 +32,7 @@ pub mod mlp;
 pub mod module;
 pub mod optim;
 pub mod pipeline;
+pub mod profile;
 pub mod real;
 pub mod render;
 pub mod scratch;

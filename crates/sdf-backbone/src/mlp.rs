@@ -197,6 +197,7 @@ impl<R: Real> Module<R> for Mlp {
     }
 
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
+        let _span = crate::profile::span(crate::profile::Stage::MlpForward);
         let n_x = self.config.n_inputs;
         let n_y = self.config.n_outputs;
         let rows = input.len() / n_x;
@@ -256,6 +257,7 @@ impl<R: Real> Module<R> for Mlp {
     }
 
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
+        let _span = crate::profile::span(crate::profile::Stage::MlpBackward);
         let n_x = self.config.n_inputs;
         let n_y = self.config.n_outputs;
         let rows = input.len() / n_x;
@@ -353,6 +355,7 @@ impl<R: Real> Module<R> for Mlp {
     }
 
     fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
+        let _span = crate::profile::span(crate::profile::Stage::MlpTangents);
         let rows = input.len() / self.config.n_inputs;
         if rows > 0 {
             self.tangent_pass(params, ctx, rows, k, tangents_in, Some(tangents_out));
@@ -372,6 +375,7 @@ impl<R: Real> Module<R> for Mlp {
         d_params: &mut [R],
         d_input: Option<(&mut [R], &mut [R])>,
     ) {
+        let _span = crate::profile::span(crate::profile::Stage::MlpTangents);
         let n_x = self.config.n_inputs;
         let n_y = self.config.n_outputs;
         let rows = input.len() / n_x;

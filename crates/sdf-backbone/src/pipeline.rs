@@ -427,6 +427,7 @@ impl<S, C> Pipeline<S, C> {
         S: Module<R>,
         C: Module<R>,
     {
+        let _span = crate::profile::span(crate::profile::Stage::LossPass);
         let (n_sdf, n_col) = (self.sdf.n_params(), self.color.n_params());
         let n_def = self.sdf.deferred_params();
         let (p_sdf, rest) = params.split_at(n_sdf);

@@ -73,6 +73,46 @@ fn mlp_gradients_match_finite_differences_for_every_activation() {
 }
 
 #[test]
+fn mlp_batch_equals_row_by_row() {
+    // A batch of 600 rows (several kernel tiles and a partial one), with the skip connection,
+    // gives each row's output and input gradient, and the sum of the rows' parameter
+    // gradients, as each row alone does.
+    let mlp = Mlp::new(MlpConfig {
+        n_inputs: 3,
+        width: 9,
+        hidden_layers: 3,
+        n_outputs: 2,
+        skip: Some(2),
+        hidden_activation: Activation::Softplus { beta: 10.0 },
+        output_activation: Activation::Identity,
+    });
+    let params = random_params(Module::<f64>::n_params(&mlp), 0.6, 3);
+    let rows = 600;
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(4);
+    let input: Vec<f64> = (0..rows * 3).map(|_| rng.random::<f64>() * 1.6 - 0.8).collect();
+    let d_out: Vec<f64> = (0..rows * 2).map(|_| rng.random::<f64>() * 2.0 - 1.0).collect();
+    let pass = |x: &[f64], dy: &[f64], d_params: &mut [f64]| {
+        let n = x.len() / 3;
+        let (mut out, mut ctx, mut d_x) = (vec![0.0; n * 2], vec![0.0; n * Module::<f64>::ctx_per_row(&mlp)], vec![0.0; n * 3]);
+        mlp.forward(&params, x, &mut out, &mut ctx);
+        mlp.backward(&params, x, &ctx, dy, d_params, Some(&mut d_x));
+        (out, d_x)
+    };
+    let mut d_batch = vec![0.0; params.len()];
+    let (out, d_x) = pass(&input, &d_out, &mut d_batch);
+    let mut d_rows = vec![0.0; params.len()];
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs()).max(1.0);
+    for r in 0..rows {
+        let (o, dx) = pass(&input[3 * r..3 * r + 3], &d_out[2 * r..2 * r + 2], &mut d_rows);
+        assert!(o.iter().zip(&out[2 * r..2 * r + 2]).all(|(a, b)| close(*a, *b)), "row {r}: output");
+        assert!(dx.iter().zip(&d_x[3 * r..3 * r + 3]).all(|(a, b)| close(*a, *b)), "row {r}: input gradient");
+    }
+    for (i, (a, b)) in d_batch.iter().zip(&d_rows).enumerate() {
+        assert!((a - b).abs() <= 1e-10 * a.abs().max(b.abs()).max(1.0), "parameter {i}: {a} vs {b}");
+    }
+}
+
+#[test]
 fn softplus_beta_100_gradient_matches_where_smooth() {
     let mlp = Mlp::new(MlpConfig {
         n_inputs: 3,

@@ -63,14 +63,22 @@ fn mlp_macs(mlp: &sdf_backbone::Mlp) -> f64 {
 /// f32 matrix-product rates of this machine, GFLOP/s over all threads (one independent product
 /// per thread): `matrixmultiply` (ndarray's sgemm, AVX2 kernels) on 256³, and psneus's own
 /// runtime-dispatched tile kernel (AVX-512 here) on 256³ and on a layer's shape (16 384 rows ×
-/// 64 · 64 × 64).
+/// 64 · 64 × 64). Each rate is the median of 5 timings after a warm-up (one timing is a few
+/// milliseconds). The machine's own state varies more: on this 2-vCPU Zen 5 machine the 256³
+/// tile read 198–208 GFLOP/s in four runs and 382 in a fifth (BENCHMARKS.md).
 pub fn gemm_rates() -> Vec<(&'static str, f64)> {
     let threads = rayon::current_num_threads();
     let time = |f: &(dyn Fn() + Sync)| {
         (0..threads).into_par_iter().for_each(|_| f());
-        let t = Instant::now();
-        (0..threads).into_par_iter().for_each(|_| f());
-        t.elapsed().as_secs_f64()
+        let mut times: Vec<f64> = (0..5)
+            .map(|_| {
+                let t = Instant::now();
+                (0..threads).into_par_iter().for_each(|_| f());
+                t.elapsed().as_secs_f64()
+            })
+            .collect();
+        times.sort_by(f64::total_cmp);
+        times[2]
     };
     let n = 256;
     let reps = 40;

@@ -32,22 +32,11 @@ enum Tensor<'a> {
 }
 
 impl Tensor<'_> {
-    fn dtype(&self) -> &'static str {
+    /// The safetensors dtype, the bytes per element and the element count.
+    fn shape(&self) -> (&'static str, usize, usize) {
         match self {
-            Tensor::F32(_) => "F32",
-            Tensor::Bf16(_) => "BF16",
-        }
-    }
-    fn bytes(&self) -> usize {
-        match self {
-            Tensor::F32(v) => 4 * v.len(),
-            Tensor::Bf16(v) => 2 * v.len(),
-        }
-    }
-    fn len(&self) -> usize {
-        match self {
-            Tensor::F32(v) => v.len(),
-            Tensor::Bf16(v) => v.len(),
+            Tensor::F32(v) => ("F32", 4, v.len()),
+            Tensor::Bf16(v) => ("BF16", 2, v.len()),
         }
     }
 }
@@ -99,8 +88,9 @@ impl<'a> CheckpointWriter<'a> {
         }
         let mut offset = 0usize;
         for (name, values) in &self.tensors {
-            let end = offset + values.bytes();
-            header.insert(name.clone(), serde_json::json!({"dtype": values.dtype(), "shape": [values.len()], "data_offsets": [offset, end]}));
+            let (dtype, width, len) = values.shape();
+            let end = offset + width * len;
+            header.insert(name.clone(), serde_json::json!({"dtype": dtype, "shape": [len], "data_offsets": [offset, end]}));
             offset = end;
         }
         let mut bytes = serde_json::to_vec(&serde_json::Value::Object(header)).expect("a JSON map serialises");

@@ -65,7 +65,7 @@ fn mlp_macs(mlp: &sdf_backbone::Mlp) -> f64 {
 /// runtime-dispatched tile kernel (AVX-512 here) on 256³ and on a layer's shape (16 384 rows ×
 /// 64 · 64 × 64). Each rate is the median of 5 timings after a warm-up (one timing is a few
 /// milliseconds). The machine's own state varies more: on this 2-vCPU Zen 5 machine the 256³
-/// tile read 198–208 GFLOP/s in four runs and 382 in a fifth (BENCHMARKS.md).
+/// tile read 197–208 GFLOP/s in every run but one, which read 382 (BENCHMARKS.md).
 pub fn gemm_rates() -> Vec<(&'static str, f64)> {
     let threads = rayon::current_num_threads();
     let time = |f: &(dyn Fn() + Sync)| {

@@ -221,7 +221,7 @@ pub struct RenderConfig {
     pub upsample_s: f64,
     /// Rays per work item (gradient chunk). Small enough that a work item's stored activations
     /// (rows × the MLPs' widths) stay in the core's cache between its forward and backward pass:
-    /// 8 rays of 64 samples step 10 % faster than 32 (BENCHMARKS.md, "Where a step's time goes").
+    /// 8 rays of 64 samples step 4–11 % faster than 32 (BENCHMARKS.md, "Where a step's time goes").
     pub chunk: usize,
     /// Empty-space skipping (both samplers): coarse samples only in the scene-grid cells that
     /// can hold the surface at the current s, refreshed at each grid update.

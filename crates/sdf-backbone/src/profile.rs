@@ -5,6 +5,7 @@
 //! which everything is inlined, so a sampling profiler cannot tell them apart; these counters
 //! can. They cost one relaxed atomic load per module call while disabled (the default), and two
 //! clock reads per call while enabled — calls are per work item (thousands of rows), not per row.
+//! The counters are process-wide: everything that runs while they are enabled adds to them.
 //! `cargo xtask bench backbone --preset P --profile` prints them for one step.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -31,7 +32,8 @@ pub enum Stage {
     /// The whole forward + backward pass of a work item ([`crate::Pipeline`]'s loss), modules
     /// included.
     LossPass,
-    /// Adam's update of every parameter (and the gradient's norm when clipping).
+    /// Adam's update of every parameter (with clipping on, the norm's own pass over the table
+    /// gradient counts as [`Stage::HashScatter`]).
     Adam,
 }
 

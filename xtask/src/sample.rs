@@ -110,8 +110,7 @@ pub fn run(args: &SampleArgs) -> Result<()> {
         if let Some(depth) = &depths[r.camera as usize] {
             let d = depth[(r.pixel[1] * view.camera.width + r.pixel[0]) as usize];
             if d > 0.0 {
-                let b = sampler.cameras()[r.camera as usize].bounds();
-                let cell = (b.depth[1] - b.depth[0]) / camera_config.rl as f64;
+                let cell = sampler.cameras()[r.camera as usize].depth_bin();
                 let drawn = r.depth.expect("guided rays have a depth").depth;
                 depth_errors.push(((drawn as f64 - d as f64).abs(), cell));
             }

@@ -17,27 +17,27 @@ use std::time::Instant;
 pub enum Stage {
     /// The hash grid's feature gathers (trilinear interpolation of every level).
     HashForward,
-    /// The hash grid's table gradient: the scatter of the recorded rows into each level.
-    HashScatter,
     /// The hash grid's tangents (analytic normals), forward.
     HashTangents,
-    /// The hash grid's tangents' part of the table gradient (analytic normals), a scatter.
-    HashTangentScatter,
     /// Forward passes of the MLPs (SDF and colour): products, bias, activation, stored slopes.
     MlpForward,
-    /// Backward passes of the MLPs: weight and input gradients.
-    MlpBackward,
     /// Tangent passes of the MLPs (analytic normals), forward and backward.
     MlpTangents,
+    /// Backward passes of the MLPs: weight and input gradients.
+    MlpBackward,
     /// The whole forward + backward pass of a work item ([`crate::Pipeline`]'s loss), modules
     /// included.
     LossPass,
+    /// The hash grid's table gradient: the scatter of the recorded rows into each level.
+    HashScatter,
+    /// The hash grid's tangents' part of the table gradient (analytic normals), a scatter.
+    HashTangentScatter,
     /// Adam's update of every parameter (with clipping on, the norm's own pass over the table
     /// gradient counts as [`Stage::HashScatter`]).
     Adam,
 }
 
-/// Every stage, in report order.
+/// Every stage, in report order (the enum's order: a stage's index is its discriminant).
 pub const STAGES: [Stage; 9] = [
     Stage::HashForward,
     Stage::HashTangents,
@@ -69,7 +69,7 @@ impl Stage {
         }
     }
     fn index(self) -> usize {
-        STAGES.iter().position(|s| *s == self).unwrap_or(0)
+        self as usize
     }
 }
 
@@ -106,6 +106,12 @@ pub fn span(stage: Stage) -> Span {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn stages_are_listed_in_their_discriminant_order() {
+        // `Stage::index` is the discriminant: STAGES must list the variants in declaration order.
+        assert!(STAGES.iter().enumerate().all(|(i, s)| s.index() == i));
+    }
 
     #[test]
     fn spans_count_only_while_enabled() {

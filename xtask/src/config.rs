@@ -219,6 +219,12 @@ pub struct RenderConfig {
     pub upsample_rounds: usize,
     /// Scale of the first up-sampling round, doubled each round (NeuS: 64).
     pub upsample_s: f64,
+    /// Up-sampled samples per ray of the renders (PSNR of held-out and training views,
+    /// validation pictures): no λ̃ there, so the up-sampling alone places the samples at the
+    /// surface (docs/DECISIONS.md §20: the training's 32 in 2 rounds render as well as 96 in 6).
+    pub render_fine: usize,
+    /// Up-sampling rounds of the renders (scales `upsample_s` · 2^round).
+    pub render_upsample_rounds: usize,
     /// Rays per work item (gradient chunk). Small enough that a work item's stored activations
     /// (rows × the MLPs' widths) stay in the core's cache between its forward and backward pass:
     /// 8 rays of 64 samples step 4–11 % faster than 32 (BENCHMARKS.md, "Where a step's time goes").
@@ -288,6 +294,11 @@ pub struct OutputConfig {
     pub validate_share: f64,
     /// Downscale of the validation renders.
     pub validate_downscale: u32,
+    /// Downscale of the renders for the final PSNR (held-out and training views). 1, the
+    /// resolution trained on: one ray through the centre of a downscaled pixel, against the
+    /// average of the pixels it covers, scores a sharp model below a blurred one
+    /// (docs/DECISIONS.md §20).
+    pub eval_downscale: u32,
     /// Held-out views rendered for the final PSNR (spread over the held-out set).
     pub eval_views: usize,
     /// Training views rendered for the final training-view PSNR (the render-fit figure).
@@ -367,7 +378,18 @@ impl Default for ModelConfig {
 
 impl Default for RenderConfig {
     fn default() -> Self {
-        RenderConfig { rays: 256, coarse: 32, fine: 32, upsample_rounds: 2, upsample_s: 64.0, chunk: 8, skip_empty: false, occupancy_dilation: 1 }
+        RenderConfig {
+            rays: 256,
+            coarse: 32,
+            fine: 32,
+            upsample_rounds: 2,
+            upsample_s: 64.0,
+            render_fine: 32,
+            render_upsample_rounds: 2,
+            chunk: 8,
+            skip_empty: false,
+            occupancy_dilation: 1,
+        }
     }
 }
 
@@ -401,6 +423,7 @@ impl Default for OutputConfig {
             validate_every: 100,
             validate_share: 0.1,
             validate_downscale: 2,
+            eval_downscale: 1,
             eval_views: 3,
             eval_train_views: 2,
             metrics_every: 0,
@@ -549,6 +572,12 @@ impl TrainConfig {
             self.render.upsample_rounds,
             "≥ 1 when render.fine > 0",
         )?;
+        need(
+            self.render.render_upsample_rounds >= 1 || self.render.render_fine == 0,
+            "render.render_upsample_rounds",
+            self.render.render_upsample_rounds,
+            "≥ 1 when render.render_fine > 0",
+        )?;
         need(finite_pos(self.render.upsample_s), "render.upsample_s", self.render.upsample_s, "> 0")?;
         need(self.render.chunk >= 1, "render.chunk", self.render.chunk, "≥ 1")?;
         need(self.render.occupancy_dilation <= 8, "render.occupancy_dilation", self.render.occupancy_dilation, "in 0..=8")?;
@@ -581,6 +610,7 @@ impl TrainConfig {
         self.surface.validate().map_err(|e| anyhow::anyhow!("surface.{e}"))?;
         need((0.0..=1.0).contains(&self.output.validate_share), "output.validate_share", self.output.validate_share, "in [0, 1]")?;
         need(self.output.validate_downscale >= 1, "output.validate_downscale", self.output.validate_downscale, "≥ 1")?;
+        need(self.output.eval_downscale >= 1, "output.eval_downscale", self.output.eval_downscale, "≥ 1")?;
         need(self.output.log_every >= 1, "output.log_every", self.output.log_every, "≥ 1")?;
         need((8..=2048).contains(&self.output.mesh_resolution), "output.mesh_resolution", self.output.mesh_resolution, "in 8..=2048")?;
         need((0.0..1.0).contains(&self.output.min_component_area), "output.min_component_area", self.output.min_component_area, "in [0, 1)")?;

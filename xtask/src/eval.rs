@@ -56,9 +56,15 @@ pub struct EvalArgs {
     /// Mask dilation in pixels for --cull.
     #[arg(long, default_value_t = 12)]
     pub dilate: u32,
-    /// Image downscale for --run renders.
-    #[arg(long, default_value_t = 2)]
-    pub downscale: u32,
+    /// Image downscale for --run renders (default: the run's `output.eval_downscale`).
+    #[arg(long)]
+    pub downscale: Option<u32>,
+    /// Up-sampled samples per ray of the --run renders (default: the run's `render.render_fine`).
+    #[arg(long, requires = "run")]
+    pub render_fine: Option<usize>,
+    /// Up-sampling rounds of the --run renders (default: the run's `render.render_upsample_rounds`).
+    #[arg(long, requires = "run")]
+    pub render_rounds: Option<usize>,
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
@@ -223,9 +229,13 @@ pub fn run(args: &EvalArgs) -> Result<()> {
 }
 
 fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
-    let trainer = open_run(dir)?;
+    let mut trainer = open_run(dir)?;
+    let r = &trainer.config().render;
+    let (fine, rounds) = (args.render_fine.unwrap_or(r.render_fine), args.render_rounds.unwrap_or(r.render_upsample_rounds));
+    let downscale = args.downscale.unwrap_or(trainer.config().output.eval_downscale);
+    trainer.set_render_upsampling(fine, rounds)?;
     let views = trainer.split().evaluation_views();
-    let metrics = image_metrics(&trainer, &views, args.downscale, &|_, _| {});
+    let metrics = image_metrics(&trainer, &views, downscale, &|_, _| {});
     let mut per_view = Vec::new();
     for (&v, (whole, masked, ssim)) in views.iter().zip(&metrics) {
         per_view.push(json!({"view": v, "psnr": whole, "psnr_masked": masked, "ssim": ssim}));
@@ -238,7 +248,8 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
         (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
     };
     let result = json!({"run": dir.display().to_string(), "step": trainer.state().step, "views": views, "psnr": mean("psnr"),
-        "psnr_masked": mean("psnr_masked"), "ssim": mean("ssim"), "per_view": per_view, "downscale": args.downscale});
+        "psnr_masked": mean("psnr_masked"), "ssim": mean("ssim"), "per_view": per_view, "downscale": downscale,
+        "render_fine": fine, "render_upsample_rounds": rounds});
     write_atomic(&dir.join("eval.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;
     if args.json {
         println!("{result}");

@@ -117,8 +117,16 @@ fn work_item_bytes(backbone: &Backbone, rays: usize, samples: usize, backward: b
 }
 
 /// The memory model of `config` with `backbone` on a scene of `views` views and `pixel_bytes`
-/// of images, with `threads` worker threads.
-pub fn estimate(config: &TrainConfig, backbone: &Backbone, n_params: usize, views: usize, pixel_bytes: usize, threads: usize) -> MemoryEstimate {
+/// of images, the largest view `view_pixels` pixels, with `threads` worker threads.
+pub fn estimate(
+    config: &TrainConfig,
+    backbone: &Backbone,
+    n_params: usize,
+    views: usize,
+    pixel_bytes: usize,
+    view_pixels: usize,
+    threads: usize,
+) -> MemoryEstimate {
     let t = threads.max(1) as f64;
     let n = n_params as f64;
     let tables = backbone.layout().encoding.len() as f64;
@@ -133,8 +141,12 @@ pub fn estimate(config: &TrainConfig, backbone: &Backbone, n_params: usize, view
     // Every work item's gradient (without the tables) and table record live until the sum.
     let batch = chunks * F32 * ((n - tables) + rows_per_chunk * record);
     let step = batch + t * work_item_bytes(backbone, config.render.chunk, samples, true) + t * F32 * level + F32 * (n - tables);
-    // Evaluation renders: work items of 64 rays, forward only, one per thread.
-    let evaluation = t * work_item_bytes(backbone, 64, samples, false);
+    // Evaluation renders: work items of 64 rays, forward only, one per thread, and the render's
+    // rays (origin, direction, target, mask, depths) and outputs, every pixel of a view at once.
+    let render_samples = config.render.coarse + config.render.render_fine + 1;
+    let render_rays = view_pixels as f64 / f64::from(config.output.eval_downscale.min(config.output.validate_downscale).pow(2));
+    let evaluation = t * work_item_bytes(backbone, 64, config.render.coarse + config.render.render_fine, false)
+        + render_rays * F32 * (30.0 + render_samples as f64);
     // Meshing: a block of 17³ corners per thread through the SDF network (chunks of 1024
     // rows), and the mesh (~ 12 triangles per surface cell of the resolution's shell).
     let mesh_res = f64::from(config.output.mesh_resolution);

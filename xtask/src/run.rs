@@ -216,7 +216,9 @@ pub fn check_memory(config: &TrainConfig, data: &SceneData, max_memory: Option<f
         backbone.add_learned_background(&mut Vec::new(), 0);
     }
     let n_params = backbone.n_params::<f32>();
-    let estimate = memory::estimate(config, &backbone, n_params, data.scene.views.len(), data.scene.pixel_bytes(), rayon::current_num_threads());
+    let view_pixels = data.scene.views.iter().map(|v| v.image.width as usize * v.image.height as usize).max().unwrap_or(0);
+    let estimate =
+        memory::estimate(config, &backbone, n_params, data.scene.views.len(), data.scene.pixel_bytes(), view_pixels, rayon::current_num_threads());
     let available = memory::available_bytes();
     let limit = max_memory.or(available);
     eprintln!(
@@ -455,7 +457,7 @@ fn validation_pictures(trainer: &Trainer, folder: &RunFolder, step: u64) -> Resu
 fn interim_metrics(trainer: &Trainer) -> Result<serde_json::Value> {
     let config = trainer.config();
     let view = trainer.split().evaluation_views()[0];
-    let (psnr, masked) = trainer.render_view(view, config.output.validate_downscale).psnr();
+    let (psnr, masked) = trainer.render_view(view, config.output.eval_downscale).psnr();
     let mesh = trainer.extract_mesh(&|_, _| {})?;
     let geometry = match trainer.data().ground_truth(config.output.chamfer_spacing)? {
         Some(gt) if !mesh.triangles.is_empty() => {
@@ -506,8 +508,8 @@ fn finish(trainer: &Trainer, folder: &RunFolder, progress: &Progress, train_wall
         if config.output.eval_train_views == 0 { Vec::new() } else { split.train.iter().copied().step_by(fit_every.max(1)).collect() };
     let t = Instant::now();
     let n_renders = eval_views.len() + fit_views.len();
-    let held = image_metrics(trainer, &eval_views, config.output.validate_downscale, &|i, _| progress.phase("eval", i, n_renders));
-    let fit = image_metrics(trainer, &fit_views, config.output.validate_downscale, &|i, _| progress.phase("eval", eval_views.len() + i, n_renders));
+    let held = image_metrics(trainer, &eval_views, config.output.eval_downscale, &|i, _| progress.phase("eval", i, n_renders));
+    let fit = image_metrics(trainer, &fit_views, config.output.eval_downscale, &|i, _| progress.phase("eval", eval_views.len() + i, n_renders));
     let eval_seconds = t.elapsed().as_secs_f64();
     sdf_backbone::scratch::release_all();
     let psnr = mean(held.iter().map(|p| p.0)).unwrap_or(f64::NAN);

@@ -490,6 +490,17 @@ impl Trainer {
         Ok(())
     }
 
+    /// Sets the renders' up-sampling (`render.render_fine` in `rounds` rounds): what a render
+    /// costs and resolves, not what the model learnt, so a finished run can be re-rendered with
+    /// another (`cargo xtask eval --run DIR --render-fine N --render-rounds R`).
+    pub fn set_render_upsampling(&mut self, fine: usize, rounds: usize) -> Result<()> {
+        let mut config = self.config.clone();
+        (config.render.render_fine, config.render.render_upsample_rounds) = (fine, rounds);
+        config.validate()?;
+        self.config = config;
+        Ok(())
+    }
+
     /// Renders `rays` (forward only, parallel chunks).
     pub fn render_rays(&self, rays: &[RayInput<f32>]) -> Vec<RayOutput<f32>> {
         let params = &self.state.params;
@@ -511,7 +522,7 @@ impl Trainer {
             .flat_map_iter(|row| (0..width).map(move |col| (col, row)))
             .map(|(col, row)| RayInput { target: image.get_f32(col, row), ..pixel_ray(&self.estimator, &camera, col, row, r.coarse, 0.5) })
             .collect();
-        self.backbone.upsample(&self.state.params, &mut rays, r.fine, r.upsample_rounds, r.upsample_s);
+        self.backbone.upsample(&self.state.params, &mut rays, r.render_fine, r.render_upsample_rounds, r.upsample_s);
         let outputs = self.render_rays(&rays);
         let target = rays.iter().map(|r| r.target).collect();
         let mask = mask.map(|m| (0..height).flat_map(|r| (0..width).map(move |c| (c, r))).map(|(c, r)| m.get(c, r)).collect());

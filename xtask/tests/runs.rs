@@ -154,9 +154,11 @@ fn eval_of_a_run_reproduces_the_runs_own_psnr() {
     let Outcome::Finished(summary) = train_with(&tiny_args(&out), &AtomicBool::new(false), Arc::new(AtomicFiles)).unwrap() else {
         panic!("the run was stopped")
     };
-    let o = xtask(&["eval", "--run", out.to_str().unwrap(), "--downscale", "4", "--json"]);
+    let o = xtask(&["eval", "--run", out.to_str().unwrap(), "--json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let eval: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    // Both at the resolution trained on (`output.eval_downscale` = 1), not the pictures' 4.
+    assert_eq!(eval["downscale"].as_u64(), Some(1), "{eval}");
     // The run's metrics are on the first of its evaluation views at the same downscale.
     let view = summary.metrics["psnr_views"][0].as_u64().unwrap();
     let per_view = eval["per_view"].as_array().unwrap().iter().find(|p| p["view"].as_u64() == Some(view)).expect("the view is evaluated");
@@ -164,6 +166,13 @@ fn eval_of_a_run_reproduces_the_runs_own_psnr() {
     assert!((a - b).abs() < 1e-6, "eval --run gives {a} dB, the run {b} dB on view {view}");
     let masked = per_view["psnr_masked"].as_f64().unwrap();
     assert!(a.is_finite() && a > 5.0 && masked.is_finite() && masked > 5.0, "{per_view}");
-    // SSIM needs images larger than its window: none at this size.
-    assert!(eval["ssim"].is_null() || eval["ssim"].as_f64().is_some_and(|s| s > 0.0 && s <= 1.0), "{}", eval["ssim"]);
+    // SSIM is in [−1, 1] (below 0 for a model of 6 iterations), absent for images smaller than its window.
+    assert!(eval["ssim"].is_null() || eval["ssim"].as_f64().is_some_and(|s| (-1.0..=1.0).contains(&s)), "{}", eval["ssim"]);
+    // The renders' up-sampling is not part of what was learnt: another one re-renders the run
+    // (a changed training key would be refused).
+    let o = xtask(&["eval", "--run", out.to_str().unwrap(), "--render-fine", "4", "--render-rounds", "1", "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let coarse: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!((coarse["render_fine"].as_u64(), coarse["render_upsample_rounds"].as_u64()), (Some(4), Some(1)), "{coarse}");
+    assert!(coarse["psnr"].as_f64().is_some_and(f64::is_finite), "{coarse}");
 }

@@ -141,7 +141,7 @@ fn render_fit_reaches_24_db_inside_the_masks_of_the_training_views() {
         "output.validate_every=0",
         "output.checkpoint_every=0",
         "output.mesh_resolution=32",
-        "output.validate_downscale=1",
+        "output.eval_downscale=1",
         "output.eval_views=2",
         "output.eval_train_views=4",
         "output.log_every=50",

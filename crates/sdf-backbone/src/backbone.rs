@@ -455,7 +455,11 @@ impl Backbone {
         let (loss, outputs, deferred) = self.loss_parallel_split(params, rays, &mut rest, chunk, extra);
         // The table blocks (levels; dense coarse levels are smaller than hashed ones).
         let blocks: Vec<Range<usize>> = crate::module::deferred_block_ranges::<f32, _>(&self.sdf);
-        // The global norm for clipping (a first pass over the table blocks).
+        // The global norm for clipping (a first pass over the table blocks). Clipping therefore
+        // scatters the table gradient twice, once for the norm and once for the update: keeping
+        // the first pass's blocks would need a buffer the size of the tables, which this deferred
+        // update exists to avoid. Clipping is off by default (`optim.clip_norm` = 0); with it on,
+        // a step costs one more scatter (BENCHMARKS.md, "The backbone against PyTorch-CPU").
         let mut scale = 1.0f32;
         if let Some(max) = rates.clip_norm {
             let tables: f64 = blocks

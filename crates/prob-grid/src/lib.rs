@@ -33,8 +33,8 @@
 //! 4 % above (every scene within one standard deviation). The defaults stay the
 //! paper's method. The guide itself is what matters: uniform sampling's Chamfer is 12–35 % higher
 //! on every scene at 60 s; at 2 minutes guided reaches 0.87× uniform's Chamfer over five golden
-//! scenes (two batches of 3 seeds: 0.85× and 0.89×; 0.77–0.93 per scene), at 5 minutes 0.92× once
-//! the extra points are widened by a λ bin
+//! scenes (two batches of 3 seeds: 0.85× and 0.89×; 0.77–0.93 per scene), at 5 minutes 0.90×
+//! (one batch; 0.78–0.96 per scene) with the extra points widened by a λ bin
 //! (with the paper's spread it plateaued after 2 minutes; docs/DECISIONS.md §18, BENCHMARKS.md
 //! "Why guided plateaued").
 //!

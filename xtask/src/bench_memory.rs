@@ -7,6 +7,7 @@
 //! figures come from the run's `metrics.json` and `log.jsonl` (`peak_rss_bytes` is the kernel's
 //! high-water mark `VmHWM`, `rss_bytes` the resident size when the line was logged).
 
+use crate::metrics::RunMetrics;
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
 use std::path::Path;
@@ -23,11 +24,6 @@ fn train_child(out: &Path, overrides: &[String]) -> Result<f64> {
         bail!("xtask train {} failed ({}):\n{}", overrides.join(" "), output.status, tail.into_iter().rev().collect::<Vec<_>>().join("\n"));
     }
     Ok(started.elapsed().as_secs_f64())
-}
-
-fn read_json(path: &Path) -> Result<Value> {
-    serde_json::from_str(&std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?)
-        .with_context(|| format!("parsing {}", path.display()))
 }
 
 /// `bench memory`: each preset for `steps` iterations end to end.
@@ -50,22 +46,22 @@ pub fn memory(presets: &[String], steps: u64, json_out: bool) -> Result<()> {
             "output.metrics_every=0".into(),
         ];
         let wall = train_child(&out, &overrides)?;
-        let m = read_json(&out.join("metrics.json"))?;
-        let f = |k: &str| m[k].as_f64().unwrap_or(f64::NAN);
-        let (peak, estimate) = (f("peak_rss_bytes"), f("memory_estimate_bytes"));
-        let eval_s = f("eval_s") + f("geometry_s");
+        let m = RunMetrics::read(&out)?;
+        let peak = m.peak_rss_bytes.context("the peak resident memory is not known on this system")?;
+        let estimate = m.memory_estimate_bytes;
+        let eval_s = m.eval_s + m.geometry_s;
         if json_out {
             println!(
                 "{}",
-                json!({"bench": "memory", "preset": preset, "steps": m["steps"], "iteration_s": f("iteration_s"), "mesh_s": f("mesh_s"),
+                json!({"bench": "memory", "preset": preset, "steps": m.steps, "iteration_s": m.iteration_s, "mesh_s": m.mesh_s,
                     "eval_s": eval_s, "wall_s": wall, "peak_rss_bytes": peak, "memory_estimate_bytes": estimate})
             );
         } else {
             println!(
                 "| {preset} | {} | {:.3} | {:.1} | {:.1} | {wall:.0} | {:.2} GB | {:.2} GB | {:.2} |",
-                m["steps"],
-                f("iteration_s"),
-                f("mesh_s"),
+                m.steps,
+                m.iteration_s,
+                m.mesh_s,
                 eval_s,
                 peak / 1e9,
                 estimate / 1e9,
@@ -103,12 +99,12 @@ pub fn soak(iterations: u64, every: u64, json_out: bool) -> Result<()> {
     let n = warm.len() as f64;
     let (mx, my) = (warm.iter().map(|(s, _)| *s as f64).sum::<f64>() / n, warm.iter().map(|(_, r)| *r).sum::<f64>() / n);
     let slope = warm.iter().map(|(s, r)| (*s as f64 - mx) * (r - my)).sum::<f64>() / warm.iter().map(|(s, _)| (*s as f64 - mx).powi(2)).sum::<f64>();
-    let m = read_json(&out.join("metrics.json"))?;
+    let m = RunMetrics::read(&out)?;
     if json_out {
         println!(
             "{}",
             json!({"bench": "soak", "iterations": iterations, "wall_s": wall, "samples": samples, "after_warmup_min": lo, "after_warmup_max": hi,
-                "slope_bytes_per_1000_iterations": slope * 1000.0, "peak_rss_bytes": m["peak_rss_bytes"]})
+                "slope_bytes_per_1000_iterations": slope * 1000.0, "peak_rss_bytes": m.peak_rss_bytes})
         );
     } else {
         println!("| iteration | resident (MB) |\n|---|---|");
@@ -121,7 +117,7 @@ pub fn soak(iterations: u64, every: u64, json_out: bool) -> Result<()> {
             lo / 1e6,
             hi / 1e6,
             slope * 1000.0 / 1e6,
-            m["peak_rss_bytes"].as_f64().unwrap_or(f64::NAN) / 1e6
+            m.peak_rss_bytes.unwrap_or(f64::NAN) / 1e6
         );
     }
     let _ = std::fs::remove_dir_all(&out);

@@ -12,7 +12,7 @@ use std::time::Instant;
 
 /// Runs the benchmark on the model of `run` for `iterations` pairs.
 pub fn run(run_dir: &Path, iterations: u64, json_out: bool) -> Result<()> {
-    let mut guided = open_run(run_dir)?;
+    let mut guided = open_run(run_dir, None)?;
     let mut config = guided.config().clone();
     config.sampler = SamplerKind::Uniform;
     let mut uniform = Trainer::new(config, guided.data().clone())?;

@@ -9,7 +9,7 @@
 //! 128³ and 64 × 64 × 128), which `TrainConfig::default` says.
 //!
 //! Schedules are defined on the *fraction of the run* done, so that a run can be bounded by
-//! `steps` or by `time_budget_s` alike: learning rate (warm-up and decay), coarse-to-fine levels,
+//! a number of steps or by training time alike ([`Budget`]): learning rate (warm-up and decay), coarse-to-fine levels,
 //! the curvature ramp, the uniform-ray fractions and the grid updates (`guide.updates` per run).
 
 use anyhow::{Context, Result, bail};
@@ -18,17 +18,93 @@ use prob_grid::{CameraGridConfig, SceneGridConfig};
 use sdf_backbone::{LrSchedule, NormalScheme, Preset};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use std::time::Duration;
 use surface_losses::{ExtraPoints, SurfaceLossConfig};
 use view_sampler::Interpolation;
 
 /// Which rays the trainer draws.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum SamplerKind {
     /// The probability-guided sampler with the surface losses and the extra ray points.
+    #[default]
     Guided,
     /// Uniform pixels, the plain backbone (same rays and samples per ray).
     Uniform,
+}
+
+/// How long a run trains: a number of iterations, or training wall time (grid updates and
+/// surface losses included; validation pictures, checkpoints, meshing and evaluation excluded).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "BudgetToml", into = "BudgetToml")]
+pub enum Budget {
+    /// This many iterations (≥ 1).
+    Steps(u64),
+    /// This much training time (> 0).
+    Time(Duration),
+}
+
+impl Budget {
+    /// A time budget of `seconds`; an error unless it is finite and positive.
+    pub fn seconds(seconds: f64) -> Result<Budget> {
+        if !(seconds.is_finite() && seconds > 0.0) {
+            bail!("a time budget must be a positive number of seconds, not {seconds}");
+        }
+        Duration::try_from_secs_f64(seconds).map(Budget::Time).map_err(|_| anyhow::anyhow!("a time budget of {seconds} s is too long"))
+    }
+
+    /// The time budget in seconds (`None` for a step budget).
+    pub fn time_s(self) -> Option<f64> {
+        match self {
+            Budget::Time(d) => Some(d.as_secs_f64()),
+            Budget::Steps(_) => None,
+        }
+    }
+
+    /// The step budget (`None` for a time budget).
+    pub fn steps(self) -> Option<u64> {
+        match self {
+            Budget::Steps(n) => Some(n),
+            Budget::Time(_) => None,
+        }
+    }
+}
+
+impl std::fmt::Display for Budget {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Budget::Steps(n) => write!(f, "{n} steps"),
+            Budget::Time(d) => write!(f, "{:.0} s budget", d.as_secs_f64()),
+        }
+    }
+}
+
+/// A budget as TOML writes it: exactly one of the two keys.
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BudgetToml {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    steps: Option<u64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    seconds: Option<f64>,
+}
+
+impl TryFrom<BudgetToml> for Budget {
+    type Error = String;
+    fn try_from(text: BudgetToml) -> std::result::Result<Self, String> {
+        match (text.steps, text.seconds) {
+            (Some(0), None) => Err("budget.steps = 0 is out of range: expected ≥ 1".into()),
+            (Some(n), None) => Ok(Budget::Steps(n)),
+            (None, Some(s)) => Budget::seconds(s).map_err(|e| format!("budget.seconds: {e}")),
+            _ => Err("a budget is `{ steps = N }` or `{ seconds = X }`: exactly one of the two".into()),
+        }
+    }
+}
+
+impl From<Budget> for BudgetToml {
+    fn from(budget: Budget) -> Self {
+        BudgetToml { steps: budget.steps(), seconds: budget.time_s() }
+    }
 }
 
 /// How Adam stores the hash tables' moments.
@@ -111,14 +187,12 @@ impl BackgroundModel {
 pub struct TrainConfig {
     /// Seed of every random stream.
     pub seed: u64,
-    /// Training iterations (when `time_budget_s` is 0; giving `steps` alone, in a file or an
-    /// override, turns the time budget off).
-    pub steps: u64,
-    /// Train for this many seconds instead of `steps` (0: off). The schedules follow the fraction
-    /// of the budget spent; the run stops at the budget and writes its mesh and metrics. Default
-    /// 120 s: the default run takes the same time on any machine, and a faster build trains more
-    /// iterations in it.
-    pub time_budget_s: f64,
+    /// How long the run trains: `budget = { seconds = 120.0 }` or `budget = { steps = 300 }`
+    /// (also written `steps = N` or `time_budget_s = X` in a file or an override). The schedules
+    /// follow the fraction of the budget spent; the run stops at the budget and writes its mesh
+    /// and metrics. Default 120 s: the default run takes the same time on any machine, and a
+    /// faster build trains more iterations in it.
+    pub budget: Budget,
     /// Guided or uniform.
     pub sampler: SamplerKind,
     /// Data options.
@@ -333,8 +407,7 @@ impl Default for TrainConfig {
     fn default() -> Self {
         TrainConfig {
             seed: 0,
-            steps: 300,
-            time_budget_s: 120.0,
+            budget: Budget::Time(Duration::from_secs(120)),
             sampler: SamplerKind::Guided,
             data: DataConfig::default(),
             model: ModelConfig::default(),
@@ -462,16 +535,15 @@ fn set_dotted(table: &mut toml::Table, key: &str, raw: &str) -> Result<()> {
     Ok(())
 }
 
-/// Parses a duration such as `90`, `90s`, `10m`, `1.5h` into seconds.
-pub fn parse_duration(text: &str) -> Result<f64> {
+/// Parses a duration such as `90`, `90s`, `10m`, `1.5h`, `1e3s` (a number, then an optional
+/// unit: s, m, h).
+pub fn parse_duration(text: &str) -> Result<Duration> {
     let t = text.trim();
-    let (number, unit) = match t.char_indices().find(|(_, c)| c.is_ascii_alphabetic()) {
-        Some((i, _)) => (&t[..i], &t[i..]),
-        None => (t, "s"),
-    };
+    let unit_start = t.trim_end_matches(|c: char| c.is_ascii_alphabetic()).len();
+    let (number, unit) = t.split_at(unit_start);
     let value: f64 = number.trim().parse().with_context(|| format!("{text:?} is not a duration (e.g. 90s, 10m, 1h)"))?;
     let scale = match unit {
-        "s" | "sec" => 1.0,
+        "" | "s" | "sec" => 1.0,
         "m" | "min" => 60.0,
         "h" => 3600.0,
         other => bail!("{text:?}: unknown unit {other:?} (s, m, h)"),
@@ -480,7 +552,31 @@ pub fn parse_duration(text: &str) -> Result<f64> {
     if !(seconds.is_finite() && seconds > 0.0) {
         bail!("{text:?}: a duration must be positive");
     }
-    Ok(seconds)
+    Duration::try_from_secs_f64(seconds).with_context(|| format!("{text:?} is too long a duration"))
+}
+
+/// The budget's short keys (`steps = N`, `time_budget_s = X`, as earlier versions wrote them)
+/// turned into `budget`. Both in one table is how earlier versions wrote a run folder's
+/// configuration: the time budget, unless it is 0 (then the steps).
+fn budget_from_short_keys(table: &mut toml::Table) -> Result<()> {
+    let steps = table.remove("steps");
+    let seconds = table.remove("time_budget_s");
+    let one = |key: &str, value: toml::Value| toml::Table::from_iter([(key.to_string(), value)]);
+    let budget = match (steps, seconds) {
+        (None, None) => return Ok(()),
+        (Some(steps), None) => one("steps", steps),
+        (steps, Some(seconds)) => {
+            let seconds = seconds.as_integer().map_or(seconds.clone(), |i| toml::Value::Float(i as f64));
+            match steps {
+                Some(steps) if seconds.as_float() == Some(0.0) => one("steps", steps),
+                _ => one("seconds", seconds),
+            }
+        }
+    };
+    if table.insert("budget".into(), toml::Value::Table(budget)).is_some() {
+        bail!("give the budget once: `budget`, `steps` or `time_budget_s`");
+    }
+    Ok(())
 }
 
 impl TrainConfig {
@@ -493,13 +589,16 @@ impl TrainConfig {
             }
             None => toml::Table::new(),
         };
+        budget_from_short_keys(&mut table).with_context(|| format!("config {}", file.map_or(Default::default(), |p| p.display().to_string())))?;
         for o in overrides {
             let (k, v) = o.split_once('=').with_context(|| format!("override {o:?} is not key=value"))?;
-            set_dotted(&mut table, k.trim(), v.trim())?;
-        }
-        // A number of steps given without a time budget means a run of that many steps.
-        if table.contains_key("steps") && !table.contains_key("time_budget_s") {
-            table.insert("time_budget_s".into(), toml::Value::Float(0.0));
+            let k = k.trim();
+            // A budget given on the command line replaces the file's (one budget per run).
+            if k == "steps" || k == "time_budget_s" || k == "budget" || k.starts_with("budget.") {
+                table.remove("budget");
+            }
+            set_dotted(&mut table, k, v.trim())?;
+            budget_from_short_keys(&mut table)?;
         }
         let origin = file.map_or("the command line".to_string(), |p| format!("{} and the command line", p.display()));
         let config: TrainConfig = table.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("config from {origin}: {}", e.message()))?;
@@ -509,14 +608,16 @@ impl TrainConfig {
 
     /// Parses the TOML text of a resolved configuration (a run folder's `config.toml`).
     pub fn from_toml(text: &str) -> Result<TrainConfig> {
-        let config: TrainConfig = toml::from_str(text).map_err(|e| anyhow::anyhow!("{}", e.message()))?;
+        let mut table: toml::Table = toml::from_str(text).map_err(|e| anyhow::anyhow!("{}", e.message()))?;
+        budget_from_short_keys(&mut table)?;
+        let config: TrainConfig = table.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("{}", e.message()))?;
         config.validate()?;
         Ok(config)
     }
 
     /// Whether the run is bounded by time rather than steps.
     pub fn timed(&self) -> bool {
-        self.time_budget_s > 0.0
+        matches!(self.budget, Budget::Time(_))
     }
 
     /// Checks every range; the error names the key.
@@ -526,9 +627,15 @@ impl TrainConfig {
         }
         let finite_pos = |v: f64| v.is_finite() && v > 0.0;
         let non_neg = |v: f64| v.is_finite() && v >= 0.0;
-        need(self.steps >= 1, "steps", self.steps, "≥ 1")?;
-        need(non_neg(self.time_budget_s), "time_budget_s", self.time_budget_s, "≥ 0 (0: bounded by steps)")?;
+        need(self.budget != Budget::Steps(0), "budget.steps", 0, "≥ 1")?;
+        need(self.budget != Budget::Time(Duration::ZERO), "budget.seconds", 0, "> 0")?;
         need(self.data.downscale >= 1, "data.downscale", self.data.downscale, "≥ 1")?;
+        need(
+            self.data.holdout_every != 1,
+            "data.holdout_every",
+            self.data.holdout_every,
+            "0 (none held out) or ≥ 2 (1 would hold out every view and leave none to train on)",
+        )?;
         need(
             self.data.bound.is_empty() || (self.data.bound.len() == 4 && self.data.bound.iter().all(|v| v.is_finite()) && self.data.bound[3] > 0.0),
             "data.bound",
@@ -684,14 +791,17 @@ mod tests {
             ],
         )
         .unwrap();
-        assert_eq!((c.steps, c.guide.scene.partition, c.sampler, c.guide.extra), (7, 1, SamplerKind::Uniform, ExtraPoints::LogVariance));
+        assert_eq!(
+            (c.budget, c.guide.scene.partition, c.sampler, c.guide.extra),
+            (Budget::Steps(7), 1, SamplerKind::Uniform, ExtraPoints::LogVariance)
+        );
         assert_eq!(c.guide.camera.view_dependency, prob_grid::ViewDependency::Quadrature);
         assert_eq!(c.guide.camera.weighting, prob_grid::Weighting::MassPreserving);
         assert_eq!((c.guide.interpolation, c.model.preset, c.model.normals), (Interpolation::Nearest, Preset::NeusCpu, NormalScheme::Central));
         assert_eq!(c.optim.schedule.decay, sdf_backbone::Decay::Step);
         assert_eq!(c.output.mesh_formats, vec![MeshFormat::Obj, MeshFormat::Glb]);
         let d = TrainConfig::default().differences(&c);
-        assert!(d.contains(&"guide.scene.partition".to_string()) && d.contains(&"steps".to_string()), "{d:?}");
+        assert!(d.contains(&"guide.scene.partition".to_string()) && d.contains(&"budget.steps".to_string()), "{d:?}");
     }
 
     #[test]
@@ -738,17 +848,38 @@ mod tests {
     fn steps_alone_turn_the_time_budget_off() {
         assert!(TrainConfig::default().timed());
         let c = TrainConfig::load(None, &["steps=40".into()]).unwrap();
-        assert!(!c.timed() && c.steps == 40);
+        assert_eq!(c.budget, Budget::Steps(40));
+        // The last budget given wins.
         let c = TrainConfig::load(None, &["steps=40".into(), "time_budget_s=30".into()]).unwrap();
-        assert!(c.timed() && c.time_budget_s == 30.0);
+        assert_eq!(c.budget, Budget::Time(Duration::from_secs(30)));
+        let c = TrainConfig::load(None, &["time_budget_s=30".into(), "budget.steps=7".into()]).unwrap();
+        assert_eq!(c.budget, Budget::Steps(7));
+        for bad in ["steps=0", "time_budget_s=-1", "budget.seconds=0", "time_budget_s=1e300"] {
+            assert!(TrainConfig::load(None, &[bad.into()]).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn a_run_folder_of_an_earlier_version_keeps_its_budget() {
+        let mut old = TrainConfig::default().to_toml().replace("[budget]\nseconds = 120.0\n", "");
+        old.insert_str(0, "steps = 300\ntime_budget_s = 90.0\n");
+        assert_eq!(TrainConfig::from_toml(&old).unwrap().budget, Budget::Time(Duration::from_secs(90)));
+        let old = old.replace("time_budget_s = 90.0", "time_budget_s = 0.0");
+        assert_eq!(TrainConfig::from_toml(&old).unwrap().budget, Budget::Steps(300));
+    }
+
+    #[test]
+    fn a_struct_built_budget_is_the_budget() {
+        // The trap of earlier versions: a `steps` field that only `load` made binding.
+        let c = TrainConfig { budget: Budget::Steps(5), ..TrainConfig::default() };
+        assert!(!c.timed() && c.budget.steps() == Some(5));
     }
 
     #[test]
     fn durations_parse_with_units() {
-        assert_eq!(parse_duration("90").unwrap(), 90.0);
-        assert_eq!(parse_duration("10m").unwrap(), 600.0);
-        assert_eq!(parse_duration("1.5h").unwrap(), 5400.0);
-        assert_eq!(parse_duration("45s").unwrap(), 45.0);
+        let secs = |t: &str| parse_duration(t).unwrap().as_secs_f64();
+        assert_eq!((secs("90"), secs("10m"), secs("1.5h"), secs("45s"), secs("1e3s"), secs("2e1")), (90.0, 600.0, 5400.0, 45.0, 1000.0, 20.0));
         assert!(parse_duration("-3m").is_err() && parse_duration("3 weeks").is_err() && parse_duration("m").is_err());
+        assert!(format!("{:#}", parse_duration("3d").unwrap_err()).contains("unknown unit"));
     }
 }

@@ -78,7 +78,9 @@ impl SceneData {
         if mesh_path.exists() {
             let ply = PlyData::read(&mesh_path).with_context(|| format!("ground-truth mesh {}", mesh_path.display()))?;
             let v: Vec<[f32; 3]> = ply.positions.iter().map(to_normalized).collect();
-            return Ok(Some(eval_metrics::sample_mesh(&v, &ply.faces, spacing as f32, 7)));
+            return Ok(Some(
+                eval_metrics::sample_mesh(&v, &ply.faces, spacing, 7).with_context(|| format!("ground-truth mesh {}", mesh_path.display()))?,
+            ));
         }
         let points_path = dir.join("gt_points.ply");
         if points_path.exists() {

@@ -2,13 +2,22 @@
 //! held-out views (PSNR whole and masked, SSIM).
 
 use crate::outputs::dilate;
-use crate::run::{image_metrics, open_run};
+use crate::run::open_run;
 use anyhow::{Context, Result, bail};
 use datasets::io::{PlyData, write_atomic};
 use datasets::{LoadOptions, load_scene};
 use glam::Vec3;
 use serde_json::json;
 use std::path::{Path, PathBuf};
+
+/// A positive finite number (the evaluation's distances).
+fn positive(text: &str) -> Result<f64> {
+    let v: f64 = text.trim().parse().with_context(|| format!("{text:?} is not a number"))?;
+    if !(v.is_finite() && v > 0.0) {
+        bail!("{text:?}: expected a positive distance");
+    }
+    Ok(v)
+}
 
 /// Options of `cargo xtask eval`.
 #[derive(clap::Args, Debug)]
@@ -29,13 +38,13 @@ pub struct EvalArgs {
     #[arg(long)]
     pub run: Option<PathBuf>,
     /// Sampling spacing on meshes (world units; DTU: 0.2 mm). Default: GT diagonal / 1000.
-    #[arg(long)]
+    #[arg(long, value_parser = positive)]
     pub spacing: Option<f64>,
     /// Outlier distance (DTU: 20 mm). Default: GT diagonal / 20.
-    #[arg(long)]
+    #[arg(long, value_parser = positive)]
     pub max_dist: Option<f64>,
     /// F-score threshold τ. Default: GT diagonal / 200.
-    #[arg(long)]
+    #[arg(long, value_parser = positive)]
     pub tau: Option<f64>,
     /// NeuralWarp-style culling: keep predicted points inside the masks (dilated by
     /// `--dilate` pixels) of at least two views of --data.
@@ -57,7 +66,7 @@ pub struct EvalArgs {
     #[arg(long, default_value_t = 12)]
     pub dilate: u32,
     /// Image downscale for --run renders (default: the run's `output.eval_downscale`).
-    #[arg(long)]
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub downscale: Option<u32>,
     /// Up-sampled samples per ray of the --run renders (default: the run's `render.render_fine`).
     #[arg(long, requires = "run")]
@@ -157,14 +166,21 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     };
     let (lo, hi) = bounds(gt_points.as_deref().unwrap_or(&gt_v));
     let diagonal = f64::from((hi - lo).length());
+    if !(diagonal.is_finite() && diagonal > 0.0) {
+        bail!(
+            "the ground truth {} is degenerate (its bounding box has diagonal {diagonal}): a single point or non-finite coordinates",
+            gt_mesh.as_ref().or(gt_points_path.as_ref()).map_or(String::new(), |p| p.display().to_string())
+        );
+    }
     let spacing = args.spacing.unwrap_or(diagonal / 1000.0);
     let max_dist = args.max_dist.unwrap_or(diagonal / 20.0);
     let tau = args.tau.unwrap_or(diagonal / 200.0);
     let gt = match gt_points {
         Some(p) => p,
-        None => eval_metrics::sample_mesh(&gt_v, &gt_f, spacing as f32, 7),
+        None => eval_metrics::sample_mesh(&gt_v, &gt_f, spacing, 7).context("the ground-truth mesh")?,
     };
-    let mut pred = eval_metrics::sample_mesh(&vertices, &triangles, spacing as f32, 11);
+    let mut pred = eval_metrics::sample_mesh(&vertices, &triangles, spacing, 11)
+        .with_context(|| format!("the mesh {}", args.mesh.as_ref().map_or(String::new(), |m| m.display().to_string())))?;
     let before = pred.len();
     if args.cull {
         let dir = args.data.as_ref().expect("clap: --cull requires --data");
@@ -229,13 +245,13 @@ pub fn run(args: &EvalArgs) -> Result<()> {
 }
 
 fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
-    let mut trainer = open_run(dir)?;
+    let mut trainer = open_run(dir, None)?;
     let r = &trainer.config().render;
     let (fine, rounds) = (args.render_fine.unwrap_or(r.render_fine), args.render_rounds.unwrap_or(r.render_upsample_rounds));
     let downscale = args.downscale.unwrap_or(trainer.config().output.eval_downscale);
     trainer.set_render_upsampling(fine, rounds)?;
     let views = trainer.split().evaluation_views();
-    let metrics = image_metrics(&trainer, &views, downscale, &|_, _| {});
+    let metrics = views.iter().map(|&v| trainer.view_metrics(v, downscale)).collect::<Result<Vec<_>>>()?;
     let mut per_view = Vec::new();
     for (&v, (whole, masked, ssim)) in views.iter().zip(&metrics) {
         per_view.push(json!({"view": v, "psnr": whole, "psnr_masked": masked, "ssim": ssim}));
@@ -255,8 +271,9 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
         println!("{result}");
     } else {
         println!(
-            "mean over {} held-out views: PSNR {:.2} dB, masked {:?}, SSIM {:?} (written to {})",
+            "mean over {} {} views: PSNR {:.2} dB, masked {:?}, SSIM {:?} (written to {})",
             views.len(),
+            if trainer.split().held_out.is_empty() { "training (none held out)" } else { "held-out" },
             mean("psnr").unwrap_or(f64::NAN),
             mean("psnr_masked"),
             mean("ssim"),

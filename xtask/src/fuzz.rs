@@ -888,8 +888,7 @@ fn replay(args: &FuzzArgs, targets: &[Target], hooks: &ProcessHooks) -> Result<b
 fn worker(args: &FuzzArgs, targets: &[Target], hooks: &ProcessHooks) -> Result<bool> {
     let inflight = args.out.join("inflight");
     std::fs::create_dir_all(&inflight).with_context(|| format!("creating {}", inflight.display()))?;
-    let deadline =
-        args.time.as_deref().map(crate::config::parse_duration).transpose()?.map(|s| Instant::now() + std::time::Duration::from_secs_f64(s));
+    let deadline = args.time.as_deref().map(crate::config::parse_duration).transpose()?.map(|d| Instant::now() + d);
     // Seeds and the checkpoint target's runs are built before the cap (they train a tiny run).
     let seeds = seeds_of(targets);
     let threads = rayon::current_num_threads();

@@ -7,11 +7,13 @@
 //!   the training/held-out split.
 //! - [`trainer`]: [`trainer::Trainer`] — step, checkpoint/restore, renders, mesh.
 //! - [`rays`]: drawn pixels → the backbone's rays (coarse samples, up-sampling, extra points).
-//! - [`run`]: the `train` command — run folder, log, pictures, checkpoints, resume, stop
-//!   signal, final mesh and metrics; [`run::open_run`] reopens a run folder.
+//! - [`run`]: the `train` command — [`run::RunRequest`] → [`run::run`]: log, pictures,
+//!   checkpoints, resume, stop signal, final mesh and metrics; [`run::open_run`] reopens a run.
+//! - [`folder`]: the run folder (marker, reuse rules, atomic files, the data record and its
+//!   fingerprint); [`metrics`]: [`metrics::RunMetrics`], the typed `metrics.json`.
 //! - [`outputs`], [`progress`], [`draw`]: renders, panels, mesh files and filters, progress.
 //! - [`fuzz`]: every parser of user input under mutated bytes.
-//! - [`eval`], [`trade`], [`sample`], [`bench`], [`bench_backbone`], [`bench_memory`], [`bench_overhead`]: the
+//! - [`eval`], [`trade`], [`sample`], [`bench`](mod@bench), [`bench_backbone`], [`bench_memory`], [`bench_overhead`]: the
 //!   other commands; [`memory`]: the memory model; [`plot`]: labelled plots.
 #![deny(missing_docs)]
 
@@ -23,8 +25,10 @@ pub mod config;
 pub mod data;
 pub mod draw;
 pub mod eval;
+pub mod folder;
 pub mod fuzz;
 pub mod memory;
+pub mod metrics;
 pub mod outputs;
 pub mod plot;
 pub mod progress;

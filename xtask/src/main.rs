@@ -89,14 +89,14 @@ enum ImportKind {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Print every camera as JSON (K, world_from_camera in the normalised frame, centre, size) and
-    /// write a PLY of the camera frusta and the unit sphere.
+    /// Print every camera as JSON (K, world_from_camera in the normalised frame, centre, size)
+    /// and, with --ply, write a PLY of the camera frusta and the unit sphere.
     Cameras {
         #[command(flatten)]
         data: DataArgs,
-        /// Where to write the PLY.
-        #[arg(long, default_value = "cameras.ply")]
-        ply: PathBuf,
+        /// Write a PLY of the frusta and the unit sphere here (nothing is written without it).
+        #[arg(long)]
+        ply: Option<PathBuf>,
     },
     /// Load a dataset fully (images and masks) and report what was loaded.
     Inspect {
@@ -235,7 +235,7 @@ fn stop_signal() -> Arc<AtomicBool> {
         if handler_flag.swap(true, Ordering::SeqCst) {
             std::process::exit(130);
         }
-        eprintln!("\nstopping after this iteration (a checkpoint will be written); Ctrl-C again to quit now");
+        eprintln!("\n{}", run::stop_message());
     });
     flag
 }
@@ -282,7 +282,7 @@ fn main() -> Result<()> {
         Command::Bench { which: BenchKind::Overhead { run, iterations, json } } => bench_overhead::run(&run, iterations, json),
         Command::Bench { which: BenchKind::Memory { preset, steps, json } } => bench_memory::memory(&preset, steps, json),
         Command::Bench { which: BenchKind::Soak { iterations, every, json } } => bench_memory::soak(iterations, every, json),
-        Command::Cameras { data, ply } => cameras(&data, &ply),
+        Command::Cameras { data, ply } => cameras(&data, ply.as_deref()),
         Command::Inspect { data } => inspect(&data),
         Command::Golden { shape, mesh, rig, out, views, width, height, seed, mesh_z_up, no_backdrop, thumbnail } => {
             let mut spec = match (shape, mesh) {
@@ -323,7 +323,7 @@ fn main() -> Result<()> {
     }
 }
 
-fn cameras(data: &DataArgs, ply_path: &PathBuf) -> Result<()> {
+fn cameras(data: &DataArgs, ply_path: Option<&std::path::Path>) -> Result<()> {
     let cams = read_cameras(&data.data, &data.options())?;
     let mut list = Vec::new();
     let mut ply = PlyData::default();
@@ -371,7 +371,9 @@ fn cameras(data: &DataArgs, ply_path: &PathBuf) -> Result<()> {
         }
     }
     ply.colors = vec![[255, 255, 255]; ply.positions.len()];
-    ply.write(ply_path)?;
+    if let Some(path) = ply_path {
+        ply.write(path)?;
+    }
     let m = cams.world_from_normalized;
     let out = serde_json::json!({
         "source": cams.source,

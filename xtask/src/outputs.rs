@@ -186,7 +186,7 @@ pub fn mesh_files(mesh: &IsoMesh, world_from_normalized: &DMat4, colors: Option<
 /// Chamfer and F-score of a mesh (normalised frame) against ground-truth points.
 pub fn geometry_metrics(mesh: &IsoMesh, gt: &[[f32; 3]], spacing: f64, max_dist: f64, tau: f64) -> Result<eval_metrics::GeometryMetrics> {
     let v: Vec<[f32; 3]> = mesh.vertices.iter().map(|p| p.to_array()).collect();
-    let pred = eval_metrics::sample_mesh(&v, &mesh.triangles, spacing as f32, 11);
+    let pred = eval_metrics::sample_mesh(&v, &mesh.triangles, spacing, 11)?;
     Ok(eval_metrics::chamfer(&pred, gt, max_dist, tau)?)
 }
 

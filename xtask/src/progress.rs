@@ -8,8 +8,8 @@ use std::time::Instant;
 /// The run's progress display.
 pub struct Progress {
     bar: Option<indicatif::ProgressBar>,
-    timed: bool,
-    steps: u64,
+    /// The step budget (`None`: a time budget).
+    steps: Option<u64>,
     /// (last line printed, the phase it was for) for the log-line mode.
     last: Mutex<(Instant, String)>,
     /// The current post-training phase and when it started (for its ETA).
@@ -39,8 +39,7 @@ impl Progress {
         });
         Progress {
             bar,
-            timed: config.timed(),
-            steps: config.steps,
+            steps: config.budget.steps(),
             last: Mutex::new((Instant::now(), String::new())),
             phase_start: Mutex::new((String::new(), Instant::now())),
             started: Instant::now(),
@@ -49,7 +48,10 @@ impl Progress {
 
     /// Training at iteration `step`, `progress` ∈ [0, 1], `left` seconds to go.
     pub fn set(&self, step: u64, progress: f64, left: f64, message: &str) {
-        let what = if self.timed { format!("iteration {step}") } else { format!("iteration {step}/{}", self.steps) };
+        let what = match self.steps {
+            Some(steps) => format!("iteration {step}/{steps}"),
+            None => format!("iteration {step}"),
+        };
         let line = format!("train {what}, {} left · {message}", format_seconds(left));
         self.show(progress, "train", line);
     }

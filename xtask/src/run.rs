@@ -7,9 +7,12 @@
 //! and its cause, leaves the previous checkpoint as it was, and ends the run with an error. A run
 //! that fails before its first checkpoint removes the run folder it created.
 
-use crate::config::{SamplerKind, TrainConfig, parse_duration};
+use crate::config::{Budget, SamplerKind, TrainConfig, parse_duration};
 use crate::data::SceneData;
+pub use crate::folder::{AtomicFiles, RunFolder, Sink, checkpoint_path, read_run_config};
+use crate::folder::{DataRecord, is_run_folder};
 use crate::memory::{self, MemoryEstimate};
+use crate::metrics::{RunMetrics, ViewPsnr};
 use crate::outputs::{geometry_metrics, mesh_files, mesh_picture};
 use crate::plot::{Panel, Series, render};
 use crate::progress::Progress;
@@ -19,32 +22,39 @@ use sdf_backbone::CheckpointReader;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Instant;
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+use std::time::{Duration, Instant};
 
-/// Options of `cargo xtask train`.
+/// Options of `cargo xtask train`: the command line, typed by clap; [`TrainArgs::request`] is the
+/// one place they become the library's [`RunRequest`].
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct TrainArgs {
     /// Dataset folder (IDR/NeuS/DTU, NeRF-synthetic, instant-ngp, COLMAP). Default: the
-    /// built-in scene.
+    /// built-in scene. With --resume: the run's data at a new place (checked against the run's
+    /// fingerprint of it).
     #[arg(long)]
     pub data: Option<PathBuf>,
     /// TOML configuration (unknown keys are errors).
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// guided (the paper) or uniform (the plain backbone, same rays and samples).
+    #[arg(long, value_enum)]
+    pub sampler: Option<SamplerKind>,
+    /// Train for this long: `90s`, `10m`, `1.5h` (the schedules follow the fraction of the
+    /// budget spent; replaces the configuration's budget).
+    #[arg(long, value_parser = parse_duration)]
+    pub budget: Option<Duration>,
+    /// Run folder (config, log, pictures, checkpoints, mesh, metrics); it must not exist or be
+    /// empty. Default `out/train`, or `out/train-2`, `-3`, … when that holds an earlier run.
     #[arg(long)]
-    pub sampler: Option<String>,
-    /// Train for this long instead of a number of steps: `90s`, `10m`, `1.5h` (sets
-    /// `time_budget_s`; the schedules follow the fraction of the budget spent).
-    #[arg(long)]
-    pub budget: Option<String>,
-    /// Run folder (config, log, pictures, checkpoints, mesh, metrics).
-    #[arg(long, default_value = "out/train")]
-    pub out: PathBuf,
-    /// Continue the run in this folder from its checkpoint, with its own configuration (same
-    /// result as an uninterrupted run for step budgets; the rest of the budget for time budgets).
-    #[arg(long, conflicts_with_all = ["data", "config", "sampler", "seed", "budget"])]
+    pub out: Option<PathBuf>,
+    /// Replace the earlier run in --out (only a run folder of psneus is ever replaced).
+    #[arg(long, conflicts_with = "resume")]
+    pub overwrite: bool,
+    /// Continue the run in this folder from its checkpoint, with its own configuration and data
+    /// (same result as an uninterrupted run for step budgets; the rest of the budget for time
+    /// budgets).
+    #[arg(long, conflicts_with_all = ["config", "sampler", "seed", "budget", "out"])]
     pub resume: Option<PathBuf>,
     /// Seed of every random stream.
     #[arg(long)]
@@ -57,10 +67,88 @@ pub struct TrainArgs {
     pub json: bool,
     /// The memory limit (e.g. `8G`); by default the memory the system has available. A run whose
     /// estimated peak exceeds it is refused before it starts, with what to change.
-    #[arg(long)]
-    pub max_memory: Option<String>,
+    #[arg(long, value_parser = memory::parse_size)]
+    pub max_memory: Option<f64>,
     /// Configuration overrides `key=value` (e.g. `steps=500 guide.scene.partition=1`).
     pub overrides: Vec<String>,
+}
+
+/// What to run.
+#[derive(Debug, Clone)]
+pub enum RunRequest {
+    /// A new run of `config` on `data` (none: the built-in scene) into the folder `out`.
+    Fresh {
+        /// The configuration.
+        config: Box<TrainConfig>,
+        /// The dataset folder.
+        data: Option<PathBuf>,
+        /// The run folder (must not exist, be empty, or, with `overwrite`, be a run folder).
+        out: PathBuf,
+        /// Replace an earlier run in `out`.
+        overwrite: bool,
+    },
+    /// The continuation of the run in `dir`, on its own data (or on `data`, the same data at a
+    /// new place: checked against the run's fingerprint).
+    Resume {
+        /// The run folder.
+        dir: PathBuf,
+        /// The run's data at a new place.
+        data: Option<PathBuf>,
+    },
+}
+
+/// How to run it.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RunOptions {
+    /// The memory limit in bytes (default: the memory available).
+    pub max_memory: Option<f64>,
+    /// Stop after this iteration as if interrupted.
+    pub stop_at: Option<u64>,
+    /// Print one JSON summary line at the end.
+    pub json: bool,
+}
+
+impl TrainArgs {
+    /// The typed request and options of these arguments.
+    pub fn request(&self) -> Result<(RunRequest, RunOptions)> {
+        let options = RunOptions { max_memory: self.max_memory, stop_at: self.stop_at, json: self.json };
+        if let Some(dir) = &self.resume {
+            if !self.overrides.is_empty() {
+                bail!("--resume continues a run with its own configuration; overrides ({}) are not allowed", self.overrides.join(" "));
+            }
+            return Ok((RunRequest::Resume { dir: dir.clone(), data: self.data.clone() }, options));
+        }
+        let mut config = TrainConfig::load(self.config.as_deref(), &self.overrides)?;
+        if let Some(sampler) = self.sampler {
+            config.sampler = sampler;
+        }
+        if let Some(seed) = self.seed {
+            config.seed = seed;
+        }
+        if let Some(budget) = self.budget {
+            config.budget = Budget::Time(budget);
+        }
+        config.validate()?;
+        let out = match &self.out {
+            Some(out) => out.clone(),
+            None if self.overwrite => PathBuf::from(DEFAULT_OUT),
+            None => free_default_out(),
+        };
+        Ok((RunRequest::Fresh { config: Box::new(config), data: self.data.clone(), out, overwrite: self.overwrite }, options))
+    }
+}
+
+/// The default run folder.
+pub const DEFAULT_OUT: &str = "out/train";
+
+/// `out/train`, or the first of `out/train-2`, `-3`, … that does not hold a run yet.
+fn free_default_out() -> PathBuf {
+    let taken = |p: &Path| p.exists() && (is_run_folder(p) || std::fs::read_dir(p).map_or(true, |mut d| d.next().is_some()));
+    let first = PathBuf::from(DEFAULT_OUT);
+    if !taken(&first) {
+        return first;
+    }
+    (2..).map(|i| PathBuf::from(format!("{DEFAULT_OUT}-{i}"))).find(|p| !taken(p)).expect("a free name")
 }
 
 /// What a finished run reports.
@@ -71,7 +159,7 @@ pub struct RunSummary {
     /// Mesh files written.
     pub meshes: Vec<String>,
     /// Metrics (also in metrics.json).
-    pub metrics: serde_json::Value,
+    pub metrics: RunMetrics,
     /// Periodic metrics (`output.metrics_every`), also in log.jsonl.
     pub history: Vec<serde_json::Value>,
 }
@@ -81,7 +169,8 @@ pub struct RunSummary {
 pub enum Outcome {
     /// The budget was spent; mesh and metrics written.
     Finished(Box<RunSummary>),
-    /// Stopped by the stop signal or `--stop-at`: a checkpoint was written.
+    /// Stopped by the stop signal or `--stop-at`: a checkpoint was written (and kept, when the
+    /// stop came during meshing or evaluation).
     Stopped {
         /// Iterations done.
         step: u64,
@@ -90,121 +179,19 @@ pub enum Outcome {
     },
 }
 
-/// Where a run's files go. The default writes atomically (temporary file + rename); tests inject
-/// failures.
-pub trait Sink: Send + Sync {
-    /// Writes `bytes` to `path` whole, or not at all.
-    fn write(&self, path: &Path, bytes: &[u8]) -> std::io::Result<()>;
+/// The phase a run is in, for what the first Ctrl-C says it will do ([`stop_message`]).
+static PHASE: AtomicU8 = AtomicU8::new(0);
+const PHASE_TRAINING: u8 = 0;
+const PHASE_FINISHING: u8 = 1;
 
-    /// Writes what `fill` streams to `path` whole, or not at all. Default: collected in memory,
-    /// then [`Sink::write`].
-    fn write_with(&self, path: &Path, fill: &mut dyn FnMut(&mut dyn std::io::Write) -> std::io::Result<()>) -> std::io::Result<()> {
-        let mut bytes = Vec::new();
-        fill(&mut bytes)?;
-        self.write(path, &bytes)
+/// What a stop request does now, said when it comes (the first Ctrl-C).
+pub fn stop_message() -> &'static str {
+    match PHASE.load(Ordering::SeqCst) {
+        PHASE_FINISHING => {
+            "stopping after this part of meshing and evaluation: the checkpoint is kept, no mesh or metrics are written;                             `--resume` finishes them; Ctrl-C again to quit now"
+        }
+        _ => "stopping after this iteration (a checkpoint will be written); Ctrl-C again to quit now",
     }
-}
-
-/// Atomic writes to the file system (`datasets::io::write_atomic`).
-#[derive(Debug, Clone, Copy, Default)]
-pub struct AtomicFiles;
-
-impl Sink for AtomicFiles {
-    fn write(&self, path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-        self.write_with(path, &mut |w| w.write_all(bytes))
-    }
-    fn write_with(&self, path: &Path, fill: &mut dyn FnMut(&mut dyn std::io::Write) -> std::io::Result<()>) -> std::io::Result<()> {
-        datasets::io::write_atomic_with(path, fill).map_err(|e| match e {
-            datasets::DatasetError::Io { source, .. } => source,
-            other => std::io::Error::other(other.to_string()),
-        })
-    }
-}
-
-/// A run folder and the sink its files go through.
-pub struct RunFolder {
-    dir: PathBuf,
-    sink: Arc<dyn Sink>,
-}
-
-impl RunFolder {
-    /// Creates `dir` and `dir/pictures`; returns the folder and whether `dir` was created now.
-    pub fn create(dir: &Path, sink: Arc<dyn Sink>) -> Result<(RunFolder, bool)> {
-        let existed = dir.exists();
-        std::fs::create_dir_all(dir.join("pictures")).with_context(|| format!("cannot create the run folder {}", dir.display()))?;
-        Ok((RunFolder { dir: dir.to_path_buf(), sink }, !existed))
-    }
-
-    /// The folder.
-    pub fn dir(&self) -> &Path {
-        &self.dir
-    }
-
-    /// Writes `name` (relative to the folder) whole; the error names the file and the cause.
-    pub fn write(&self, name: &str, bytes: &[u8]) -> Result<()> {
-        let path = self.dir.join(name);
-        self.sink.write(&path, bytes).with_context(|| format!("cannot write {}", path.display()))
-    }
-
-    /// Writes `name` from what `fill` streams, whole; the error names the file and the cause.
-    pub fn write_with(&self, name: &str, fill: &mut dyn FnMut(&mut dyn std::io::Write) -> std::io::Result<()>) -> Result<()> {
-        let path = self.dir.join(name);
-        self.sink.write_with(&path, fill).with_context(|| format!("cannot write {}", path.display()))
-    }
-
-    /// Writes the trainer's checkpoint (streamed).
-    pub fn write_checkpoint(&self, trainer: &Trainer) -> Result<()> {
-        self.write_with("checkpoint.safetensors", &mut |w| trainer.write_checkpoint(w))
-    }
-
-    /// Writes a PNG.
-    pub fn write_png(&self, name: &str, image: &datasets::RgbImage) -> Result<()> {
-        self.write(name, &image.png_bytes().with_context(|| format!("encoding {name}"))?)
-    }
-
-    /// Appends one line to `log.jsonl` (a log is appended, not replaced).
-    pub fn log(&self, record: &serde_json::Value) -> Result<()> {
-        use std::io::Write;
-        let path = self.dir.join("log.jsonl");
-        let mut f = std::fs::OpenOptions::new().create(true).append(true).open(&path).with_context(|| format!("cannot open {}", path.display()))?;
-        writeln!(f, "{record}").with_context(|| format!("cannot write {}", path.display()))
-    }
-}
-
-/// The checkpoint file of a run folder.
-pub fn checkpoint_path(dir: &Path) -> PathBuf {
-    dir.join("checkpoint.safetensors")
-}
-
-/// A run folder's configuration and data path; errors name the file at fault.
-pub fn read_run_config(dir: &Path) -> Result<(TrainConfig, Option<PathBuf>)> {
-    let config_path = dir.join("config.toml");
-    let text = std::fs::read_to_string(&config_path).with_context(|| format!("{} is not a run folder (no config.toml)", dir.display()))?;
-    let config = TrainConfig::from_toml(&text).with_context(|| format!("{}", config_path.display()))?;
-    let data_path = dir.join("data.json");
-    let data: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&data_path).with_context(|| format!("{} is not a run folder (no data.json)", dir.display()))?)
-            .with_context(|| format!("{} is not valid JSON", data_path.display()))?;
-    Ok((config, data["path"].as_str().map(PathBuf::from)))
-}
-
-/// A run folder's trainer at its checkpoint (for `eval --run`, the benches, `--resume`).
-pub fn open_run(dir: &Path) -> Result<Trainer> {
-    let (config, data_path) = read_run_config(dir)?;
-    let data = SceneData::load(&config, data_path.as_deref())?;
-    restore_run(dir, config, data)
-}
-
-/// The trainer of `config` on `data` at the checkpoint of run folder `dir`.
-fn restore_run(dir: &Path, config: TrainConfig, data: SceneData) -> Result<Trainer> {
-    let ckpt_path = checkpoint_path(dir);
-    let file = std::fs::File::open(&ckpt_path).with_context(|| format!("no checkpoint in {}", dir.display()))?;
-    let len = file.metadata().with_context(|| format!("{}", ckpt_path.display()))?.len();
-    let mut input = std::io::BufReader::new(file);
-    let reader = CheckpointReader::open(&mut input, len).with_context(|| format!("{} is truncated or corrupt", ckpt_path.display()))?;
-    let mut trainer = Trainer::new(config, data)?;
-    trainer.restore(&reader, &mut input).with_context(|| format!("restoring {}", ckpt_path.display()))?;
-    Ok(trainer)
 }
 
 /// The memory model of `config` on `data`, printed beside the memory available; an error naming
@@ -241,19 +228,35 @@ pub fn check_memory(config: &TrainConfig, data: &SceneData, max_memory: Option<f
     Ok(estimate)
 }
 
-/// The configuration of a fresh run from the command line.
-fn fresh_config(args: &TrainArgs) -> Result<TrainConfig> {
-    let mut overrides = args.overrides.clone();
-    if let Some(s) = &args.sampler {
-        overrides.push(format!("sampler={s}"));
+/// A run folder's trainer at its checkpoint, on the run's own data (checked against its
+/// fingerprint; `data`: the same data at a new place), for `eval --run`, the benches, `--resume`.
+pub fn open_run(dir: &Path, data: Option<&Path>) -> Result<Trainer> {
+    let (config, record) = read_run_config(dir)?;
+    let data = load_run_data(dir, &config, &record, data)?;
+    restore_run(dir, config, data)
+}
+
+/// The data of the run in `dir`: from `repointed` or the recorded path, verified.
+fn load_run_data(dir: &Path, config: &TrainConfig, record: &DataRecord, repointed: Option<&Path>) -> Result<SceneData> {
+    let path = repointed.or(record.path.as_deref());
+    if let Some(p) = path.filter(|p| !p.exists()) {
+        bail!("the data of {} is gone: {} does not exist (give its new place with --data)", dir.display(), p.display());
     }
-    if let Some(seed) = args.seed {
-        overrides.push(format!("seed={seed}"));
-    }
-    if let Some(b) = &args.budget {
-        overrides.push(format!("time_budget_s={}", parse_duration(b)?));
-    }
-    TrainConfig::load(args.config.as_deref(), &overrides)
+    let data = SceneData::load(config, path).with_context(|| format!("loading the data of {}", dir.display()))?;
+    record.verify(dir, &data.scene, repointed.is_some())?;
+    Ok(data)
+}
+
+/// The trainer of `config` on `data` at the checkpoint of run folder `dir`.
+fn restore_run(dir: &Path, config: TrainConfig, data: SceneData) -> Result<Trainer> {
+    let ckpt_path = checkpoint_path(dir);
+    let file = std::fs::File::open(&ckpt_path).with_context(|| format!("no checkpoint in {}", dir.display()))?;
+    let len = file.metadata().with_context(|| format!("{}", ckpt_path.display()))?.len();
+    let mut input = std::io::BufReader::new(file);
+    let reader = CheckpointReader::open(&mut input, len).with_context(|| format!("{} is truncated or corrupt", ckpt_path.display()))?;
+    let mut trainer = Trainer::new(config, data)?;
+    trainer.restore(&reader, &mut input).with_context(|| format!("restoring {}", ckpt_path.display()))?;
+    Ok(trainer)
 }
 
 /// Runs `cargo xtask train` with atomic file writes; `stop` ends the run early with a checkpoint.
@@ -263,30 +266,46 @@ pub fn train(args: &TrainArgs, stop: &AtomicBool) -> Result<Outcome> {
 
 /// [`train`] with the files going through `sink`.
 pub fn train_with(args: &TrainArgs, stop: &AtomicBool, sink: Arc<dyn Sink>) -> Result<Outcome> {
-    // Everything that can fail on input fails before the run folder exists, and the memory is
-    // checked before anything large is allocated.
-    let max_memory = args.max_memory.as_deref().map(memory::parse_size).transpose()?;
-    let (trainer, dir, estimate) = if let Some(dir) = &args.resume {
-        if !args.overrides.is_empty() {
-            bail!("--resume continues a run with its own configuration; overrides ({}) are not allowed", args.overrides.join(" "));
+    let (request, options) = args.request()?;
+    run(&request, &options, stop, sink)
+}
+
+/// Runs `request`: the library's entry point. Everything that can fail on input fails before
+/// the run folder is touched, and the memory is checked before anything large is allocated.
+pub fn run(request: &RunRequest, options: &RunOptions, stop: &AtomicBool, sink: Arc<dyn Sink>) -> Result<Outcome> {
+    PHASE.store(PHASE_TRAINING, Ordering::SeqCst);
+    match request {
+        RunRequest::Resume { dir, data } => {
+            let folder = RunFolder::open(dir, sink)?;
+            let (config, mut record) = read_run_config(dir)?;
+            let scene = load_run_data(dir, &config, &record, data.as_deref())?;
+            let estimate = check_memory(&config, &scene, options.max_memory)?;
+            let trainer = restore_run(dir, config, scene)?;
+            folder.trim_log(trainer.state().step)?;
+            if data.is_some() || record.fingerprint.is_none() {
+                // Re-pointed (or of an earlier version): the record now says where the data is.
+                record = DataRecord::new(trainer.data().path.as_deref(), trainer.data().description(), &trainer.data().scene)?;
+                folder.write("data.json", serde_json::to_string_pretty(&record)?.as_bytes())?;
+            }
+            run_folder(trainer, &folder, options, stop, &estimate, true)
         }
-        let (config, data_path) = read_run_config(dir)?;
-        let data = SceneData::load(&config, data_path.as_deref())?;
-        let estimate = check_memory(&config, &data, max_memory)?;
-        (restore_run(dir, config, data)?, dir.clone(), estimate)
-    } else {
-        let config = fresh_config(args)?;
-        let data = SceneData::load(&config, args.data.as_deref())?;
-        let estimate = check_memory(&config, &data, max_memory)?;
-        (Trainer::new(config, data)?, args.out.clone(), estimate)
-    };
-    let (folder, created) = RunFolder::create(&dir, sink)?;
-    let result = run_folder(trainer, &folder, args, stop, &estimate);
-    if result.is_err() && created && !checkpoint_path(&dir).exists() {
-        // Nothing worth keeping was made: leave no stray folder.
-        let _ = std::fs::remove_dir_all(&dir);
+        RunRequest::Fresh { config, data, out, overwrite } => {
+            let scene = SceneData::load(config, data.as_deref())?;
+            let estimate = check_memory(config, &scene, options.max_memory)?;
+            let trainer = Trainer::new((**config).clone(), scene)?;
+            let (folder, created) = RunFolder::create(out, *overwrite, sink)?;
+            let record = DataRecord::new(trainer.data().path.as_deref(), trainer.data().description(), &trainer.data().scene)?;
+            let result = folder
+                .write("config.toml", config.to_toml().as_bytes())
+                .and_then(|()| folder.write("data.json", serde_json::to_string_pretty(&record)?.as_bytes()))
+                .and_then(|()| run_folder(trainer, &folder, options, stop, &estimate, false));
+            if result.is_err() && created && !checkpoint_path(out).exists() {
+                // Nothing worth keeping was made: leave no stray folder.
+                let _ = std::fs::remove_dir_all(out);
+            }
+            result
+        }
     }
-    result
 }
 
 /// Whether a due validation picture is taken: while the pictures so far took at most `share` of
@@ -295,14 +314,15 @@ fn pictures_due(picture_seconds: f64, trainer: &Trainer, share: f64) -> bool {
     share == 0.0 || picture_seconds <= share * trainer.state().train_seconds
 }
 
-fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: &AtomicBool, estimate: &MemoryEstimate) -> Result<Outcome> {
+fn run_folder(
+    mut trainer: Trainer,
+    folder: &RunFolder,
+    options: &RunOptions,
+    stop: &AtomicBool,
+    estimate: &MemoryEstimate,
+    resumed: bool,
+) -> Result<Outcome> {
     let config = trainer.config().clone();
-    if args.resume.is_none() {
-        folder.write("config.toml", config.to_toml().as_bytes())?;
-        let data = trainer.data();
-        let data_json = json!({"path": data.path.as_ref().map(|p| p.display().to_string()), "description": data.description()});
-        folder.write("data.json", serde_json::to_string_pretty(&data_json)?.as_bytes())?;
-    }
     let guided = config.sampler == SamplerKind::Guided;
     let split = trainer.split().clone();
     eprintln!(
@@ -314,7 +334,7 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: 
         trainer.state().params.len(),
         config.render.rays,
         config.render.coarse + config.render.fine,
-        if config.timed() { format!("{:.0} s budget", config.time_budget_s) } else { format!("{} steps", config.steps) },
+        config.budget,
         folder.dir().display()
     );
     let progress = Progress::new(&config);
@@ -327,7 +347,7 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: 
         let report = trainer.step()?;
         log_step(folder, &progress, &trainer, &report)?;
         let step = report.step;
-        let stopping = stop.load(Ordering::SeqCst) || args.stop_at == Some(step);
+        let stopping = stop.load(Ordering::SeqCst) || options.stop_at == Some(step);
         let periodic = |every: u64| every > 0 && step.is_multiple_of(every) && !trainer.done();
         if periodic(config.output.checkpoint_every) || stopping {
             folder.write_checkpoint(&trainer)?;
@@ -351,21 +371,34 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, args: &TrainArgs, stop: 
         }
     }
     progress.finish_phase();
+    PHASE.store(PHASE_FINISHING, Ordering::SeqCst);
     let t = Instant::now();
     progress.phase("checkpoint", 0, 1);
-    folder.write_checkpoint(&trainer)?;
+    // A resumed run whose budget was already spent (stopped during meshing) has its checkpoint.
+    if !(resumed && trainer.timing().steps == 0) {
+        folder.write_checkpoint(&trainer)?;
+    }
     progress.phase("checkpoint", 1, 1);
-    let checkpoint_seconds = t.elapsed().as_secs_f64();
-    let wall = start.elapsed().as_secs_f64() - measured_seconds;
+    let timing = FinishTiming {
+        train_wall: start.elapsed().as_secs_f64() - measured_seconds,
+        checkpoint: t.elapsed().as_secs_f64(),
+        pictures: picture_seconds,
+    };
     curves(folder)?;
-    let mut summary = finish(&trainer, folder, &progress, wall, estimate)?;
-    summary.metrics["checkpoint_s"] = json!(checkpoint_seconds);
-    summary.metrics["validation_s"] = json!(picture_seconds);
-    folder.write("metrics.json", serde_json::to_string_pretty(&summary.metrics)?.as_bytes())?;
+    let Some(mut summary) = finish(&trainer, folder, &progress, &timing, estimate, stop)? else {
+        progress.abandon();
+        let step = trainer.state().step;
+        eprintln!(
+            "stopped after training, at step {step}: the checkpoint is kept; `cargo xtask train --resume {}` writes the mesh and metrics",
+            folder.dir().display()
+        );
+        return Ok(Outcome::Stopped { step, out: folder.dir().to_path_buf() });
+    };
     let t = trainer.timing();
-    history.push(json!({"step": trainer.state().step, "chamfer": summary.metrics["chamfer"], "f_score": summary.metrics["f_score"], "psnr": summary.metrics["psnr"], "psnr_masked": summary.metrics["psnr_masked"], "time_s": t.step_seconds + t.grid_seconds}));
+    let m = &summary.metrics;
+    history.push(json!({"step": trainer.state().step, "chamfer": m.chamfer, "f_score": m.f_score, "psnr": m.psnr, "psnr_masked": m.psnr_masked, "time_s": t.step_seconds + t.grid_seconds}));
     summary.history = history;
-    if args.json {
+    if options.json {
         println!("{}", serde_json::to_string(&summary)?);
     }
     Ok(Outcome::Finished(Box::new(summary)))
@@ -445,7 +478,7 @@ fn log_step(folder: &RunFolder, progress: &Progress, trainer: &Trainer, report: 
 /// The validation panel of the first held-out view (or view 0) and the guide's pdf heat map.
 fn validation_pictures(trainer: &Trainer, folder: &RunFolder, step: u64) -> Result<()> {
     let view = trainer.split().evaluation_views()[0];
-    let render = trainer.render_view(view, trainer.config().output.validate_downscale);
+    let render = trainer.render_view(view, trainer.config().output.validate_downscale)?;
     folder.write_png(&format!("pictures/val_{step:06}.png"), &render.panel())?;
     if let Some(map) = trainer.pdf_heat_map(view) {
         folder.write_png(&format!("pictures/pdf_{step:06}.png"), &map)?;
@@ -457,7 +490,7 @@ fn validation_pictures(trainer: &Trainer, folder: &RunFolder, step: u64) -> Resu
 fn interim_metrics(trainer: &Trainer) -> Result<serde_json::Value> {
     let config = trainer.config();
     let view = trainer.split().evaluation_views()[0];
-    let (psnr, masked) = trainer.render_view(view, config.output.eval_downscale).psnr();
+    let (psnr, masked) = trainer.render_view(view, config.output.eval_downscale)?.psnr();
     let mesh = trainer.extract_mesh(&|_, _| {})?;
     let geometry = match trainer.data().ground_truth(config.output.chamfer_spacing)? {
         Some(gt) if !mesh.triangles.is_empty() => {
@@ -470,28 +503,29 @@ fn interim_metrics(trainer: &Trainer) -> Result<serde_json::Value> {
         "f_score": geometry.map(|g| g.f_score), "time_s": t.step_seconds + t.grid_seconds}))
 }
 
-/// Image metrics of a trainer on the views of `views` at `downscale`: per view (whole, masked)
-/// PSNR and SSIM; `progress(done, total)`.
-pub fn image_metrics(trainer: &Trainer, views: &[usize], downscale: u32, progress: &dyn Fn(usize, usize)) -> Vec<(f64, Option<f64>, Option<f64>)> {
-    views
-        .iter()
-        .enumerate()
-        .map(|(i, &v)| {
-            let r = trainer.render_view(v, downscale);
-            progress(i + 1, views.len());
-            let (whole, masked) = r.psnr();
-            (whole, masked, r.ssim())
-        })
-        .collect()
-}
-
 fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
     let v: Vec<f64> = values.collect();
     (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
 }
 
-/// Final pictures, mesh, metrics and summary.
-fn finish(trainer: &Trainer, folder: &RunFolder, progress: &Progress, train_wall: f64, estimate: &MemoryEstimate) -> Result<RunSummary> {
+/// Times of the training loop and its side work, for the metrics.
+struct FinishTiming {
+    train_wall: f64,
+    checkpoint: f64,
+    pictures: f64,
+}
+
+/// Final pictures, mesh, metrics and summary; `None` when `stop` was set on the way (nothing
+/// more is written then: the checkpoint is kept).
+fn finish(
+    trainer: &Trainer,
+    folder: &RunFolder,
+    progress: &Progress,
+    times: &FinishTiming,
+    estimate: &MemoryEstimate,
+    stop: &AtomicBool,
+) -> Result<Option<RunSummary>> {
+    let stopped = || stop.load(Ordering::SeqCst);
     let config = trainer.config();
     let scene = &trainer.data().scene;
     let split = trainer.split();
@@ -508,18 +542,32 @@ fn finish(trainer: &Trainer, folder: &RunFolder, progress: &Progress, train_wall
         if config.output.eval_train_views == 0 { Vec::new() } else { split.train.iter().copied().step_by(fit_every.max(1)).collect() };
     let t = Instant::now();
     let n_renders = eval_views.len() + fit_views.len();
-    let held = image_metrics(trainer, &eval_views, config.output.eval_downscale, &|i, _| progress.phase("eval", i, n_renders));
-    let fit = image_metrics(trainer, &fit_views, config.output.eval_downscale, &|i, _| progress.phase("eval", eval_views.len() + i, n_renders));
+    let mut held = Vec::new();
+    let mut fit = Vec::new();
+    for (i, &v) in eval_views.iter().chain(&fit_views).enumerate() {
+        if stopped() {
+            return Ok(None);
+        }
+        let metrics = trainer.view_metrics(v, config.output.eval_downscale)?;
+        progress.phase("eval", i + 1, n_renders);
+        if i < eval_views.len() { held.push(metrics) } else { fit.push(metrics) }
+    }
     let eval_seconds = t.elapsed().as_secs_f64();
     sdf_backbone::scratch::release_all();
-    let psnr = mean(held.iter().map(|p| p.0)).unwrap_or(f64::NAN);
+    let psnr = mean(held.iter().map(|p| p.0));
     let psnr_masked = mean(held.iter().filter_map(|p| p.1));
     let ssim = mean(held.iter().filter_map(|p| p.2));
     let psnr_train = mean(fit.iter().map(|p| p.0));
     let psnr_train_masked = mean(fit.iter().filter_map(|p| p.1));
 
+    if stopped() {
+        return Ok(None);
+    }
     let t = Instant::now();
     let (mesh, components, kept) = trainer.extract_mesh_with_stats(&|done, total| progress.phase("mesh", done, total))?;
+    if stopped() {
+        return Ok(None);
+    }
     let colors = config.output.vertex_colors.then(|| trainer.vertex_colors(&mesh));
     let mut meshes = Vec::new();
     for (format, bytes) in mesh_files(&mesh, &scene.world_from_normalized, colors.as_deref(), &config.output.mesh_formats) {
@@ -546,43 +594,47 @@ fn finish(trainer: &Trainer, folder: &RunFolder, progress: &Progress, train_wall
     progress.finish_phase();
     let timing = trainer.timing();
     let per_step = |x: f64| x / timing.steps.max(1) as f64;
-    let metrics = json!({
-        "sampler": config.sampler,
-        "steps": step,
-        "time_budget_s": config.time_budget_s,
-        "psnr": psnr,
-        "psnr_masked": psnr_masked,
-        "ssim": ssim,
-        "psnr_views": eval_views,
-        "psnr_train": psnr_train,
-        "psnr_train_masked": psnr_train_masked,
-        "psnr_train_views": fit_views,
-        "psnr_per_view": held.iter().map(|p| json!({"whole": p.0, "masked": p.1})).collect::<Vec<_>>(),
-        "chamfer": geometry.map(|g| g.chamfer),
-        "chamfer_world": geometry.map(|g| g.chamfer * world_scale),
-        "accuracy": geometry.map(|g| g.accuracy),
-        "completeness": geometry.map(|g| g.completeness),
-        "f_score": geometry.map(|g| g.f_score),
-        "f_score_tau": config.output.fscore_tau,
-        "world_scale": world_scale,
-        "mesh_vertices": mesh.vertices.len(),
-        "mesh_triangles": mesh.triangles.len(),
-        "mesh_components": components,
-        "mesh_components_kept": kept,
-        "train_s": trainer.state().train_seconds,
-        "train_wall_s": train_wall,
-        "step_s": per_step(timing.step_seconds),
-        "iteration_s": per_step(timing.step_seconds + timing.grid_seconds),
-        "rays_s": per_step(timing.ray_seconds),
-        "grid_s": timing.grid_seconds,
-        "grid_updates": timing.grid_updates,
-        "eval_s": eval_seconds,
-        "mesh_s": mesh_seconds,
-        "geometry_s": geometry_seconds,
-        "threads": rayon::current_num_threads(),
-        "memory_estimate_bytes": estimate.peak(),
-        "peak_rss_bytes": memory::peak_rss_bytes(),
-    });
+    let held_out = !split.held_out.is_empty();
+    let metrics = RunMetrics {
+        sampler: config.sampler,
+        steps: step,
+        time_budget_s: config.budget.time_s(),
+        psnr,
+        psnr_masked,
+        ssim,
+        psnr_views: eval_views.clone(),
+        psnr_held_out: held_out,
+        psnr_train,
+        psnr_train_masked,
+        psnr_train_views: fit_views.clone(),
+        psnr_per_view: held.iter().map(|p| ViewPsnr { whole: p.0, masked: p.1 }).collect(),
+        chamfer: geometry.map(|g| g.chamfer),
+        chamfer_world: geometry.map(|g| g.chamfer * world_scale),
+        accuracy: geometry.map(|g| g.accuracy),
+        completeness: geometry.map(|g| g.completeness),
+        f_score: geometry.map(|g| g.f_score),
+        f_score_tau: config.output.fscore_tau,
+        world_scale,
+        mesh_vertices: mesh.vertices.len(),
+        mesh_triangles: mesh.triangles.len(),
+        mesh_components: components,
+        mesh_components_kept: kept,
+        train_s: trainer.state().train_seconds,
+        train_wall_s: times.train_wall,
+        step_s: per_step(timing.step_seconds),
+        iteration_s: per_step(timing.step_seconds + timing.grid_seconds),
+        rays_s: per_step(timing.ray_seconds),
+        grid_s: timing.grid_seconds,
+        grid_updates: timing.grid_updates,
+        eval_s: eval_seconds,
+        mesh_s: mesh_seconds,
+        geometry_s: geometry_seconds,
+        checkpoint_s: times.checkpoint,
+        validation_s: times.pictures,
+        threads: rayon::current_num_threads(),
+        memory_estimate_bytes: estimate.peak(),
+        peak_rss_bytes: memory::peak_rss_bytes(),
+    };
     folder.write("metrics.json", serde_json::to_string_pretty(&metrics)?.as_bytes())?;
     eprintln!(
         "done in {:.0} s ({:.3} s/iteration, {step} iterations). mesh: {} ({} triangles, {kept} of {components} components)",
@@ -592,9 +644,14 @@ fn finish(trainer: &Trainer, folder: &RunFolder, progress: &Progress, train_wall
         mesh.triangles.len()
     );
     eprintln!(
-        "PSNR {psnr:.2} dB{} on {} held-out view(s){}; {}",
-        psnr_masked.map_or(String::new(), |m| format!(" (masked {m:.2} dB)")),
+        "PSNR {} on {} {} view(s){}; {}",
+        match (psnr, psnr_masked) {
+            (Some(p), Some(m)) => format!("{p:.2} dB (masked {m:.2} dB)"),
+            (Some(p), None) => format!("{p:.2} dB"),
+            _ => "-".into(),
+        },
         eval_views.len(),
+        if held_out { "held-out" } else { "training (none held out)" },
         psnr_train.map_or(String::new(), |p| format!(", {p:.2} dB on {} training view(s)", fit_views.len())),
         match geometry {
             Some(g) => format!("Chamfer {:.4} ({:.4} in world units), F-score {:.3} at τ = {}", g.chamfer, g.chamfer * world_scale, g.f_score, g.tau),
@@ -602,5 +659,5 @@ fn finish(trainer: &Trainer, folder: &RunFolder, progress: &Progress, train_wall
             None => "the mesh is empty: no Chamfer".into(),
         }
     );
-    Ok(RunSummary { out: folder.dir().display().to_string(), meshes, metrics, history: Vec::new() })
+    Ok(Some(RunSummary { out: folder.dir().display().to_string(), meshes, metrics, history: Vec::new() }))
 }

@@ -9,15 +9,19 @@
 //! run again, so an interrupted table resumes where it stopped. The paper's ablation is the same
 //! command with one budget and variants of the guided configuration (`--variant NAME:key=v,…`).
 
-use crate::config::parse_duration;
+use crate::config::{Budget, TrainConfig, parse_duration};
+use crate::folder::checkpoint_path;
+use crate::metrics::RunMetrics;
 use crate::plot::{Panel, Point, Series, render};
-use crate::run::{Outcome, TrainArgs, train};
+use crate::run::{AtomicFiles, Outcome, RunOptions, RunRequest};
 use anyhow::{Context, Result, bail};
 use datasets::io::write_atomic;
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
+use std::time::Duration;
 
 /// Options of `cargo xtask trade`.
 #[derive(clap::Args, Debug)]
@@ -30,8 +34,8 @@ pub struct TradeArgs {
     #[arg(long)]
     pub scene: Vec<String>,
     /// Wall-time budgets (repeat): 60s, 2m, …
-    #[arg(long, default_value = "60s")]
-    pub budget: Vec<String>,
+    #[arg(long, default_value = "60s", value_parser = parse_duration)]
+    pub budget: Vec<Duration>,
     /// Seeds 0 … n − 1.
     #[arg(long, default_value_t = 3)]
     pub seeds: u64,
@@ -67,18 +71,18 @@ fn parse_variant(text: &str) -> Variant {
 }
 
 /// The folder name of a budget: exact (`b120`, `b90.5`), so that two budgets never share runs.
-fn budget_dir(budget: f64) -> String {
-    format!("b{budget}")
+fn budget_dir(budget: Duration) -> String {
+    format!("b{}", budget.as_secs_f64())
 }
 
 /// What a run of the table was made with, kept beside its metrics: a folder is reused only for
 /// the same scene, variant, overrides, budget and seed.
-fn run_record(scene: &SceneSpec, variant: &Variant, overrides: &[String], budget: f64, seed: u64) -> Value {
+fn run_record(scene: &SceneSpec, variant: &Variant, overrides: &[String], budget: Duration, seed: u64) -> Value {
     let scene = match scene {
         SceneSpec::Folder(p) => p.display().to_string(),
         SceneSpec::Builtin(s) => format!("builtin:{s}"),
     };
-    json!({"scene": scene, "variant": variant.name, "overrides": overrides, "budget_s": budget, "seed": seed})
+    json!({"scene": scene, "variant": variant.name, "overrides": overrides, "budget_s": budget.as_secs_f64(), "seed": seed})
 }
 
 /// Fails when two entries have the same name (they would share run folders).
@@ -108,14 +112,17 @@ impl SceneSpec {
     }
 }
 
-/// The metrics a table reports, with labels for tables and plots.
-const METRICS: [(&str, &str, bool); 6] = [
-    ("chamfer", "Chamfer (normalised units) ↓", false),
-    ("accuracy", "accuracy (normalised units) ↓", false),
-    ("completeness", "completeness (normalised units) ↓", false),
-    ("f_score", "F-score ↑", true),
-    ("psnr_masked", "PSNR inside the masks (dB) ↑", true),
-    ("psnr", "PSNR, whole image (dB) ↑", true),
+/// A figure of a run's metrics that a table reports.
+type Figure = fn(&RunMetrics) -> Option<f64>;
+
+/// The metrics a table reports: key, label for tables and plots, the figure.
+const METRICS: [(&str, &str, Figure); 6] = [
+    ("chamfer", "Chamfer (normalised units) ↓", |m| m.chamfer),
+    ("accuracy", "accuracy (normalised units) ↓", |m| m.accuracy),
+    ("completeness", "completeness (normalised units) ↓", |m| m.completeness),
+    ("f_score", "F-score ↑", |m| m.f_score),
+    ("psnr_masked", "PSNR inside the masks (dB) ↑", |m| m.psnr_masked),
+    ("psnr", "PSNR, whole image (dB) ↑", |m| m.psnr),
 ];
 
 /// Mean and sample standard deviation.
@@ -129,8 +136,13 @@ fn mean_std(v: &[f64]) -> Option<(f64, f64)> {
     Some((mean, var.sqrt()))
 }
 
-fn read_metrics(dir: &Path) -> Option<Value> {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).ok()?).ok()
+/// The metrics of a finished run of the table (`None`: not run yet); an unreadable file is an
+/// error naming it.
+fn read_metrics(dir: &Path) -> Result<Option<RunMetrics>> {
+    if !dir.join("metrics.json").is_file() {
+        return Ok(None);
+    }
+    RunMetrics::read(dir).map(Some)
 }
 
 /// Runs the table (or only reports it).
@@ -145,19 +157,20 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
     } else {
         args.variant.iter().map(|v| parse_variant(v)).collect()
     };
-    let budgets: Vec<f64> = args.budget.iter().map(|b| parse_duration(b)).collect::<Result<_>>()?;
+    let budgets = &args.budget;
     if args.seeds == 0 {
         bail!("--seeds must be ≥ 1");
     }
     distinct_names("scenes", scenes.iter().map(SceneSpec::name))?;
     distinct_names("variants", variants.iter().map(|v| v.name.clone()))?;
     distinct_names("budgets", budgets.iter().map(|b| budget_dir(*b)))?;
+    let sink = Arc::new(AtomicFiles);
     let total = scenes.len() * variants.len() * budgets.len() * args.seeds as usize;
     let mut done = 0;
     // Seeds outermost, then budgets, scenes and variants: an interrupted table has every
     // variant at the same seeds.
     for seed in 0..args.seeds {
-        for &budget in &budgets {
+        for &budget in budgets {
             for scene in &scenes {
                 for variant in &variants {
                     done += 1;
@@ -168,7 +181,7 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
                         overrides.push(format!("data.builtin.shape={shape}"));
                     }
                     let record = run_record(scene, variant, &overrides, budget, seed);
-                    if read_metrics(&dir).is_some() {
+                    if read_metrics(&dir)?.is_some() {
                         let kept = std::fs::read_to_string(dir.join("trade_run.json")).ok().and_then(|t| serde_json::from_str::<Value>(&t).ok());
                         if kept.as_ref() != Some(&record) {
                             bail!("{} holds a run made with other settings than this table's ({record}); use another --out", dir.display());
@@ -178,28 +191,31 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
                     if args.report_only {
                         continue;
                     }
-                    eprintln!("trade: run {done}/{total}: {} · {} · {budget} s · seed {seed}", scene.name(), variant.name);
+                    eprintln!("trade: run {done}/{total}: {} · {} · {:.0} s · seed {seed}", scene.name(), variant.name, budget.as_secs_f64());
                     // An interrupted run resumes from its checkpoint; a folder without one starts over.
-                    let resume = dir.join("checkpoint.safetensors").is_file();
+                    let resume = checkpoint_path(&dir).is_file();
                     if !resume && dir.exists() {
                         std::fs::remove_dir_all(&dir).with_context(|| format!("clearing the unfinished run {}", dir.display()))?;
                     }
-                    let train_args = if resume {
-                        TrainArgs { resume: Some(dir.clone()), ..TrainArgs::default() }
+                    let request = if resume {
+                        RunRequest::Resume { dir: dir.clone(), data: None }
                     } else {
-                        TrainArgs {
+                        let mut config = TrainConfig::load(None, &overrides).with_context(|| format!("the variant {:?}", variant.name))?;
+                        config.seed = seed;
+                        config.budget = Budget::Time(budget);
+                        RunRequest::Fresh {
+                            config: Box::new(config),
                             data: match scene {
                                 SceneSpec::Folder(p) => Some(p.clone()),
                                 SceneSpec::Builtin(_) => None,
                             },
                             out: dir.clone(),
-                            seed: Some(seed),
-                            budget: Some(format!("{budget}s")),
-                            overrides,
-                            ..TrainArgs::default()
+                            overwrite: false,
                         }
                     };
-                    if let Outcome::Stopped { .. } = train(&train_args, stop).with_context(|| format!("the run in {}", dir.display()))? {
+                    let outcome = crate::run::run(&request, &RunOptions::default(), stop, sink.clone())
+                        .with_context(|| format!("the run in {}", dir.display()))?;
+                    if let Outcome::Stopped { .. } = outcome {
                         bail!("stopped; run the same command again to continue the table");
                     }
                     write_atomic(&dir.join("trade_run.json"), serde_json::to_string_pretty(&record)?.as_bytes())?;
@@ -207,11 +223,11 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
             }
         }
     }
-    report(args, &scenes, &variants, &budgets)
+    report(args, &scenes, &variants, budgets)
 }
 
 /// Aggregates the runs in the folder: trade.md, trade.json, trade.png.
-fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets: &[f64]) -> Result<()> {
+fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets: &[Duration]) -> Result<()> {
     let colours = [
         [0.2, 0.35, 0.85],
         [0.85, 0.15, 0.15],
@@ -237,33 +253,36 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
         for &budget in budgets {
             for (vi, variant) in variants.iter().enumerate() {
                 let base = args.out.join(scene.name()).join(&variant.name).join(budget_dir(budget));
-                let runs: Vec<Value> = (0..args.seeds).filter_map(|s| read_metrics(&base.join(format!("s{s}")))).collect();
+                let mut runs: Vec<RunMetrics> = Vec::new();
+                for s in 0..args.seeds {
+                    runs.extend(read_metrics(&base.join(format!("s{s}")))?);
+                }
                 if runs.is_empty() {
                     continue;
                 }
-                let get = |key: &str| -> Vec<f64> { runs.iter().filter_map(|r| r[key].as_f64()).collect() };
-                let fmt = |key: &str| match mean_std(&get(key)) {
+                let get = |figure: Figure| -> Vec<f64> { runs.iter().filter_map(figure).collect() };
+                let fmt = |(key, _, figure): &(&str, &str, Figure)| match mean_std(&get(*figure)) {
                     Some((m, s)) if key.starts_with("psnr") => format!("{m:.2} ± {s:.2}"),
-                    Some((m, s)) if key == "f_score" => format!("{m:.3} ± {s:.3}"),
+                    Some((m, s)) if *key == "f_score" => format!("{m:.3} ± {s:.3}"),
                     Some((m, s)) => format!("{m:.4} ± {s:.4}"),
                     None => "—".into(),
                 };
-                let iterations = mean_std(&get("steps")).map_or("—".into(), |(m, s)| format!("{m:.0} ± {s:.0}"));
-                let per_iteration: Vec<f64> = runs.iter().filter_map(|r| Some(r["train_s"].as_f64()? / r["steps"].as_f64()?)).collect();
-                let per_iteration = mean_std(&per_iteration).map_or("—".into(), |(m, s)| format!("{m:.3} ± {s:.3}"));
-                let grid = mean_std(&get("grid_s")).map_or("—".into(), |(m, _)| format!("{m:.1}"));
+                let iterations = mean_std(&get(|r| Some(r.steps as f64))).map_or("—".into(), |(m, s)| format!("{m:.0} ± {s:.0}"));
+                let per_iteration = mean_std(&get(RunMetrics::seconds_per_iteration)).map_or("—".into(), |(m, s)| format!("{m:.3} ± {s:.3}"));
+                let grid = mean_std(&get(|r| Some(r.grid_s))).map_or("—".into(), |(m, _)| format!("{m:.1}"));
+                let seconds = budget.as_secs_f64();
                 md += &format!(
-                    "| {budget:.0} s | {} | {} | {iterations} | {per_iteration} | {grid} | {} |\n",
+                    "| {seconds:.0} s | {} | {} | {iterations} | {per_iteration} | {grid} | {} |\n",
                     variant.name,
                     runs.len(),
-                    METRICS.iter().map(|m| fmt(m.0)).collect::<Vec<_>>().join(" | ")
+                    METRICS.iter().map(fmt).collect::<Vec<_>>().join(" | ")
                 );
-                for (key, _, _) in METRICS {
-                    if let Some((m, s)) = mean_std(&get(key)) {
-                        curves.entry((vi, key)).or_default().push((budget, m, (runs.len() > 1).then_some(s)));
+                for (key, _, figure) in METRICS {
+                    if let Some((m, s)) = mean_std(&get(figure)) {
+                        curves.entry((vi, key)).or_default().push((seconds, m, (runs.len() > 1).then_some(s)));
                     }
                 }
-                all.push(json!({"scene": scene.name(), "variant": variant.name, "overrides": variant.overrides, "budget_s": budget, "runs": runs}));
+                all.push(json!({"scene": scene.name(), "variant": variant.name, "overrides": variant.overrides, "budget_s": seconds, "runs": runs}));
             }
         }
         for (key, label, _) in METRICS.iter().take(5) {

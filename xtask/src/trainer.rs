@@ -4,11 +4,13 @@
 //! the run folder, the progress bar and the stop signal around it.
 //!
 //! ```no_run
-//! use xtask::config::TrainConfig;
+//! use xtask::config::{Budget, TrainConfig};
 //! use xtask::data::SceneData;
 //! use xtask::trainer::Trainer;
 //! # fn main() -> anyhow::Result<()> {
-//! let config = TrainConfig::load(None, &["steps=5".into(), "data.builtin.width=64".into(), "render.rays=64".into()])?;
+//! let mut config = TrainConfig { budget: Budget::Steps(5), ..TrainConfig::default() };
+//! config.data.builtin.width = 64;
+//! config.render.rays = 64;
 //! let data = SceneData::builtin(&config)?;
 //! let mut trainer = Trainer::new(config, data)?;
 //! while !trainer.done() {
@@ -27,7 +29,7 @@
 //! bounded by steps (deterministic: the same bits for any thread count, and a resumed run equals
 //! an uninterrupted one) or by a time budget (the schedules follow the fraction of time spent).
 
-use crate::config::{MeshFilter, MomentStorage, SamplerKind, TrainConfig};
+use crate::config::{Budget, MeshFilter, MomentStorage, SamplerKind, TrainConfig};
 use crate::data::{SceneData, ViewSplit, uses_masks};
 use crate::outputs::{ViewRender, filter_components, heat_map};
 use crate::rays::{Batch, Sampling, build_batch, pixel_ray};
@@ -162,6 +164,15 @@ impl Trainer {
     /// A fresh run: the configured backbone at its initial parameters, no grids yet.
     pub fn new(config: TrainConfig, data: SceneData) -> Result<Trainer> {
         config.validate()?;
+        // Every render the run will make must have pixels: fail now, not after the budget.
+        let smallest = data.scene.views.iter().map(|v| v.camera.width.min(v.camera.height)).min().unwrap_or(0);
+        for (key, downscale) in
+            [("output.validate_downscale", config.output.validate_downscale), ("output.eval_downscale", config.output.eval_downscale)]
+        {
+            if smallest < downscale {
+                bail!("{key} = {downscale} leaves no pixel of the smallest view ({smallest} pixels on its short side): lower it");
+            }
+        }
         let split = ViewSplit::new(&config, &data.scene);
         let use_masks = uses_masks(&config, &data.scene);
         let (backbone, params) = configured_backbone(&config, use_masks);
@@ -238,21 +249,29 @@ impl Trainer {
     }
 
     fn progress_at(&self, step: u64, seconds: f64) -> f64 {
-        if self.config.timed() { (seconds / self.config.time_budget_s).min(1.0) } else { (step as f64 / self.config.steps as f64).min(1.0) }
+        match self.config.budget {
+            Budget::Time(budget) => (seconds / budget.as_secs_f64()).min(1.0),
+            Budget::Steps(steps) => (step as f64 / steps as f64).min(1.0),
+        }
     }
 
     /// Whether the run is over (its steps done or its time budget spent).
     pub fn done(&self) -> bool {
-        if self.config.timed() { self.state.train_seconds >= self.config.time_budget_s } else { self.state.step >= self.config.steps }
+        match self.config.budget {
+            Budget::Time(budget) => self.state.train_seconds >= budget.as_secs_f64(),
+            Budget::Steps(steps) => self.state.step >= steps,
+        }
     }
 
     /// Seconds of the budget left (time budgets), or an estimate from the mean iteration time.
     pub fn seconds_left(&self) -> f64 {
-        if self.config.timed() {
-            (self.config.time_budget_s - self.state.train_seconds).max(0.0)
-        } else {
-            let per_step = if self.timing.steps > 0 { (self.timing.step_seconds + self.timing.grid_seconds) / self.timing.steps as f64 } else { 0.0 };
-            (self.config.steps.saturating_sub(self.state.step)) as f64 * per_step
+        match self.config.budget {
+            Budget::Time(budget) => (budget.as_secs_f64() - self.state.train_seconds).max(0.0),
+            Budget::Steps(steps) => {
+                let per_step =
+                    if self.timing.steps > 0 { (self.timing.step_seconds + self.timing.grid_seconds) / self.timing.steps as f64 } else { 0.0 };
+                steps.saturating_sub(self.state.step) as f64 * per_step
+            }
         }
     }
 
@@ -509,13 +528,18 @@ impl Trainer {
 
     /// Renders view `view` of the scene at 1/`downscale` resolution (the estimator's coarse
     /// samples without jitter, up-sampled), with its targets and mask.
-    pub fn render_view(&self, view: usize, downscale: u32) -> ViewRender {
+    pub fn render_view(&self, view: usize, downscale: u32) -> Result<ViewRender> {
         let view = &self.data.scene.views[view];
+        if downscale == 0 {
+            bail!("a render's downscale must be ≥ 1");
+        }
         let k = view.camera.intrinsics.downscaled(downscale, view.camera.pixel_centers);
         let image = view.image.downscaled(downscale);
         let mask = view.mask.as_ref().map(|m| m.downscaled(downscale));
         let (width, height) = (image.width, image.height);
-        let camera = camera_geom::PinholeCamera { intrinsics: k, width, height, ..view.camera };
+        let c = &view.camera;
+        let camera = camera_geom::PinholeCamera::new(k, width, height, c.camera_from_world, c.pixel_centers)
+            .with_context(|| format!("view {:?} ({}×{}) rendered at downscale {downscale}", view.name, c.width, c.height))?;
         let r = &self.config.render;
         let mut rays: Vec<RayInput<f32>> = (0..height)
             .into_par_iter()
@@ -526,7 +550,7 @@ impl Trainer {
         let outputs = self.render_rays(&rays);
         let target = rays.iter().map(|r| r.target).collect();
         let mask = mask.map(|m| (0..height).flat_map(|r| (0..width).map(move |c| (c, r))).map(|(c, r)| m.get(c, r)).collect());
-        ViewRender { width, height, outputs, target, mask }
+        Ok(ViewRender { width, height, outputs, target, mask })
     }
 
     /// The pixel marginal of the guide for the training camera nearest in index to `view`.
@@ -544,6 +568,13 @@ impl Trainer {
     /// components filtered by `output.mesh_filter`; `progress(blocks done, blocks)`.
     pub fn extract_mesh(&self, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<IsoMesh> {
         Ok(self.extract_mesh_with_stats(progress)?.0)
+    }
+
+    /// PSNR (whole image, inside the mask) and SSIM of view `view` rendered at `downscale`.
+    pub fn view_metrics(&self, view: usize, downscale: u32) -> Result<(f64, Option<f64>, Option<f64>)> {
+        let render = self.render_view(view, downscale)?;
+        let (whole, masked) = render.psnr();
+        Ok((whole, masked, render.ssim()))
     }
 
     /// [`Self::extract_mesh`] with (components found, components kept).

@@ -33,7 +33,7 @@ fn xtask(args: &[&str]) -> Output {
 }
 
 fn tiny_args(out: &Path) -> TrainArgs {
-    TrainArgs { out: out.to_path_buf(), overrides: TINY.iter().map(|s| s.to_string()).collect(), ..TrainArgs::default() }
+    TrainArgs { out: Some(out.to_path_buf()), overrides: TINY.iter().map(|s| s.to_string()).collect(), ..TrainArgs::default() }
 }
 
 #[test]
@@ -160,9 +160,9 @@ fn eval_of_a_run_reproduces_the_runs_own_psnr() {
     // Both at the resolution trained on (`output.eval_downscale` = 1), not the pictures' 4.
     assert_eq!(eval["downscale"].as_u64(), Some(1), "{eval}");
     // The run's metrics are on the first of its evaluation views at the same downscale.
-    let view = summary.metrics["psnr_views"][0].as_u64().unwrap();
+    let view = summary.metrics.psnr_views[0] as u64;
     let per_view = eval["per_view"].as_array().unwrap().iter().find(|p| p["view"].as_u64() == Some(view)).expect("the view is evaluated");
-    let (a, b) = (per_view["psnr"].as_f64().unwrap(), summary.metrics["psnr_per_view"][0]["whole"].as_f64().unwrap());
+    let (a, b) = (per_view["psnr"].as_f64().unwrap(), summary.metrics.psnr_per_view[0].whole);
     assert!((a - b).abs() < 1e-6, "eval --run gives {a} dB, the run {b} dB on view {view}");
     let masked = per_view["psnr_masked"].as_f64().unwrap();
     assert!(a.is_finite() && a > 5.0 && masked.is_finite() && masked > 5.0, "{per_view}");

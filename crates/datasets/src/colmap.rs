@@ -819,7 +819,7 @@ impl ColmapModel {
             entry: "3D points".into(),
             message: format!(
                 "{why}: the region of interest (the unit sphere of the normalised frame) cannot be found; \
-                 give it as a bound sphere (LoadOptions::bound_sphere: centre and radius in COLMAP units)"
+                 give it in COLMAP units: `data.bound=[x, y, z, radius]` (train) or `--bound x,y,z,radius` (import, cameras)"
             ),
         };
         if kept.is_empty() {
@@ -997,7 +997,10 @@ impl ColmapWorkspace {
         let records = views
             .par_iter()
             .map(|view| -> Result<CameraRecord> {
-                let image_path = self.images_dir.join(&view.name);
+                let listed_in = &model.files.images;
+                let entry = format!("the name of image {:?}", view.name);
+                let image_path = crate::contain::join_inside(&self.images_dir, &view.name, listed_in, &entry)?;
+                let image_path = crate::contain::inside(&self.images_dir, image_path, listed_in, &entry)?;
                 if !image_path.is_file() {
                     return Err(DatasetError::NotFound { path: image_path, why: format!("listed in {}", model.files.images.display()) });
                 }
@@ -1008,7 +1011,7 @@ impl ColmapWorkspace {
                 }
                 let mask_path = match &self.masks_dir {
                     Some(dir) => {
-                        let path = mask_file(dir, &view.name)?;
+                        let path = crate::contain::inside(dir, mask_file(dir, &view.name)?, listed_in, &entry)?;
                         let found = image_size(&path)?;
                         if found != expected {
                             return Err(DatasetError::SizeMismatch { path, found, expected, why: "a mask must match its image" });

@@ -84,6 +84,11 @@ impl Mask {
         }
     }
 
+    /// The bits, row-major, 64 pixels a word (the last word of the mask zero-padded).
+    pub fn as_words(&self) -> &[u64] {
+        &self.bits
+    }
+
     /// Number of foreground pixels.
     pub fn count(&self) -> usize {
         self.bits.iter().map(|w| w.count_ones() as usize).sum()

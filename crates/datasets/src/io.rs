@@ -8,28 +8,82 @@ use std::path::Path;
 
 /// Writes `bytes` to `path` atomically: a temporary file in the same folder, flushed, then
 /// renamed over `path`, so a crash never leaves a half-written file in place of a good one.
+///
+/// Only a regular file (or nothing) is ever replaced: a symbolic link, folder, FIFO or device
+/// at `path` is an error. The temporary file has an unpredictable name, is created exclusively
+/// (`O_EXCL`: an existing file or link of that name is never followed or reused), and the
+/// folder is synced after the rename. [`remove_stale_temporaries`] clears what a killed writer
+/// left.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic_with(path, &mut |w| w.write_all(bytes))
 }
 
+/// The infix of [`write_atomic`]'s temporary files: `.NAME.psneus-tmp-RANDOM`.
+const TEMPORARY_INFIX: &str = ".psneus-tmp-";
+
 /// [`write_atomic`] with the contents streamed by `fill` (large files need no copy in memory).
 /// On any error the temporary file is removed and `path` is left as it was.
 pub fn write_atomic_with(path: &Path, fill: &mut dyn FnMut(&mut dyn Write) -> std::io::Result<()>) -> Result<()> {
+    use std::hash::{BuildHasher, Hasher};
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
+    match std::fs::symlink_metadata(path) {
+        Ok(meta) if !meta.file_type().is_file() => {
+            let what = if meta.file_type().is_symlink() {
+                "a symbolic link"
+            } else if meta.is_dir() {
+                "a folder"
+            } else {
+                "not a regular file (a device, FIFO or socket)"
+            };
+            return Err(io_err(path)(std::io::Error::new(std::io::ErrorKind::AlreadyExists, format!("refusing to replace it: it is {what}"))));
+        }
+        _ => {}
+    }
+    let (tmp, file) = (|| {
+        for _ in 0..16 {
+            let mut hasher = std::collections::hash_map::RandomState::new().build_hasher();
+            hasher.write_u32(std::process::id());
+            let tmp = dir.join(format!(".{name}{TEMPORARY_INFIX}{:016x}", hasher.finish()));
+            match std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp) {
+                Ok(file) => return Ok((tmp, file)),
+                Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+                Err(e) => return Err(e),
+            }
+        }
+        Err(std::io::Error::new(std::io::ErrorKind::AlreadyExists, "no free temporary name"))
+    })()
+    .map_err(io_err(path))?;
     let result = (|| {
-        let file = std::fs::File::create(&tmp)?;
         let mut w = std::io::BufWriter::with_capacity(1 << 20, file);
         fill(&mut w)?;
         let file = w.into_inner().map_err(|e| e.into_error())?;
         file.sync_all()?;
-        std::fs::rename(&tmp, path)
+        std::fs::rename(&tmp, path)?;
+        // The rename itself is durable once the folder is synced.
+        std::fs::File::open(dir)?.sync_all()
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
     result.map_err(io_err(path))
+}
+
+/// Removes the temporary files that a killed [`write_atomic`] left in `dir` (not recursive);
+/// returns how many. Only names of the form `.NAME.psneus-tmp-…` (and `.NAME.tmpPID` of
+/// earlier versions) that are regular files are removed.
+pub fn remove_stale_temporaries(dir: &Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(dir) else { return 0 };
+    let mut removed = 0;
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let earlier = name.rsplit_once(".tmp").is_some_and(|(_, pid)| !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()));
+        let ours = name.starts_with('.') && (name.contains(TEMPORARY_INFIX) || earlier);
+        if ours && entry.file_type().is_ok_and(|t| t.is_file()) && std::fs::remove_file(entry.path()).is_ok() {
+            removed += 1;
+        }
+    }
+    removed
 }
 
 /// The mesh formats psneus writes.
@@ -352,6 +406,43 @@ fn parse_ply(bytes: &[u8]) -> std::result::Result<PlyData, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn write_atomic_replaces_only_regular_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("a.txt");
+        write_atomic(&file, b"one").unwrap();
+        write_atomic(&file, b"two").unwrap();
+        assert_eq!(std::fs::read(&file).unwrap(), b"two");
+        // A link is not followed nor replaced; its target is untouched.
+        let target = dir.path().join("target.txt");
+        std::fs::write(&target, b"precious").unwrap();
+        let link = dir.path().join("link.txt");
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        let err = write_atomic(&link, b"x").unwrap_err().to_string();
+        assert!(err.contains("symbolic link") && err.contains("link.txt"), "{err}");
+        assert_eq!(std::fs::read(&target).unwrap(), b"precious");
+        assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
+        // Nor a folder, nor a device.
+        assert!(write_atomic(dir.path(), b"x").unwrap_err().to_string().contains("folder"));
+        let err = write_atomic(Path::new("/dev/null"), b"x").unwrap_err().to_string();
+        assert!(err.contains("not a regular file"), "{err}");
+        // No temporary is left behind.
+        let names: Vec<String> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        assert!(names.iter().all(|n| !n.contains("tmp")), "{names:?}");
+    }
+
+    #[test]
+    fn stale_temporaries_of_a_killed_writer_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        for name in [".checkpoint.safetensors.psneus-tmp-0123456789abcdef", ".mesh.ply.tmp4242", "keep.tmp", ".hidden"] {
+            std::fs::write(dir.path().join(name), b"x").unwrap();
+        }
+        assert_eq!(remove_stale_temporaries(dir.path()), 2);
+        let mut names: Vec<String> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        names.sort();
+        assert_eq!(names, [".hidden", "keep.tmp"]);
+    }
 
     #[test]
     fn ply_header_and_size_match_contents() {

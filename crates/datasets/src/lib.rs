@@ -3,7 +3,7 @@
 //!
 //! # Formats
 //! - **IDR / NeuS / DTU** (`cameras_sphere.npz` or `cameras.npz`, `image/` or `images/`,
-//!   optional `mask/`): see [`idr`](crate::idr).
+//!   optional `mask/`; the `idr` module): `world_mat_i` / `scale_mat_i` per view.
 //! - **NeRF-synthetic** (`transforms_{train,val,test}.json`, RGBA images: alpha becomes the mask,
 //!   colour is composited over [`LoadOptions::background`]).
 //! - **instant-ngp / Neuralangelo** (`transforms.json` with `fl_x`, `cx`, …, per-frame overrides,
@@ -23,6 +23,7 @@
 #![deny(missing_docs)]
 
 pub mod colmap;
+mod contain;
 mod error;
 pub mod golden;
 mod idr;

@@ -10,6 +10,10 @@ use std::path::Path;
 
 /// Which layout a folder holds, by the files in it.
 pub fn detect_format(dir: &Path) -> Result<Format> {
+    if !dir.is_dir() {
+        let why = if dir.exists() { "the dataset must be a folder, this is a file" } else { "no such dataset folder" };
+        return Err(DatasetError::NotFound { path: dir.to_path_buf(), why: why.into() });
+    }
     if idr::camera_file(dir).is_some() {
         Ok(Format::Idr)
     } else if dir.join("transforms_train.json").is_file() {

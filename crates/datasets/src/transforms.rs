@@ -60,8 +60,9 @@ struct Transforms {
     frames: Vec<Frame>,
 }
 
-fn resolve_image(dir: &Path, file_path: &str) -> Option<PathBuf> {
-    let p = dir.join(file_path);
+/// The image file of a frame's `file_path` (already joined to the folder): the path itself, or
+/// it with an image extension added.
+fn resolve_image(p: PathBuf) -> Option<PathBuf> {
     if p.extension().is_some() && p.is_file() {
         return Some(p);
     }
@@ -84,7 +85,10 @@ pub(crate) fn read_cameras(json_path: &Path, format: Format, options: &LoadOptio
     let dir = json_path.parent().unwrap_or(Path::new("."));
     let text = std::fs::read(json_path).map_err(io_err(json_path))?;
     let image = |file_path: &str, camera: usize| -> Result<FrameImage> {
-        let image_path = resolve_image(dir, file_path).ok_or_else(|| DatasetError::MissingImage { dir: dir.join(file_path), camera })?;
+        let entry = format!("frames[{camera}].file_path");
+        let named = crate::contain::join_inside(dir, file_path, json_path, &entry)?;
+        let image_path = resolve_image(named.clone()).ok_or(DatasetError::MissingImage { dir: named, camera })?;
+        let image_path = crate::contain::inside(dir, image_path, json_path, &entry)?;
         let size = image_size(&image_path)?;
         Ok((image_path, size))
     };
@@ -148,6 +152,11 @@ pub(crate) fn cameras_from_json(
             });
         }
         let (image_path, (w_file, h_file)) = image(&frame.file_path, i)?;
+        for (key, value) in [("w", f.w), ("h", f.h)] {
+            if let Some(v) = value.filter(|v| !(v.is_finite() && *v >= 1.0 && v.fract() == 0.0)) {
+                return Err(invalid(format!("{entry}.{key} (or the file's {key})"), format!("{v} is not a whole number of pixels")));
+            }
+        }
         let w = f.w.unwrap_or(w_file as f64);
         let h = f.h.unwrap_or(h_file as f64);
         if (w, h) != (w_file as f64, h_file as f64) {

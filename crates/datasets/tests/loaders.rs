@@ -113,6 +113,12 @@ fn gltf_meshes_load_like_obj() {
     let m = golden::mesh_io::load_mesh(&path).unwrap();
     assert_eq!(m.mesh.triangles.len(), 1);
     assert_eq!(m.mesh.positions[1], glam::Vec3::new(1.0, 0.0, 5.0), "node translation applied");
+    // A node that is its own child: an error naming the node, not an endless walk.
+    let cyclic = std::fs::read_to_string(&path).unwrap().replace(r#""translation":[0,0,5]"#, r#""translation":[0,0,5],"children":[0]"#);
+    let path = dir.path().join("cycle.gltf");
+    std::fs::write(&path, cyclic).unwrap();
+    let err = golden::mesh_io::load_mesh(&path).unwrap_err().to_string();
+    assert!(err.contains("cycle.gltf") && err.contains("node 0 is reached twice"), "{err}");
 }
 
 fn base64_encode(bytes: &[u8]) -> String {

@@ -36,7 +36,36 @@ pub enum MetricsError {
     /// An input is empty (no pixels in the mask, no points).
     #[error("{0} is empty")]
     Empty(&'static str),
+    /// Sampling a mesh at this spacing would make more points than [`MAX_MESH_SAMPLES`].
+    #[error(
+        "sampling the mesh (area {area:.4e}) every {spacing:.4e} would make {points:.3e} points, more than the limit of {limit}: \
+         give a larger spacing (or check the mesh's units)"
+    )]
+    TooManySamples {
+        /// The mesh's area.
+        area: f64,
+        /// The spacing asked for.
+        spacing: f64,
+        /// The points it would make.
+        points: f64,
+        /// [`MAX_MESH_SAMPLES`].
+        limit: usize,
+    },
+    /// A value out of its range (a spacing that is not positive, non-finite coordinates).
+    #[error("{what}: {value} is out of range ({expected})")]
+    OutOfRange {
+        /// The value's name.
+        what: &'static str,
+        /// The value.
+        value: f64,
+        /// Its range.
+        expected: &'static str,
+    },
 }
+
+/// The most points [`sample_mesh`] makes (20 M points: 240 MB; a DTU mesh at the protocol's
+/// 0.2 mm spacing makes a few million).
+pub const MAX_MESH_SAMPLES: usize = 20_000_000;
 
 /// PSNR in dB of colours in [0, 1] over the pixels where `mask` is true (all pixels without a
 /// mask). Identical images give `f64::INFINITY`.
@@ -119,17 +148,50 @@ pub fn ssim(pred: &[[f32; 3]], target: &[[f32; 3]], width: usize, height: usize)
 /// Points on a triangle mesh at a fixed density: `⌈area / spacing²⌉` points per unit of area in
 /// total, each triangle getting its share (stratified by area: the expected count is exact and
 /// every triangle with area ≥ spacing² gets at least one point). Deterministic in `seed`.
-pub fn sample_mesh(vertices: &[[f32; 3]], triangles: &[[u32; 3]], spacing: f32, seed: u64) -> Vec<[f32; 3]> {
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-    let per_area = 1.0 / f64::from(spacing * spacing);
-    let mut carry = 0.0f64;
-    let mut out = Vec::new();
-    for t in triangles {
-        let [a, b, c] = t.map(|i| vertices[i as usize].map(f64::from));
+///
+/// Errors: a spacing that is not positive and finite, a vertex index out of range, non-finite
+/// coordinates, or more than [`MAX_MESH_SAMPLES`] points (the count is known before any is made).
+pub fn sample_mesh(vertices: &[[f32; 3]], triangles: &[[u32; 3]], spacing: f64, seed: u64) -> Result<Vec<[f32; 3]>, MetricsError> {
+    if !(spacing.is_finite() && spacing > 0.0) {
+        return Err(MetricsError::OutOfRange { what: "mesh sampling spacing", value: spacing, expected: "positive and finite" });
+    }
+    let corners = |t: &[u32; 3]| -> Result<[[f64; 3]; 3], MetricsError> {
+        let mut out = [[0.0; 3]; 3];
+        for (k, &i) in t.iter().enumerate() {
+            let v = vertices.get(i as usize).ok_or(MetricsError::SizeMismatch {
+                what: "triangle index vs vertices",
+                a: i as usize,
+                b: vertices.len(),
+            })?;
+            out[k] = v.map(f64::from);
+        }
+        Ok(out)
+    };
+    let area_of = |[a, b, c]: [[f64; 3]; 3]| {
         let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
         let e2 = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
         let cross = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
-        let area = 0.5 * (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]).sqrt();
+        (e1, e2, 0.5 * (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]).sqrt())
+    };
+    let per_area = 1.0 / (spacing * spacing);
+    let mut total = 0.0f64;
+    for t in triangles {
+        total += area_of(corners(t)?).2;
+    }
+    let points = total * per_area;
+    if !points.is_finite() {
+        return Err(MetricsError::OutOfRange { what: "mesh area", value: total, expected: "finite coordinates" });
+    }
+    if points > MAX_MESH_SAMPLES as f64 {
+        return Err(MetricsError::TooManySamples { area: total, spacing, points, limit: MAX_MESH_SAMPLES });
+    }
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
+    let mut carry = 0.0f64;
+    let mut out = Vec::with_capacity(points.ceil() as usize);
+    for t in triangles {
+        let corners = corners(t)?;
+        let a = corners[0];
+        let (e1, e2, area) = area_of(corners);
         carry += area * per_area;
         while carry >= 1.0 {
             carry -= 1.0;
@@ -140,7 +202,7 @@ pub fn sample_mesh(vertices: &[[f32; 3]], triangles: &[[u32; 3]], spacing: f32, 
             out.push([0, 1, 2].map(|k| (a[k] + u * e1[k] + v * e2[k]) as f32));
         }
     }
-    out
+    Ok(out)
 }
 
 /// Keeps the points for which `keep` is true (e.g. NeuralWarp-style culling: inside the dilated
@@ -302,6 +364,21 @@ mod tests {
     }
 
     #[test]
+    fn sampling_a_mesh_is_bounded_before_any_point_is_made() {
+        let v = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        for spacing in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert!(matches!(sample_mesh(&v, &[[0, 1, 2]], spacing, 1), Err(MetricsError::OutOfRange { .. })), "{spacing}");
+        }
+        // 1e-6 on a unit triangle: 5e11 points, refused at once.
+        assert!(matches!(sample_mesh(&v, &[[0, 1, 2]], 1e-6, 1), Err(MetricsError::TooManySamples { .. })));
+        // Coordinates of 1e30: an area of 1e60.
+        let huge = [[0.0, 0.0, 0.0], [1e30, 0.0, 0.0], [0.0, 1e30, 0.0]];
+        assert!(sample_mesh(&huge, &[[0, 1, 2]], 0.01, 1).is_err());
+        // An index out of range is an error, not a panic.
+        assert!(matches!(sample_mesh(&v, &[[0, 1, 7]], 0.1, 1), Err(MetricsError::SizeMismatch { .. })));
+    }
+
+    #[test]
     fn chamfer_of_concentric_spheres_is_their_gap() {
         // Dense samples of spheres of radius 1 and 1.05: every distance ≈ 0.05.
         let a = sphere_points(1.0, 40_000, 1);
@@ -324,12 +401,12 @@ mod tests {
     fn mesh_sampling_has_the_requested_density() {
         // A unit square (two triangles) at spacing 0.01: 10 000 points, all inside.
         let v = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
-        let p = sample_mesh(&v, &[[0, 1, 2], [0, 2, 3]], 0.01, 3);
+        let p = sample_mesh(&v, &[[0, 1, 2], [0, 2, 3]], 0.01, 3).unwrap();
         assert!((p.len() as i64 - 10_000).abs() <= 1, "{}", p.len());
         assert!(p.iter().all(|q| (0.0..=1.0).contains(&q[0]) && (0.0..=1.0).contains(&q[1]) && q[2] == 0.0));
         let mean_x = p.iter().map(|q| f64::from(q[0])).sum::<f64>() / p.len() as f64;
         assert!((mean_x - 0.5).abs() < 0.01);
-        assert_eq!(p, sample_mesh(&v, &[[0, 1, 2], [0, 2, 3]], 0.01, 3));
+        assert_eq!(p, sample_mesh(&v, &[[0, 1, 2], [0, 2, 3]], 0.01, 3).unwrap());
     }
 
     #[test]

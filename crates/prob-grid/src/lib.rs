@@ -7,7 +7,7 @@
 //! ```
 //! The result is consumed by `view-sampler`, which builds the marginal and conditional CDFs and
 //! draws (camera, pixel, λ̃) samples. The crate also extracts meshes from any field
-//! ([`marching_cubes`]: block-wise, shared vertices, blocks skipped by the Lipschitz bound).
+//! ([`marching_cubes()`]: block-wise, shared vertices, blocks skipped by the Lipschitz bound).
 //!
 //! # Choices (docs/DECISIONS.md) and what they cost
 //! - **Cell density** ([`CellDensity`]): the paper's φ_s at the cell centre aliases when the

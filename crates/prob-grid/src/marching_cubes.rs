@@ -5,7 +5,7 @@
 //! (L = the field's Lipschitz bound; a block further away cannot hold the iso-surface), so the
 //! work and memory follow the surface, not the volume: resolution 1024 needs only the blocks
 //! the surface crosses. Within a block the (block + 1)³ corner values are computed in one batch
-//! and each cube is triangulated with Lorensen & Cline's tables ([`crate::mc_tables`]). Vertices
+//! and each cube is triangulated with Lorensen & Cline's tables (`mc_tables`). Vertices
 //! sit on grid edges (linear interpolation) and are keyed by their global edge, so neighbouring
 //! cubes and blocks share them: the mesh of a closed surface is watertight.
 //!

@@ -202,7 +202,7 @@ impl<R: Real> Module<R> for HashGrid {
     fn has_tangents(&self) -> bool {
         matches!(self.config.features, 1 | 2 | 4 | 8)
     }
-    /// ∂(features)/∂x · ẋ = Σ_c (∇ₓw_c · ẋ) T[c]: the same 8 corners as the features, weighted by
+    /// ∂(features)/∂x · ẋ = Σ_c (∇ₓw_c · ẋ) T\[c\]: the same 8 corners as the features, weighted by
     /// the trilinear weights' gradients (zero outside the grid, where inputs are clamped).
     fn forward_tangents(&self, params: &[R], input: &[R], _: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
         let _span = crate::profile::span(crate::profile::Stage::HashTangents);
@@ -237,7 +237,7 @@ impl<R: Real> Module<R> for HashGrid {
             },
         );
     }
-    /// The tables' gradient: T̄[c] += w_c ȳ + (∇ₓw_c · v) ẏ̄. The adjoint of the input is not
+    /// The tables' gradient: T̄\[c\] += w_c ȳ + (∇ₓw_c · v) ẏ̄. The adjoint of the input is not
     /// computed (a hash grid is the first module of an SDF network, whose inputs are not learnt):
     /// `d_input`, if given, is zeroed.
     fn backward_tangent(

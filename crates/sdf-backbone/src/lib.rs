@@ -14,7 +14,7 @@
 //! with parameter groups and the warm-up + cosine or step schedules ([`optim`]).
 //! [`backbone`] is the API the trainer and the sampler use: [`Preset`]s sized for a 2-core CPU
 //! and at the papers' scale, [`build`], [`Backbone::field`] (a `prob_grid::SdfField`),
-//! coarse-to-fine, [`Checkpoint`] (safetensors).
+//! coarse-to-fine, [`CheckpointWriter`] / [`CheckpointReader`] (safetensors).
 //!
 //! # Design (tiny-cuda-nn's shape)
 //! Modules own no parameters: a model is one flat `params` slice and one `grads` slice, each

@@ -93,7 +93,13 @@ fn load_gltf(path: &Path) -> Result<TexturedMesh> {
     // Walk the default scene's nodes so that node transforms are applied.
     let scene = document.default_scene().or_else(|| document.scenes().next()).ok_or_else(|| corrupt(path, "glTF file", "no scene"))?;
     let mut stack: Vec<(gltf::Node, glam::Mat4)> = scene.nodes().map(|n| (n, glam::Mat4::IDENTITY)).collect();
+    // glTF's nodes form a forest: a node reached twice (a cycle, or a node with two parents)
+    // is an error, not an endless or exponential walk.
+    let mut visited = vec![false; document.nodes().len()];
     while let Some((node, parent)) = stack.pop() {
+        if std::mem::replace(&mut visited[node.index()], true) {
+            return Err(corrupt(path, "glTF file", format!("node {} is reached twice (the node graph must be a tree)", node.index())));
+        }
         let world = parent * glam::Mat4::from_cols_array_2d(&node.transform().matrix());
         if let Some(mesh) = node.mesh() {
             for primitive in mesh.primitives() {
@@ -104,11 +110,16 @@ fn load_gltf(path: &Path) -> Result<TexturedMesh> {
                 let Some(pos) = reader.read_positions() else { continue };
                 let base = positions.len() as u32;
                 positions.extend(pos.map(|p| world.transform_point3(Vec3::from_array(p))));
-                let count = positions.len() as u32 - base;
+                let Ok(end) = u32::try_from(positions.len()) else {
+                    return Err(corrupt(path, "glTF file", "more than 2³² vertices"));
+                };
+                let count = end - base;
                 match reader.read_indices() {
                     Some(idx) => {
                         let idx: Vec<u32> = idx.into_u32().collect();
-                        triangles.extend(idx.chunks_exact(3).map(|t| [base + t[0], base + t[1], base + t[2]]));
+                        // An index beyond the primitive's vertices is caught by check_mesh (u32::MAX here).
+                        let at = |i: u32| if i < count { base + i } else { u32::MAX };
+                        triangles.extend(idx.chunks_exact(3).map(|t| [at(t[0]), at(t[1]), at(t[2])]));
                     }
                     None => triangles.extend((0..count / 3).map(|t| [base + 3 * t, base + 3 * t + 1, base + 3 * t + 2])),
                 }

@@ -9,6 +9,46 @@ use datasets::{LoadOptions, Scene, load_scene};
 use glam::{DVec3, Vec3};
 use std::path::{Path, PathBuf};
 
+/// The options the loaders get from a configuration.
+fn load_options(config: &TrainConfig) -> LoadOptions {
+    let bound_sphere = match config.data.bound.as_slice() {
+        [x, y, z, r] => Some((glam::DVec3::new(*x, *y, *z), *r)),
+        _ => None,
+    };
+    LoadOptions { downscale: config.data.downscale, background: config.model.background.map(|c| c as f32), bound_sphere, ..Default::default() }
+}
+
+/// What the memory model needs of a scene.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SceneSize {
+    /// Views.
+    pub views: usize,
+    /// Bytes of all images and masks as loaded.
+    pub pixel_bytes: usize,
+    /// Pixels of the largest view.
+    pub largest_view_pixels: usize,
+    /// Whether every view has a mask.
+    pub masks: bool,
+}
+
+impl SceneSize {
+    /// `views` views of `pixels` pixels each (masked or not).
+    fn new(views: usize, pixels: usize, masks: bool) -> SceneSize {
+        let mask_bytes = if masks { pixels.div_ceil(8) } else { 0 };
+        SceneSize { views, pixel_bytes: views * (3 * pixels + mask_bytes), largest_view_pixels: pixels, masks }
+    }
+
+    /// The sizes of a loaded scene.
+    pub fn of(scene: &Scene) -> SceneSize {
+        SceneSize {
+            views: scene.views.len(),
+            pixel_bytes: scene.pixel_bytes(),
+            largest_view_pixels: scene.views.iter().map(|v| v.image.width as usize * v.image.height as usize).max().unwrap_or(0),
+            masks: scene.views.iter().all(|v| v.mask.is_some()),
+        }
+    }
+}
+
 /// A scene with what a run needs to know about where it came from.
 #[derive(Debug, Clone)]
 pub struct SceneData {
@@ -39,21 +79,31 @@ impl SceneData {
 
     /// A dataset folder (any layout `datasets` reads).
     pub fn folder(config: &TrainConfig, dir: &Path) -> Result<SceneData> {
-        let bound_sphere = match config.data.bound.as_slice() {
-            [x, y, z, r] => Some((glam::DVec3::new(*x, *y, *z), *r)),
-            _ => None,
-        };
-        let options = LoadOptions {
-            downscale: config.data.downscale,
-            background: config.model.background.map(|c| c as f32),
-            bound_sphere,
-            ..Default::default()
-        };
-        let scene = load_scene(dir, &options).with_context(|| format!("cannot load the data folder {}", dir.display()))?;
+        let scene = load_scene(dir, &load_options(config)).with_context(|| format!("cannot load the data folder {}", dir.display()))?;
         if scene.views.is_empty() {
             bail!("the data folder {} has no views", dir.display());
         }
         Ok(SceneData { scene, builtin_truth: None, path: Some(dir.to_path_buf()) })
+    }
+
+    /// The sizes of the scene `load` would make, from the configuration (the built-in scene) or
+    /// the cameras and image headers (a folder): no pixel is decoded or rendered.
+    pub fn size_before_loading(config: &TrainConfig, dir: Option<&Path>) -> Result<SceneSize> {
+        let Some(dir) = dir else {
+            let b = &config.data.builtin;
+            let (w, h) = (b.width as usize, (b.width * 3 / 4) as usize);
+            return Ok(SceneSize::new(b.views, w * h, true));
+        };
+        let cameras = datasets::read_cameras(dir, &load_options(config)).with_context(|| format!("cannot load the data folder {}", dir.display()))?;
+        let pixels: Vec<usize> = cameras.records.iter().map(|r| r.camera.width as usize * r.camera.height as usize).collect();
+        // NeRF-synthetic's masks are the images' alpha: they have no file of their own.
+        let masks = cameras.records.iter().all(|r| r.mask_path.is_some()) || datasets::detect_format(dir)? == datasets::Format::NerfSynthetic;
+        Ok(SceneSize {
+            views: pixels.len(),
+            pixel_bytes: pixels.iter().map(|p| 3 * p + p.div_ceil(8)).sum(),
+            largest_view_pixels: pixels.iter().copied().max().unwrap_or(0),
+            masks,
+        })
     }
 
     /// The folder if given, else the built-in scene.

@@ -1,6 +1,6 @@
 //! `cargo xtask fuzz`: every parser of user input fed mutated bytes — PLY, NPY, NPZ, IDR camera
-//! archives, transforms JSON, COLMAP models (binary and text), images and masks, training
-//! configurations and `key=value` overrides, checkpoints. A parser must answer any bytes with a
+//! archives, transforms JSON, COLMAP models (binary and text), images and masks, OBJ and
+//! glTF/GLB meshes, training configurations and `key=value` overrides, checkpoints. A parser must answer any bytes with a
 //! value or an error: a panic, an allocation beyond the memory cap, or a case slower than the
 //! time-out is a finding, saved with its input under `OUT/findings/`.
 //!
@@ -19,7 +19,7 @@
 
 use anyhow::{Context, Result, bail};
 use datasets::colmap::{ModelEncoding, ModelFiles};
-use datasets::io::PlyData;
+use datasets::io::{MeshFormat, PlyData};
 use datasets::npy::{npy_bytes, write_npz};
 use datasets::{Format, LoadOptions};
 use glam::{DMat3, DMat4, DVec3, Vec3};
@@ -351,6 +351,48 @@ fn seeds_checkpoint() -> Vec<Vec<u8>> {
 
 // ----- targets ------------------------------------------------------------------------------
 
+fn seeds_obj() -> Vec<Vec<u8>> {
+    let (positions, faces) = ([Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z], [[0, 1, 2], [0, 2, 3], [1, 2, 3]]);
+    let quads = "mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nusemtl a\nf 1/1 2/2 3/3 4/4\nf -1 -2 -3\n";
+    vec![datasets::io::mesh_bytes(MeshFormat::Obj, &positions, &faces, None), quads.as_bytes().to_vec()]
+}
+
+fn run_obj(b: &[u8]) -> Verdict {
+    verdict(datasets::parse::obj(b, Path::new("mesh.obj")))
+}
+
+fn seeds_gltf() -> Vec<Vec<u8>> {
+    let (positions, faces) = ([Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z], [[0, 1, 2], [0, 2, 3], [1, 2, 3]]);
+    // A JSON glTF with a data URI, a node hierarchy and indices.
+    let mut buffer = Vec::new();
+    for p in positions {
+        buffer.extend(p.to_array().iter().flat_map(|c| c.to_le_bytes()));
+    }
+    buffer.extend(faces.iter().flatten().flat_map(|&i: &u32| (i as u16).to_le_bytes()));
+    let json = format!(
+        r#"{{"asset":{{"version":"2.0"}},"scene":0,"scenes":[{{"nodes":[0]}}],"nodes":[{{"children":[1],"translation":[0,0,1]}},{{"mesh":0,"scale":[2,2,2]}}],"meshes":[{{"primitives":[{{"attributes":{{"POSITION":0}},"indices":1}}]}}],"accessors":[{{"bufferView":0,"componentType":5126,"count":4,"type":"VEC3","min":[0,0,0],"max":[1,1,1]}},{{"bufferView":1,"componentType":5123,"count":9,"type":"SCALAR"}}],"bufferViews":[{{"buffer":0,"byteLength":48}},{{"buffer":0,"byteOffset":48,"byteLength":18}}],"buffers":[{{"byteLength":66,"uri":"data:application/octet-stream;base64,{}"}}]}}"#,
+        base64(&buffer)
+    );
+    vec![datasets::io::mesh_bytes(MeshFormat::Glb, &positions, &faces, None), json.into_bytes()]
+}
+
+/// Standard base64 with padding (the seed's data URI).
+fn base64(bytes: &[u8]) -> String {
+    const T: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::new();
+    for c in bytes.chunks(3) {
+        let n = u32::from(c[0]) << 16 | u32::from(*c.get(1).unwrap_or(&0)) << 8 | u32::from(*c.get(2).unwrap_or(&0));
+        for k in 0..4 {
+            s.push(if k <= c.len() { T[(n >> (18 - 6 * k) & 63) as usize] as char } else { '=' });
+        }
+    }
+    s
+}
+
+fn run_gltf(b: &[u8]) -> Verdict {
+    verdict(datasets::parse::gltf(b, Path::new("mesh.gltf")))
+}
+
 fn run_ply(b: &[u8]) -> Verdict {
     verdict(datasets::parse::ply(b, Path::new("mesh.ply")))
 }
@@ -449,6 +491,8 @@ pub fn targets() -> Vec<Target> {
         Target { name: "image", about: "image and mask files (PNG seeds; any format the decoder detects)", seeds: seeds_image, run: run_image },
         Target { name: "config", about: "training configurations (TOML) with validation", seeds: seeds_config, run: run_config },
         Target { name: "overrides", about: "key=value overrides of the command line", seeds: seeds_overrides, run: run_overrides },
+        Target { name: "obj", about: "OBJ meshes (geometry; material libraries are files of their own)", seeds: seeds_obj, run: run_obj },
+        Target { name: "gltf", about: "glTF and GLB meshes with embedded buffers (node graph, accessors)", seeds: seeds_gltf, run: run_gltf },
         Target {
             name: "checkpoint",
             about: "checkpoints (safetensors header, tensors, restore into a run)",

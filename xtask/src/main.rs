@@ -74,9 +74,13 @@ enum ImportKind {
         /// Masks (same names as the images, any image format; white = object).
         #[arg(long)]
         masks: Option<PathBuf>,
-        /// Output folder (IDR layout).
+        /// Output folder (IDR layout): new or empty.
         #[arg(long)]
         out: PathBuf,
+        /// Replace an earlier import in --out (a folder holding `colmap_import.json`; any other
+        /// non-empty folder is refused).
+        #[arg(long)]
+        overwrite: bool,
         /// Integer downscale of the images (area average; intrinsics follow).
         #[arg(long, default_value_t = 1)]
         downscale: u32,
@@ -249,8 +253,11 @@ fn main() -> Result<()> {
         },
         Command::Eval(args) => eval::run(&args),
         Command::Trade(args) => trade::run(&args, &stop_signal()),
-        Command::Import { which: ImportKind::Colmap { model, images, masks, out, downscale, bound } } => {
+        Command::Import { which: ImportKind::Colmap { model, images, masks, out, overwrite, downscale, bound } } => {
             let options = LoadOptions { downscale, bound_sphere: bound, ..LoadOptions::default() };
+            if overwrite && out.join("colmap_import.json").is_file() {
+                std::fs::remove_dir_all(&out).with_context(|| format!("cannot clear the earlier import in {}", out.display()))?;
+            }
             let report = datasets::import_colmap(&model, &images, masks.as_deref(), &out, &options)?;
             let scale = report.world_from_normalized.col(0).truncate().length();
             let centre = report.world_from_normalized.col(3).truncate();

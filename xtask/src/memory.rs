@@ -84,6 +84,13 @@ impl MemoryEstimate {
                 format!("render.rays (now {}), render.chunk (now {}), or fewer threads (RAYON_NUM_THREADS)", config.render.rays, config.render.chunk),
             ),
             (self.images, format!("data.downscale (now {})", config.data.downscale)),
+            (
+                self.evaluation,
+                format!(
+                    "output.eval_downscale (now {}) or render.render_fine (now {}): the evaluation renders",
+                    config.output.eval_downscale, config.render.render_fine
+                ),
+            ),
             (self.meshing, format!("output.mesh_resolution (now {})", config.output.mesh_resolution)),
             (self.guide, format!("guide.camera.ru/rv/rl (now {}×{}×{})", config.guide.camera.ru, config.guide.camera.rv, config.guide.camera.rl)),
         ];

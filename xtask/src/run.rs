@@ -8,7 +8,7 @@
 //! that fails before its first checkpoint removes the run folder it created.
 
 use crate::config::{Budget, SamplerKind, TrainConfig, parse_duration};
-use crate::data::SceneData;
+use crate::data::{SceneData, SceneSize};
 pub use crate::folder::{AtomicFiles, RunFolder, Sink, checkpoint_path, read_run_config};
 use crate::folder::{DataRecord, is_run_folder};
 use crate::memory::{self, MemoryEstimate};
@@ -196,16 +196,15 @@ pub fn stop_message() -> &'static str {
 
 /// The memory model of `config` on `data`, printed beside the memory available; an error naming
 /// what to change when the peak exceeds `max_memory` (default: the memory available).
-pub fn check_memory(config: &TrainConfig, data: &SceneData, max_memory: Option<f64>) -> Result<MemoryEstimate> {
+pub fn check_memory(config: &TrainConfig, size: &SceneSize, max_memory: Option<f64>) -> Result<MemoryEstimate> {
     let mut backbone = sdf_backbone::architecture(config.model.preset);
     backbone.config.normals = config.model.normals;
-    if config.model.background_model.learned(crate::data::uses_masks(config, &data.scene)) {
+    if config.model.background_model.learned(config.data.masks && size.masks) {
         backbone.add_learned_background(&mut Vec::new(), 0);
     }
     let n_params = backbone.n_params::<f32>();
-    let view_pixels = data.scene.views.iter().map(|v| v.image.width as usize * v.image.height as usize).max().unwrap_or(0);
     let estimate =
-        memory::estimate(config, &backbone, n_params, data.scene.views.len(), data.scene.pixel_bytes(), view_pixels, rayon::current_num_threads());
+        memory::estimate(config, &backbone, n_params, size.views, size.pixel_bytes, size.largest_view_pixels, rayon::current_num_threads());
     let available = memory::available_bytes();
     let limit = max_memory.or(available);
     eprintln!(
@@ -278,8 +277,9 @@ pub fn run(request: &RunRequest, options: &RunOptions, stop: &AtomicBool, sink: 
         RunRequest::Resume { dir, data } => {
             let folder = RunFolder::open(dir, sink)?;
             let (config, mut record) = read_run_config(dir)?;
+            let path = data.as_deref().or(record.path.as_deref());
+            let estimate = check_memory(&config, &SceneData::size_before_loading(&config, path)?, options.max_memory)?;
             let scene = load_run_data(dir, &config, &record, data.as_deref())?;
-            let estimate = check_memory(&config, &scene, options.max_memory)?;
             let trainer = restore_run(dir, config, scene)?;
             folder.trim_log(trainer.state().step)?;
             if data.is_some() || record.fingerprint.is_none() {
@@ -290,8 +290,9 @@ pub fn run(request: &RunRequest, options: &RunOptions, stop: &AtomicBool, sink: 
             run_folder(trainer, &folder, options, stop, &estimate, true)
         }
         RunRequest::Fresh { config, data, out, overwrite } => {
+            // The memory is checked before any pixel is decoded or rendered.
+            let estimate = check_memory(config, &SceneData::size_before_loading(config, data.as_deref())?, options.max_memory)?;
             let scene = SceneData::load(config, data.as_deref())?;
-            let estimate = check_memory(config, &scene, options.max_memory)?;
             let trainer = Trainer::new((**config).clone(), scene)?;
             let (folder, created) = RunFolder::create(out, *overwrite, sink)?;
             let record = DataRecord::new(trainer.data().path.as_deref(), trainer.data().description(), &trainer.data().scene)?;

@@ -169,3 +169,24 @@ fn splits_and_downscales_that_leave_nothing_fail_before_training() {
     let o = xtask_in(dir.path(), &["train", "--data", "missing"]);
     assert!(!o.status.success() && stderr(&o).contains("no such dataset folder"), "{}", stderr(&o));
 }
+
+#[test]
+fn the_memory_check_knows_the_scene_before_decoding_it() {
+    // What the check sees before loading is what loading makes: the built-in scene and a folder.
+    let dir = tempfile::tempdir().unwrap();
+    golden(dir.path(), "sphere", "scene");
+    let mut config = TrainConfig::default();
+    config.data.builtin.width = 40;
+    config.data.builtin.views = 5;
+    for data in [None, Some(dir.path().join("scene"))] {
+        let before = SceneData::size_before_loading(&config, data.as_deref()).unwrap();
+        let loaded = SceneData::load(&config, data.as_deref()).unwrap();
+        assert_eq!(before, xtask::data::SceneSize::of(&loaded.scene), "{data:?}");
+    }
+    // A built-in scene too large to render is refused before it is rendered (40 000 × 30 000 ×
+    // 49 views would take 176 GB of pixels alone), with the part that is too large named.
+    let o = xtask_in(dir.path(), &["train", "--out", "huge", "data.builtin.width=40000"]);
+    let err = stderr(&o);
+    assert!(!o.status.success() && err.contains("data.downscale") && err.contains("needs about"), "{err}");
+    assert!(!dir.path().join("huge").exists());
+}

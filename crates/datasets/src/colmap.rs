@@ -903,6 +903,13 @@ impl ColmapWorkspace {
     /// Writes the workspace as an IDR folder `out` (see [`import_colmap`]).
     pub fn import_idr(&self, out: &Path, options: &LoadOptions) -> Result<ImportReport> {
         let plan = self.plan(options)?;
+        // An earlier import's images and masks would mix with this one's.
+        if std::fs::read_dir(out).is_ok_and(|mut entries| entries.next().is_some()) {
+            return Err(DatasetError::Unsupported {
+                path: out.to_path_buf(),
+                message: "the import's folder is not empty: nothing was written (choose a new or empty folder)".into(),
+            });
+        }
         let (image_dir, mask_dir) = (out.join("image"), out.join("mask"));
         std::fs::create_dir_all(&image_dir).map_err(io_err(&image_dir))?;
         let has_mask = plan

@@ -22,13 +22,26 @@ fn is_image(path: &Path) -> bool {
     matches!(path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref(), Some("png" | "jpg" | "jpeg"))
 }
 
-/// The image files of `dir` assigned to cameras 0..n: by number when every stem is a number
-/// (`000.png`), otherwise in sorted order.
+/// The number a file's stem ends with (`000` → 0, `img10` → 10, `img_0007` → 7).
+fn trailing_number(path: &Path) -> Option<usize> {
+    let stem = path.file_stem()?.to_str()?;
+    let digits = &stem[stem.trim_end_matches(|c: char| c.is_ascii_digit()).len()..];
+    digits.parse().ok()
+}
+
+/// The image files of `dir` assigned to cameras 0..n: by the number each stem ends with when
+/// every stem has one (`000.png`, `img2.png` before `img10.png`), otherwise in sorted order.
 pub(crate) fn numbered_files(dir: &Path, n: usize, what: &'static str) -> Result<Vec<PathBuf>> {
     let mut files: Vec<PathBuf> =
         std::fs::read_dir(dir).map_err(io_err(dir))?.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.is_file() && is_image(p)).collect();
     files.sort();
-    let numbers: Option<Vec<usize>> = files.iter().map(|p| p.file_stem().and_then(|s| s.to_str()).and_then(|s| s.parse().ok())).collect();
+    let numbers: Option<Vec<usize>> = files.iter().map(|p| trailing_number(p)).collect();
+    // Numbers must name one file each (`img1.png` and `mask1.png` in one folder are not a list).
+    let numbers = numbers.filter(|v| {
+        let mut sorted = v.clone();
+        sorted.sort_unstable();
+        sorted.windows(2).all(|w| w[0] != w[1])
+    });
     if let Some(numbers) = numbers {
         let mut by_index = vec![None; n];
         for (file, k) in files.iter().zip(numbers) {
@@ -118,9 +131,13 @@ pub(crate) fn cameras_from_npz<R: std::io::Read + std::io::Seek>(
         });
     }
     let keys = npz.keys();
-    let n = keys.iter().filter(|k| k.strip_prefix("world_mat_").is_some_and(|s| s.parse::<usize>().is_ok())).count();
-    if n == 0 {
-        return Err(DatasetError::MissingKey { path: npz_path, key: "world_mat_0".into() });
+    let mut indices: Vec<usize> = keys.iter().filter_map(|k| k.strip_prefix("world_mat_").and_then(|s| s.parse::<usize>().ok())).collect();
+    indices.sort_unstable();
+    indices.dedup();
+    let n = indices.len();
+    // The cameras are numbered 0..n: a gap is a missing camera, named before any image is.
+    if let Some(gap) = (0..=n).find(|i| indices.get(*i) != Some(i)).filter(|&i| i < n || n == 0) {
+        return Err(DatasetError::MissingKey { path: npz_path, key: format!("world_mat_{gap}") });
     }
     let (images, masks) = files(n)?;
     let mut scale_mat_0 = None;
@@ -197,4 +214,21 @@ pub(crate) fn cameras_from_npz<R: std::io::Read + std::io::Seek>(
         world_from_normalized: scale_mat_0.unwrap_or(DMat4::IDENTITY),
         source: SceneSource { format: Format::Idr, path: Some(dir.to_path_buf()), description },
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn images_are_paired_with_cameras_by_the_number_their_names_end_with() {
+        let dir = tempfile::tempdir().unwrap();
+        let names: Vec<String> = (0..12).map(|i| format!("img{i}.png")).collect();
+        for n in &names {
+            std::fs::write(dir.path().join(n), b"").unwrap();
+        }
+        let files = numbered_files(dir.path(), 12, "images").unwrap();
+        let got: Vec<String> = files.iter().map(|p| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
+        assert_eq!(got, names, "img2 must be camera 2, not img10");
+    }
 }

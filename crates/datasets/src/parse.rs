@@ -87,3 +87,16 @@ pub fn image(bytes: &[u8], path: &Path, downscale: u32, background: [f32; 3]) ->
 pub fn mask(bytes: &[u8], path: &Path, downscale: u32) -> Result<Mask> {
     Ok(mask_of(decode_bytes(bytes, path)?, downscale.max(1)).0)
 }
+
+/// An OBJ mesh (geometry; its material library and textures, files of their own, are not read).
+pub fn obj(bytes: &[u8], path: &Path) -> Result<crate::golden::mesh_io::TexturedMesh> {
+    crate::golden::mesh_io::parse_obj(bytes, path, &|_| Err(tobj::LoadError::OpenFileFailed), &|name| {
+        Err(crate::DatasetError::NotFound { path: PathBuf::from(name), why: "a texture (not read from bytes)".into() })
+    })
+}
+
+/// A glTF (JSON) or GLB mesh with embedded buffers (`data:` URIs or GLB's binary chunk); an
+/// external buffer is an error.
+pub fn gltf(bytes: &[u8], path: &Path) -> Result<crate::golden::mesh_io::TexturedMesh> {
+    crate::golden::mesh_io::parse_gltf(bytes, path, None)
+}

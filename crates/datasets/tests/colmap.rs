@@ -678,6 +678,9 @@ fn import_to_idr_reads_back_the_same_cameras_and_pixels() {
     let out3 = tempfile::tempdir().unwrap();
     let found = ColmapWorkspace::find(ws.path()).unwrap();
     import_colmap(&found.model_dir, &found.images_dir, None, out3.path(), &options).unwrap();
+    // A folder that holds anything is never imported into (old masks would stay beside new images).
+    let err = import_colmap(&found.model_dir, &found.images_dir, None, out3.path(), &options).unwrap_err();
+    assert!(err.to_string().contains("not empty"), "{err}");
     assert!(!out3.path().join("mask").exists());
     let (a, b) = (read_cameras(ws.path(), &options).unwrap(), read_cameras(out3.path(), &options).unwrap());
     assert_eq!(a.world_from_normalized, b.world_from_normalized);

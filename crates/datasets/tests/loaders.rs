@@ -355,6 +355,25 @@ fn other_npz_keys_are_ignored() {
 }
 
 #[test]
+fn a_gap_in_the_camera_numbering_names_the_missing_camera() {
+    let (dir, _) = written_composite();
+    let path = dir.path().join("cameras_sphere.npz");
+    let mut npz = datasets::npy::Npz::open(&path).unwrap();
+    let mut entries = Vec::new();
+    for i in [0, 1, 3] {
+        for key in [format!("world_mat_{i}"), format!("scale_mat_{i}")] {
+            let m: [f64; 16] = npz.get(&key).unwrap().unwrap().data.try_into().unwrap();
+            entries.push((key, npy_bytes(&[4, 4], &m)));
+        }
+    }
+    drop(npz);
+    write_npz(std::fs::File::create(&path).unwrap(), &entries).unwrap();
+    let err = load_scene(dir.path(), &LoadOptions::default()).unwrap_err();
+    assert!(err.to_string().contains("world_mat_2"), "{err}");
+    assert_names(err, &path);
+}
+
+#[test]
 fn nan_in_world_mat_is_rejected() {
     let (dir, _) = written_composite();
     rewrite_npz(dir.path(), |i, w| {

@@ -212,9 +212,29 @@ pub fn cull(points: &[[f32; 3]], keep: impl Fn([f32; 3]) -> bool + Sync) -> Vec<
 }
 
 /// A k-d tree over a point set, for repeated nearest-neighbour distances.
+///
+/// The points are stored rotated by a fixed generic rotation (queries alike; distances do not
+/// change): points sampled on an axis-aligned plane share one coordinate exactly, which a k-d
+/// tree cannot split on, and its leaves then grow with the cloud (a flat face of a box made the
+/// search run for minutes).
 pub struct PointCloud {
     tree: ImmutableKdTree<f32, 3>,
     len: usize,
+}
+
+/// The rotation [`PointCloud`] stores its points in: about the axis (1, 2, 3)/√14 by 1 radian
+/// (no coordinate axis or plane of it is parallel to a world axis or plane).
+fn generic_rotation(p: &[f32; 3]) -> [f32; 3] {
+    const R: [[f64; 3]; 3] = {
+        // Rodrigues' formula, precomputed: R = cos θ I + sin θ [k]× + (1 − cos θ) k kᵀ.
+        [
+            [0.573_137_855_448_986_9, -0.609_006_642_137_393_3, 0.548_291_809_608_599_9],
+            [0.740_348_840_460_782, 0.671_644_504_191_528_4, -0.027_879_282_947_946_3],
+            [-0.351_278_512_123_517, 0.421_905_877_918_112_2, 0.835_822_252_095_764_2],
+        ]
+    };
+    let v = p.map(f64::from);
+    R.map(|row| (row[0] * v[0] + row[1] * v[1] + row[2] * v[2]) as f32)
 }
 
 impl PointCloud {
@@ -223,7 +243,8 @@ impl PointCloud {
         if points.is_empty() {
             return Err(MetricsError::Empty("point cloud"));
         }
-        let tree = ImmutableKdTree::new_from_slice(points).map_err(|_| MetricsError::Empty("point cloud (k-d tree construction)"))?;
+        let rotated: Vec<[f32; 3]> = points.iter().map(generic_rotation).collect();
+        let tree = ImmutableKdTree::new_from_slice(&rotated).map_err(|_| MetricsError::Empty("point cloud (k-d tree construction)"))?;
         Ok(PointCloud { tree, len: points.len() })
     }
 
@@ -242,7 +263,7 @@ impl PointCloud {
         queries
             .par_iter()
             .map(|q| {
-                let r = self.tree.query(q).nearest_one::<SquaredEuclidean<f32>>().execute();
+                let r = self.tree.query(&generic_rotation(q)).nearest_one::<SquaredEuclidean<f32>>().execute();
                 (r.distance.max(0.0).sqrt(), r.item as usize)
             })
             .collect()
@@ -361,6 +382,21 @@ mod tests {
                 [r * s * a.cos(), r * s * a.sin(), r * z]
             })
             .collect()
+    }
+
+    #[test]
+    fn nearest_distances_on_an_axis_aligned_plane_are_exact() {
+        // 90 000 points with z = 0 exactly (a box face): the k-d tree stores them rotated.
+        let plane: Vec<[f32; 3]> = (0..300).flat_map(|i| (0..300).map(move |j| [i as f32 / 300.0, j as f32 / 300.0, 0.0])).collect();
+        let cloud = PointCloud::new(&plane).unwrap();
+        let queries: Vec<[f32; 3]> = (0..200).map(|k| [(k % 17) as f32 / 17.0, (k % 13) as f32 / 13.0, 0.01 * (k % 5) as f32]).collect();
+        for (q, (d, i)) in queries.iter().zip(cloud.nearest(&queries)) {
+            let brute =
+                plane.iter().map(|p| ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()).fold(f32::INFINITY, f32::min);
+            assert!((d - brute).abs() < 1e-5, "{q:?}: {d} vs {brute}");
+            let p = plane[i];
+            assert!((((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt() - brute).abs() < 1e-5);
+        }
     }
 
     #[test]

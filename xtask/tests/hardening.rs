@@ -190,3 +190,50 @@ fn the_memory_check_knows_the_scene_before_decoding_it() {
     assert!(!o.status.success() && err.contains("data.downscale") && err.contains("needs about"), "{err}");
     assert!(!dir.path().join("huge").exists());
 }
+
+#[test]
+fn ctrl_c_during_meshing_stops_with_the_checkpoint_kept_and_resume_finishes() {
+    use std::io::BufRead;
+    let dir = tempfile::tempdir().unwrap();
+    let mut args = vec!["train", "--out", "run"];
+    args.extend_from_slice(TINY);
+    args.push("output.mesh_resolution=512");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_xtask"))
+        .current_dir(dir.path())
+        .args(&args)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("xtask runs");
+    let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
+    let mut seen = String::new();
+    for line in lines.by_ref() {
+        let line = line.unwrap();
+        seen += &line;
+        seen.push('\n');
+        if line.contains("] mesh ") {
+            let kill = Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+            assert!(kill.success());
+            break;
+        }
+    }
+    seen.extend(lines.map(|l| l.unwrap() + "\n"));
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{seen}");
+    assert!(seen.contains("stopping after this part of meshing") && seen.contains("stopped after training"), "{seen}");
+    let run = dir.path().join("run");
+    assert!(run.join("checkpoint.safetensors").is_file() && !run.join("mesh.ply").exists() && !run.join("metrics.json").exists(), "{seen}");
+    let o = xtask_in(dir.path(), &["train", "--resume", "run"]);
+    assert!(o.status.success() && run.join("mesh.ply").is_file() && run.join("metrics.json").is_file(), "{}", stderr(&o));
+}
+
+#[test]
+fn the_psnr_of_a_run_without_held_out_views_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    // With nothing held out, the PSNR is said to be on training views.
+    let mut args = vec!["train", "--out", "run"];
+    args.extend_from_slice(TINY);
+    args.push("data.holdout_every=0");
+    let o = xtask_in(dir.path(), &args);
+    let err = stderr(&o);
+    assert!(o.status.success() && err.contains("training (none held out) view(s)") && !err.contains("held-out view"), "{err}");
+}

@@ -467,6 +467,30 @@ fn lens_distortion_is_unsupported_not_ignored() {
 }
 
 #[test]
+fn a_fractional_image_width_names_the_key_not_an_equal_pair() {
+    let (dir, path) = transforms_dir();
+    edit_json(&path, |j| j["w"] = serde_json::json!(32.5));
+    let err = load_scene(dir.path(), &LoadOptions::default()).unwrap_err();
+    assert!(err.to_string().contains("32.5 is not a whole number of pixels") && err.to_string().contains(".w"), "{err}");
+    assert_names(err, &path);
+}
+
+#[test]
+fn a_file_path_out_of_the_dataset_is_an_error_naming_the_entry() {
+    let (dir, path) = transforms_dir();
+    // A copy of an image outside the dataset's folder, named with `..` and absolutely.
+    let outside = tempfile::tempdir().unwrap();
+    std::fs::copy(dir.path().join("train/r_0.png"), outside.path().join("x.png")).unwrap();
+    let relative = format!("../{}/x", outside.path().file_name().unwrap().to_string_lossy());
+    for (name, why) in [(relative.as_str(), "climbs out"), (outside.path().join("x").to_str().unwrap(), "absolute")] {
+        edit_json(&path, |j| j["frames"][1]["file_path"] = serde_json::json!(name));
+        let err = load_scene(dir.path(), &LoadOptions::default()).unwrap_err();
+        assert!(err.to_string().contains(why) && err.to_string().contains("frames[1].file_path"), "{err}");
+        assert_names(err, &path);
+    }
+}
+
+#[test]
 fn missing_bound_for_instant_ngp_is_an_error() {
     let (dir, path) = transforms_dir();
     edit_json(&path, |j| {

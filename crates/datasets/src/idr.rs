@@ -9,7 +9,7 @@
 use crate::error::{DatasetError, Result, io_err};
 use crate::npy::{NpyArray, Npz};
 use crate::scene::{CameraRecord, Format, LoadOptions, SceneCameras, SceneSource};
-use camera_geom::{PinholeCamera, PixelCenters, decompose_projection};
+use camera_geom::{Intrinsics, PinholeCamera, PixelCenters, decompose_projection, projection_from_parts};
 use glam::DMat4;
 use std::path::{Path, PathBuf};
 
@@ -20,6 +20,38 @@ pub(crate) fn camera_file(dir: &Path) -> Option<PathBuf> {
 
 fn is_image(path: &Path) -> bool {
     matches!(path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref(), Some("png" | "jpg" | "jpeg"))
+}
+
+/// A 4 × 4 matrix as its 16 values, row by row (NumPy's order).
+pub(crate) fn mat4_rows(m: &DMat4) -> Vec<f64> {
+    (0..4).flat_map(|r| (0..4).map(move |c| m.col(c)[r])).collect()
+}
+
+/// Writes `cameras_sphere.npz` of the IDR layout for `cameras` (in the normalised frame):
+/// `scale_mat_i` = `world_from_normalized`, `world_mat_i` = P · scale_mat⁻¹ with P = K [R|t] in
+/// integer pixel centres, so that world_mat · scale_mat gives P back, as NeuS computes it. The
+/// one writer of the layout's cameras (golden scenes, COLMAP imports).
+pub(crate) fn write_cameras(out: &Path, cameras: &[PinholeCamera], world_from_normalized: &DMat4) -> Result<()> {
+    let normalized_from_world = world_from_normalized.inverse();
+    let mut entries = Vec::with_capacity(2 * cameras.len());
+    for (i, c) in cameras.iter().enumerate() {
+        let shift = c.pixel_centers.offset() - PixelCenters::Integer.offset();
+        let k = Intrinsics { cx: c.intrinsics.cx - shift, cy: c.intrinsics.cy - shift, ..c.intrinsics };
+        let p = projection_from_parts(&k, &c.camera_from_world);
+        let mut p4 = DMat4::IDENTITY;
+        for (r, row) in p.iter().enumerate() {
+            for (col, v) in row.iter().enumerate() {
+                p4.col_mut(col)[r] = *v;
+            }
+        }
+        entries.push((format!("world_mat_{i}"), crate::npy::npy_bytes(&[4, 4], &mat4_rows(&(p4 * normalized_from_world)))));
+        entries.push((format!("scale_mat_{i}"), crate::npy::npy_bytes(&[4, 4], &mat4_rows(world_from_normalized))));
+    }
+    let npz_path = out.join("cameras_sphere.npz");
+    let bytes = crate::npy::write_npz(std::io::Cursor::new(Vec::new()), &entries)
+        .map_err(|e| DatasetError::Io { path: npz_path.clone(), source: std::io::Error::other(e) })?
+        .into_inner();
+    crate::io::write_atomic(&npz_path, &bytes)
 }
 
 /// The number a file's stem ends with (`000` → 0, `img10` → 10, `img_0007` → 7).

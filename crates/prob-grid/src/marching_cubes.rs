@@ -13,7 +13,7 @@
 
 use crate::field::SdfField;
 use crate::mc_tables::{EDGE_CORNERS, EDGE_TABLE, TRI_TABLE};
-use crate::scene::{GridError, LIPSCHITZ_MARGIN, LipschitzCheck};
+use crate::scene::{GridError, LipschitzCheck};
 use glam::{UVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -82,18 +82,12 @@ pub fn marching_cubes_with_progress(
     config: &MarchingCubesConfig,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<(IsoMesh, ExtractionStats), GridError> {
-    let claimed = field.lipschitz_bound().max(1e-6);
-    let mut check = LipschitzCheck { claimed, used: claimed, ..Default::default() };
-    loop {
-        let (mesh, mut stats, measured) = extract(field, config, check.used, progress)?;
-        check.measured = check.measured.max(measured);
-        if !(measured > check.used * 1.0001) || check.retries >= 4 {
-            stats.lipschitz = check;
-            return Ok((mesh, stats));
-        }
-        check.retries += 1;
-        check.used = measured * LIPSCHITZ_MARGIN;
-    }
+    let ((mesh, mut stats), check) = LipschitzCheck::run(field.lipschitz_bound(), |bound| {
+        let (mesh, stats, measured) = extract(field, config, bound, progress)?;
+        Ok::<_, GridError>(((mesh, stats), measured))
+    })?;
+    stats.lipschitz = check;
+    Ok((mesh, stats))
 }
 
 /// One extraction with Lipschitz bound `lipschitz`; also returns the largest slope measured.

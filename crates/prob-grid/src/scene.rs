@@ -180,6 +180,26 @@ pub struct LipschitzCheck {
 /// Margin over a measured slope when a Lipschitz claim is found broken.
 pub const LIPSCHITZ_MARGIN: f32 = 1.5;
 
+impl LipschitzCheck {
+    /// Runs `pass(bound)` — an evaluation that trusts `bound` and returns its result with the
+    /// largest slope it measured — with the field's `claimed` bound, and redoes it with the
+    /// measured slope × [`LIPSCHITZ_MARGIN`] while the bound is found broken (at most 4 redos).
+    /// The one place a Lipschitz claim is checked (the scene grid's descent, marching cubes).
+    pub fn run<T, E>(claimed: f32, mut pass: impl FnMut(f32) -> Result<(T, f32), E>) -> Result<(T, LipschitzCheck), E> {
+        let claimed = claimed.max(1e-6);
+        let mut check = LipschitzCheck { claimed, used: claimed, ..Default::default() };
+        loop {
+            let (result, measured) = pass(check.used)?;
+            check.measured = check.measured.max(measured);
+            if !(measured > check.used * 1.0001) || check.retries >= 4 {
+                return Ok((result, check));
+            }
+            check.retries += 1;
+            check.used = measured * LIPSCHITZ_MARGIN;
+        }
+    }
+}
+
 /// The largest slope between axis neighbours of a dense `r³` grid of values (x fastest) with
 /// spacing `h`; NaN values are ignored.
 fn neighbour_slope(values: &[f32], r: usize, h: f32) -> f32 {
@@ -323,34 +343,29 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
     let threshold = 0.1 * config.mass_tolerance / config.volume();
     let mut queries = 0usize;
     let lipschitz_claimed = field.lipschitz_bound().max(1e-6);
-    let (mut lipschitz_measured, mut lipschitz_retries) = (0.0f32, 0u32);
 
     // Candidate cells: all of them (dense) or the leaves of the octree descent (sparse), with
     // their centre SDF values.
-    let (cells, values, lipschitz_used): (Vec<UVec3>, Vec<f32>, f32) = match config.evaluation {
+    let (cells, values, lipschitz): (Vec<UVec3>, Vec<f32>, LipschitzCheck) = match config.evaluation {
         Evaluation::Dense => {
             let cells: Vec<UVec3> = (0..r).flat_map(|k| (0..r).flat_map(move |j| (0..r).map(move |i| UVec3::new(i, j, k)))).collect();
             let centers: Vec<Vec3> = cells.par_iter().map(|c| config.cell_center(*c)).collect();
             let values = query(field, &centers);
             queries += cells.len();
-            lipschitz_measured = neighbour_slope(&values, r as usize, cell);
-            (cells, values, lipschitz_claimed)
+            let measured = neighbour_slope(&values, r as usize, cell);
+            (cells, values, LipschitzCheck { claimed: lipschitz_claimed, measured, used: lipschitz_claimed, retries: 0 })
         }
         Evaluation::Sparse => {
             let keep_distance = negligible_distance(config.cell_density, s, threshold, cell);
             // The descent trusts L only as far as the field's own values allow: a slope measured
             // between two evaluated points that exceeds L proves the claim wrong, and the
             // descent is redone with the measured slope and a margin (never silently truncated).
-            let mut bound = lipschitz_claimed;
-            loop {
+            let ((cells, values), check) = LipschitzCheck::run(lipschitz_claimed, |bound| {
                 let (cells, values, measured) = sparse_descent(field, config, bound, keep_distance, &mut queries);
-                lipschitz_measured = lipschitz_measured.max(measured);
-                if !(measured > bound * 1.0001) || lipschitz_retries >= 4 {
-                    break (cells, values, bound);
-                }
-                lipschitz_retries += 1;
-                bound = measured * LIPSCHITZ_MARGIN;
-            }
+                Ok::<_, std::convert::Infallible>(((cells, values), measured))
+            })
+            .unwrap_or_else(|never| match never {});
+            (cells, values, check)
         }
     };
     let f = config.partition;
@@ -360,14 +375,8 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
     let cell_volume = (cell as f64).powi(3);
     let nan_values = values.iter().filter(|v| v.is_nan()).count();
 
-    let mut out = ActiveCells {
-        subcell_size: subcell,
-        field_queries: queries,
-        nan_values,
-        lipschitz: LipschitzCheck { claimed: lipschitz_claimed, measured: lipschitz_measured, used: lipschitz_used, retries: lipschitz_retries },
-        resolution: config.resolution,
-        ..Default::default()
-    };
+    let mut out =
+        ActiveCells { subcell_size: subcell, field_queries: queries, nan_values, lipschitz, resolution: config.resolution, ..Default::default() };
     match config.subcell_mass {
         SubcellMass::Split => {
             let kept: Vec<(Vec3, f32)> = cells
@@ -385,7 +394,7 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
         }
         SubcellMass::Reevaluate => {
             // Parents that may hold mass at sub-cell level: |S| within reach of a sub-cell.
-            let reach = negligible_distance(config.cell_density, s, threshold, subcell) + 0.87 * cell * lipschitz_used;
+            let reach = negligible_distance(config.cell_density, s, threshold, subcell) + 0.87 * cell * lipschitz.used;
             let parents: Vec<Vec3> = cells.iter().zip(&values).filter(|(_, v)| !(v.abs() > reach)).map(|(c, _)| config.cell_center(*c)).collect();
             out.cells = parents.len();
             let points: Vec<Vec3> = parents.iter().flat_map(|c| offsets.iter().map(move |o| *c + *o)).collect();

@@ -16,7 +16,7 @@ pub mod rig;
 
 use crate::error::{DatasetError, Result, io_err};
 use crate::io::{PlyData, write_atomic};
-use crate::npy::{npy_bytes, write_npz};
+use crate::npy::npy_bytes;
 use crate::scene::{Format, Scene, SceneSource, View};
 use glam::{DMat3, DMat4, DVec3};
 use mesh_io::{TexturedMesh, load_mesh};
@@ -193,10 +193,6 @@ pub fn builtin_scene() -> GoldenScene {
     generate(&GoldenSpec::builtin()).expect("the built-in scene needs no files")
 }
 
-fn mat4_rows(m: &DMat4) -> Vec<f64> {
-    (0..4).flat_map(|r| (0..4).map(move |c| m.col(c)[r])).collect()
-}
-
 /// Writes a golden scene in the IDR layout, plus its truth:
 /// `image/NNN.png`, `mask/NNN.png`, `cameras_sphere.npz` (`world_mat_i`, `scale_mat_i`),
 /// `depth/NNN.npy` (H×W f32, normalised units, 0 = background), `normal/NNN.npy` (H×W×3 f32),
@@ -208,8 +204,6 @@ pub fn write_idr(golden: &GoldenScene, out: &Path) -> Result<()> {
     }
     let scene = &golden.scene;
     let scale_mat = scene.world_from_normalized;
-    let normalized_from_world = scale_mat.inverse();
-    let mut npz_entries = Vec::new();
     for (i, view) in scene.views.iter().enumerate() {
         let name = format!("{i:03}");
         view.image.save_png(&out.join("image").join(format!("{name}.png")))?;
@@ -220,24 +214,9 @@ pub fn write_idr(golden: &GoldenScene, out: &Path) -> Result<()> {
         write_atomic(&out.join("depth").join(format!("{name}.npy")), &npy_bytes(&[h, w], &golden.depths[i]))?;
         let flat: Vec<f32> = golden.normals[i].iter().flatten().copied().collect();
         write_atomic(&out.join("normal").join(format!("{name}.npy")), &npy_bytes(&[h, w, 3], &flat))?;
-        // P (normalised → pixels) = K [R|t]; world_mat = P · scale_mat⁻¹, so that
-        // world_mat · scale_mat gives P back, as NeuS computes it.
-        let p = view.camera.projection_matrix();
-        let mut p4 = DMat4::IDENTITY;
-        for (r, row) in p.iter().enumerate() {
-            for (c, v) in row.iter().enumerate() {
-                p4.col_mut(c)[r] = *v;
-            }
-        }
-        let world_mat = p4 * normalized_from_world;
-        npz_entries.push((format!("world_mat_{i}"), npy_bytes(&[4, 4], &mat4_rows(&world_mat))));
-        npz_entries.push((format!("scale_mat_{i}"), npy_bytes(&[4, 4], &mat4_rows(&scale_mat))));
     }
-    let npz_path = out.join("cameras_sphere.npz");
-    let bytes = write_npz(std::io::Cursor::new(Vec::new()), &npz_entries)
-        .map_err(|e| DatasetError::Io { path: npz_path.clone(), source: std::io::Error::other(e) })?
-        .into_inner();
-    write_atomic(&npz_path, &bytes)?;
+    let cameras: Vec<_> = scene.views.iter().map(|v| v.camera).collect();
+    crate::idr::write_cameras(out, &cameras, &scale_mat)?;
 
     let to_world = |p: DVec3| scale_mat.transform_point3(p).as_vec3();
     PlyData { positions: golden.surface_points.iter().map(|p| to_world(*p)).collect(), ..Default::default() }.write(&out.join("gt_points.ply"))?;

@@ -275,6 +275,10 @@ pub struct ModelConfig {
     /// auto (learned without masks, fixed with them), learned, fixed.
     #[serde(alias = "learned_background")]
     pub background_model: BackgroundModel,
+    /// Without masks: weight of the opacity entropy of each ray (pushes a ray to hit the
+    /// surface or miss it; a thin part becomes a surface rather than a haze). Unused with masks,
+    /// whose BCE does the same with the truth.
+    pub opacity_entropy: f64,
 }
 
 /// Rays and samples per iteration.
@@ -445,6 +449,7 @@ impl Default for ModelConfig {
             normals: NormalScheme::Tetrahedral,
             background: [0.0; 3],
             background_model: BackgroundModel::Auto,
+            opacity_entropy: 0.0,
         }
     }
 }
@@ -655,6 +660,7 @@ impl TrainConfig {
         need((0.0..=1.0).contains(&self.model.all_levels_at), "model.all_levels_at", self.model.all_levels_at, "in [0, 1]")?;
         need(non_neg(self.model.eikonal), "model.eikonal", self.model.eikonal, "≥ 0")?;
         need(non_neg(self.model.mask), "model.mask", self.model.mask, "≥ 0")?;
+        need(non_neg(self.model.opacity_entropy), "model.opacity_entropy", self.model.opacity_entropy, "≥ 0")?;
         need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;
         if self.model.normals == NormalScheme::Analytic {
             need(

@@ -8,7 +8,7 @@ use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
 use rayon::prelude::*;
 use sdf_backbone::{Backbone, RayInput, merge_sorted};
 use surface_losses::{ExtraPoints, RaySurface, extra_depths};
-use view_sampler::{Estimator, RaySample};
+use view_sampler::{CoarseRay, Estimator, RaySample};
 
 /// Samples per ray and how they are placed.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -47,17 +47,20 @@ pub fn stream_seed(seed: u64, step: u64, item: u64) -> u64 {
     view_sampler::stream_seed(seed ^ 0x7261_7973, step, item)
 }
 
-/// The ray through pixel (col, row) of `camera` with the estimator's coarse depths (one jitter).
-pub fn pixel_ray(estimator: &Estimator, camera: &PinholeCamera, col: u32, row: u32, coarse: usize, jitter: f64) -> RayInput<f32> {
-    let ray = camera.ray_through_pixel_index(col, row);
-    let mut depths = Vec::with_capacity(coarse + 1);
-    estimator.march(ray.origin, ray.direction, coarse, jitter, &mut depths);
-    RayInput { origin: ray.origin.as_vec3().to_array(), direction: ray.direction.as_vec3().to_array(), depths, target: [0.0; 3], mask: None }
+/// The backbone's ray of an estimator's ray (no target yet).
+fn ray_input(ray: CoarseRay) -> RayInput<f32> {
+    RayInput { origin: ray.origin, direction: ray.direction, depths: ray.depths, target: [0.0; 3], mask: None }
 }
 
-/// Builds the rays of `drawn` (camera indices into `views`): coarse depths, up-sampling (fewer
-/// for rays that get extra points), extra points around λ̃ at scale `s`; targets and masks
-/// (`use_masks`) from the views. Deterministic in (seed, step).
+/// The ray through pixel (col, row) of `camera` with the estimator's coarse depths (one jitter).
+pub fn pixel_ray(estimator: &Estimator, camera: &PinholeCamera, col: u32, row: u32, coarse: usize, jitter: f64) -> RayInput<f32> {
+    ray_input(estimator.coarse_ray(camera, col, row, coarse, jitter))
+}
+
+/// Builds the `n` rays of iteration `step` at `progress` (the estimator's draw, camera indices
+/// into `views`): coarse depths, up-sampling (fewer for rays that get extra points), extra
+/// points around λ̃ at scale `s`; targets and masks (`use_masks`) from the views.
+/// Deterministic in (seed, step).
 #[allow(clippy::too_many_arguments)]
 pub fn build_batch(
     estimator: &Estimator,
@@ -66,36 +69,35 @@ pub fn build_batch(
     backbone: &Backbone,
     params: &[f32],
     sampling: &Sampling,
-    drawn: Vec<RaySample>,
+    (n, progress): (usize, f64),
     seed: u64,
     step: u64,
     s: f64,
 ) -> Batch {
-    let guided = drawn.iter().any(|d| d.depth.is_some());
+    // One stream per ray: its coarse jitter first, then its extra points' uniforms.
+    let mut rngs: Vec<Xoshiro256PlusPlus> = (0..n).map(|i| Xoshiro256PlusPlus::seed_from_u64(stream_seed(seed, step, i as u64))).collect();
+    let jitters: Vec<f64> = rngs.iter_mut().map(|rng| rng.random()).collect();
+    let drawn = estimator.draw_rays(n, progress, seed, step, sampling.coarse, &|i| jitters[i]);
+    let guided = drawn.iter().any(|d| d.sample.depth.is_some());
     let n_extra = if guided { sampling.extra_points } else { 0 };
-    let per_ray: Vec<(RayInput<f32>, Xoshiro256PlusPlus)> = drawn
+    let mut rays: Vec<RayInput<f32>> = drawn
         .par_iter()
-        .enumerate()
-        .map(|(i, d)| {
-            let mut rng = Xoshiro256PlusPlus::seed_from_u64(stream_seed(seed, step, i as u64));
-            let view = views[d.camera as usize];
-            let [col, row] = d.pixel;
-            let mut ray = pixel_ray(estimator, &view.camera, col, row, sampling.coarse, rng.random());
+        .map(|d| {
+            let view = views[d.sample.camera as usize];
+            let [col, row] = d.sample.pixel;
+            let mut ray = ray_input(d.ray.clone());
             ray.target = view.image.get_f32(col, row);
             ray.mask = if use_masks { view.mask.as_ref().map(|m| if m.get(col, row) { 1.0 } else { 0.0 }) } else { None };
-            (ray, rng)
+            ray
         })
         .collect();
-    let (mut rays, mut rngs): (Vec<RayInput<f32>>, Vec<Xoshiro256PlusPlus>) = per_ray.into_iter().unzip();
     backbone.upsample(params, &mut rays, sampling.fine - n_extra, sampling.rounds, sampling.upsample_s);
     let surfaces = rays
         .par_iter_mut()
         .zip(rngs.par_iter_mut())
         .zip(drawn.par_iter())
         .map(|((ray, rng), d)| {
-            let o = glam::DVec3::from_array(ray.origin.map(f64::from));
-            let dir = glam::DVec3::from_array(ray.direction.map(f64::from));
-            let Some(surface) = estimator.surface_distance(d, o, dir) else {
+            let Some(surface) = d.surface else {
                 return RaySurface { depth: 0.0, background: true };
             };
             if n_extra > 0 {
@@ -109,5 +111,5 @@ pub fn build_batch(
             RaySurface { depth: surface.distance, background: surface.background }
         })
         .collect();
-    Batch { drawn, rays, surfaces }
+    Batch { drawn: drawn.into_iter().map(|d| d.sample).collect(), rays, surfaces }
 }

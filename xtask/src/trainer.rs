@@ -42,11 +42,6 @@ use std::time::Instant;
 use surface_losses::{RaySurface, SurfaceLossConfig};
 use view_sampler::{Estimator, EstimatorConfig, UniformSchedule, UpdateReport};
 
-/// Margin over the largest |∇S| measured at a grid update: the Lipschitz bound the backbone's
-/// field claims until the next update (each evaluation checks the claim and redoes itself when
-/// the field breaks it).
-const LIPSCHITZ_MARGIN: f32 = 1.25;
-
 /// What a checkpoint holds besides the parameters and Adam's moments.
 #[derive(Debug, Clone)]
 pub struct TrainState {
@@ -56,10 +51,6 @@ pub struct TrainState {
     pub params: Vec<f32>,
     /// Optimiser state.
     pub adam: Adam,
-    /// The part of the run whose grids are built (`None` before the first update).
-    pub update_part: Option<u32>,
-    /// The Lipschitz bound the field claimed at the last update.
-    pub lipschitz: f32,
     /// Training time spent (what a time budget counts).
     pub train_seconds: f64,
 }
@@ -140,6 +131,7 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool) -> (Backbone, Vec<
     }
     backbone.config.eikonal_weight = config.model.eikonal;
     backbone.config.mask_weight = if use_masks { config.model.mask } else { 0.0 };
+    backbone.config.opacity_entropy = if use_masks { 0.0 } else { config.model.opacity_entropy };
     backbone.config.masked_color = use_masks;
     backbone.config.background = config.model.background;
     backbone.config.normals = config.model.normals;
@@ -157,6 +149,7 @@ pub fn estimator_config(config: &TrainConfig) -> EstimatorConfig {
         fixed_s: (config.guide.fixed_s > 0.0).then_some(config.guide.fixed_s as f32),
         skip_empty: config.render.skip_empty,
         dilation: config.render.occupancy_dilation,
+        updates: config.guide.updates,
     }
 }
 
@@ -183,7 +176,7 @@ impl Trainer {
             MomentStorage::Bf16 => Adam::with_compact_prefix(params.len(), backbone.layout().encoding.len()),
         };
         adam.epsilon = 1e-15;
-        let state = TrainState { step: 0, params, adam, update_part: None, lipschitz: 1.5, train_seconds: 0.0 };
+        let state = TrainState { step: 0, params, adam, train_seconds: 0.0 };
         Ok(Trainer {
             config,
             data,
@@ -282,21 +275,19 @@ impl Trainer {
         start + ((levels - start) as f64 * ramp).floor() as usize
     }
 
-    /// The part of the run whose grids should be in use at `progress`.
-    fn part_at(&self, progress: f64) -> u32 {
-        let updates = self.config.guide.updates;
-        ((progress * f64::from(updates)).floor() as u32).min(updates - 1)
+    /// The estimator's update from the current parameters when its schedule says so.
+    fn update_grids_due(&mut self, progress: f64) -> Result<Option<UpdateReport>> {
+        let s = self.backbone.scale(&self.state.params) as f32;
+        let field = self.backbone.field(&self.state.params);
+        self.estimator.update_due(progress, &field, s).context("the grid update")
     }
 
-    /// Rebuilds the estimator's grids from the current parameters; the Lipschitz bound the
-    /// field claims next time is the measured one with a margin.
-    fn rebuild_grids(&mut self) -> Result<UpdateReport> {
-        let s = self.backbone.scale(&self.state.params) as f32;
-        let mut field = self.backbone.field(&self.state.params);
-        field.lipschitz = self.state.lipschitz;
-        let report = self.estimator.update(&field, s).context("the grid update")?;
-        self.state.lipschitz = (report.lipschitz.measured * LIPSCHITZ_MARGIN).max(1.0);
-        Ok(report)
+    /// The estimator's update from the current parameters now (its grids then belong to the
+    /// part of the run at the current progress).
+    fn update_grids_now(&mut self) -> Result<UpdateReport> {
+        let (progress, s) = (self.progress(), self.backbone.scale(&self.state.params) as f32);
+        let field = self.backbone.field(&self.state.params);
+        self.estimator.update_at(progress, &field, s).context("the grid update")
     }
 
     /// One iteration (see the module docs).
@@ -311,15 +302,11 @@ impl Trainer {
         let ramp = if warmup > 0.0 { (progress / warmup).min(1.0) } else { 1.0 };
         self.backbone.config.curvature_weight = self.config.model.curvature * ramp;
 
-        // Grid update at the start of each part of the run.
-        let mut update = None;
-        let part = self.part_at(progress);
-        if self.estimator.needs_updates() && self.state.update_part != Some(part) {
-            self.state.update_part = Some(part);
-            let report = self.rebuild_grids()?;
+        // Grid update at the start of each part of the run (the estimator's schedule).
+        let update = self.update_grids_due(progress)?;
+        if let Some(report) = &update {
             self.timing.grid_seconds += report.seconds;
             self.timing.grid_updates += 1;
-            update = Some(report);
         }
         let t_step = Instant::now();
         let s = self.s();
@@ -405,8 +392,7 @@ impl Trainer {
         }
         self.state.params.copy_from_slice(params);
         if self.estimator.needs_updates() {
-            self.state.update_part = Some(self.part_at(self.progress()));
-            self.rebuild_grids()?;
+            self.update_grids_now()?;
         }
         Ok(())
     }
@@ -419,14 +405,25 @@ impl Trainer {
 
     /// Rebuilds the grids from the current parameters now; returns the update's report.
     pub fn update_grids(&mut self) -> Result<UpdateReport> {
-        self.rebuild_grids()
+        self.update_grids_now()
     }
 
     /// The rays of iteration `step` at `progress` and scale `s` (what [`Self::step`] trains on).
     pub fn batch(&self, step: u64, progress: f64, s: f64) -> Batch {
         let views: Vec<&datasets::View> = self.split.train.iter().map(|&i| &self.data.scene.views[i]).collect();
-        let drawn = self.estimator.draw(self.config.render.rays, progress, self.config.seed, step);
-        build_batch(&self.estimator, &views, self.use_masks, &self.backbone, &self.state.params, &self.sampling(), drawn, self.config.seed, step, s)
+        let n = self.config.render.rays;
+        build_batch(
+            &self.estimator,
+            &views,
+            self.use_masks,
+            &self.backbone,
+            &self.state.params,
+            &self.sampling(),
+            (n, progress),
+            self.config.seed,
+            step,
+            s,
+        )
     }
 
     fn sampling(&self) -> Sampling {
@@ -457,8 +454,8 @@ impl Trainer {
             w.tensor("guide.occupancy", occupancy);
         }
         w.meta("step", self.state.step.to_string())
-            .meta("update_part", self.state.update_part.map_or("none".into(), |p| p.to_string()))
-            .meta("lipschitz", self.state.lipschitz.to_string())
+            .meta("update_part", guide.part.map_or("none".into(), |p| p.to_string()))
+            .meta("lipschitz", guide.lipschitz.to_string())
             .meta("train_seconds", self.state.train_seconds.to_string())
             .meta("config", self.config.to_toml());
         w.write_to(out)
@@ -481,31 +478,25 @@ impl Trainer {
         };
         let lipschitz = meta("lipschitz")?.parse().context("the checkpoint's lipschitz")?;
         let train_seconds = meta("train_seconds")?.parse().context("the checkpoint's train_seconds")?;
-        let guide = if update_part.is_some() {
-            let mut grids = Vec::new();
+        let (mut grids, mut occupancy) = (Vec::new(), None);
+        if update_part.is_some() {
             while let Some(n) = reader.len(&format!("guide.grid.{}", grids.len())) {
                 let mut g = vec![0.0f32; n];
                 reader.read_into(input, &format!("guide.grid.{}", grids.len()), &mut g)?;
                 grids.push(g);
             }
-            let occupancy = reader.len("guide.occupancy").map(|_| reader.read_vec(input, "guide.occupancy")).transpose()?;
-            Some(view_sampler::EstimatorState { grids, occupancy })
-        } else {
-            None
-        };
+            occupancy = reader.len("guide.occupancy").map(|_| reader.read_vec(input, "guide.occupancy")).transpose()?;
+        }
+        let guide = view_sampler::EstimatorState { grids, occupancy, part: update_part, lipschitz };
         reader.restore_state(input, &mut self.state.params, &mut self.state.adam)?;
         self.state.step = step;
-        self.state.update_part = update_part;
-        self.state.lipschitz = lipschitz;
         self.state.train_seconds = train_seconds;
         if let Some(levels) = self.backbone.levels() {
             // The levels of the last iteration done.
             let last = self.progress_at(self.state.step.saturating_sub(1), self.state.train_seconds);
             self.backbone.set_active_levels(self.active_levels(levels, last));
         }
-        if let Some(guide) = &guide {
-            self.estimator.restore(guide).context("the checkpoint's grids")?;
-        }
+        self.estimator.restore(&guide).context("the checkpoint's grids")?;
         Ok(())
     }
 
@@ -581,7 +572,7 @@ impl Trainer {
     pub fn extract_mesh_with_stats(&self, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<(IsoMesh, usize, usize)> {
         let mc = MarchingCubesConfig { resolution: self.config.output.mesh_resolution, block: 16, ..Default::default() };
         let mut field = self.backbone.field(&self.state.params);
-        field.lipschitz = self.state.lipschitz;
+        field.lipschitz = self.estimator.lipschitz_bound();
         let (mesh, _) = marching_cubes_with_progress(&field, &mc, progress)?;
         Ok(self.filter_mesh(&mesh, self.config.output.mesh_filter))
     }

@@ -275,6 +275,7 @@ pub fn architecture(preset: Preset) -> Backbone {
             curvature_weight: 0.0,
             background: [0.0; 3],
             masked_color: false,
+            opacity_entropy: 0.0,
         },
     }
 }

@@ -200,6 +200,10 @@ pub struct PipelineConfig {
     /// normalised by their count, on the rendered colour without any background; the mask BCE
     /// alone drives the opacity of backdrop rays. Rays without a mask are foreground.
     pub masked_color: bool,
+    /// Weight of the opacity entropy `H(o) = −o ln o − (1 − o) ln(1 − o)` of rays without a
+    /// mask (o clamped to [10⁻³, 1 − 10⁻³]): each ray is pushed to hit the surface or miss it,
+    /// so that without masks a thin part is a surface rather than a haze (0: off).
+    pub opacity_entropy: f64,
 }
 
 /// SDF network + colour network + learnt variance (+ an optional learned background),
@@ -628,6 +632,15 @@ impl<S, C> Pipeline<S, C> {
                     for k in 0..3 {
                         d_normals_all[c0 + i][k] = eik_w * (e + e) * nv[k] / len * inv_m;
                     }
+                }
+            }
+            if ray.mask.is_none() && self.config.opacity_entropy > 0.0 {
+                let eps = R::of(1e-3);
+                let o = r_out.opacity.max(eps).min(R::ONE - eps);
+                let w = R::of(self.config.opacity_entropy);
+                loss += -w * (o * o.ln() + (R::ONE - o) * (R::ONE - o).ln());
+                if r_out.opacity > eps && r_out.opacity < R::ONE - eps {
+                    d_opacity += w * ((R::ONE - o) / o).ln();
                 }
             }
             if let Some(mask) = ray.mask {

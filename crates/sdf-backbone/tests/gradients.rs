@@ -468,6 +468,7 @@ fn whole_pipeline_gradients_match_finite_differences() {
                 curvature_weight: 1e-3,
                 background: [0.3, 0.5, 0.1],
                 masked_color,
+                opacity_entropy: 0.05,
             },
         };
         let n = pipeline.n_params::<f64>();
@@ -483,7 +484,8 @@ fn whole_pipeline_gradients_match_finite_differences() {
                     direction: d.map(|v| v / len),
                     depths: (0..7).map(|i| 0.2 + 0.25 * i as f64 + 0.05 * rng.random::<f64>()).collect(),
                     target: [0.2, 0.5 + 0.1 * r as f64, 0.7],
-                    mask: Some(if r == 1 { 0.0 } else { 1.0 }),
+                    // Ray 2 has no mask: the opacity entropy's gradient is checked on it.
+                    mask: [Some(1.0), Some(0.0), None][r],
                 }
             })
             .collect();
@@ -598,6 +600,7 @@ fn both_normal_schemes_recover_a_known_gradient() {
                 curvature_weight: 0.0,
                 background: [0.0; 3],
                 masked_color: false,
+                opacity_entropy: 0.0,
             },
         };
         let n = pipeline.n_params::<f64>();
@@ -657,6 +660,7 @@ fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
             curvature_weight: 1e-4,
             background: [0.2; 3],
             masked_color: false,
+            opacity_entropy: 0.0,
         },
     };
     let n = pipeline.n_params::<f64>();
@@ -728,6 +732,7 @@ fn curvature_term_is_the_mean_absolute_laplacian() {
                 curvature_weight: 0.0,
                 background: [0.0; 3],
                 masked_color: false,
+                opacity_entropy: 0.0,
             },
         };
         let n = pipeline.n_params::<f64>();
@@ -951,6 +956,7 @@ fn check_hash_grid_pipeline(normals: NormalScheme) {
             curvature_weight: 0.0,
             background: [0.2; 3],
             masked_color: true,
+            opacity_entropy: 0.0,
         },
     };
     assert!(Module::<f64>::deferred_params(&pipeline.sdf) > 0, "the tables are deferred");

@@ -1,6 +1,9 @@
 //! The estimator (nerfacc's shape): one object a training loop holds, with two verbs —
-//! [`Estimator::update`] from any [`SdfField`] every so often, and [`Estimator::draw`] +
-//! [`Estimator::march`] for each batch.
+//! [`Estimator::update_due`] (the update when its schedule says so, from any [`SdfField`], with
+//! the Lipschitz bound it carries from one update to the next) and [`Estimator::draw_rays`]
+//! (a batch of rays with their coarse samples and guided depths) — and, below them,
+//! [`Estimator::update`], [`Estimator::draw`] and [`Estimator::march`] for callers that
+//! schedule themselves. `examples/toy_sdf.rs` trains an SDF of its own with the two verbs alone.
 //!
 //! - **Guided** (`config.guided`): the update evaluates p(x) = φ_s(S(x)) on the scene grid,
 //!   reprojects it into every camera and builds the samplers; draws mix guided and uniform rays
@@ -50,6 +53,9 @@ pub struct EstimatorConfig {
     /// Dilation of the occupancy, in scene-grid cells (covers a surface that moves between
     /// updates).
     pub dilation: u32,
+    /// Updates per run for [`Estimator::update_due`]: one at the start of each of `updates`
+    /// equal parts of the run's progress (≥ 1).
+    pub updates: u32,
 }
 
 impl Default for EstimatorConfig {
@@ -63,8 +69,55 @@ impl Default for EstimatorConfig {
             fixed_s: None,
             skip_empty: true,
             dilation: 1,
+            updates: 6,
         }
     }
+}
+
+/// The margin over the slope an update measured that the next update claims for the field
+/// ([`Estimator::update_due`]): a learnt SDF steepens between updates; a claim found broken
+/// redoes the evaluation ([`LipschitzCheck`]).
+pub const CARRIED_LIPSCHITZ_MARGIN: f32 = 1.25;
+
+/// The Lipschitz bound an estimator claims for a field before its first update.
+pub const INITIAL_LIPSCHITZ: f32 = 1.5;
+
+/// A field with the Lipschitz bound the estimator carries instead of its own claim.
+struct Claimed<'a> {
+    field: &'a dyn SdfField,
+    bound: f32,
+}
+
+impl SdfField for Claimed<'_> {
+    fn sdf_batch(&self, points: &[glam::Vec3], out: &mut [f32]) {
+        self.field.sdf_batch(points, out)
+    }
+    fn lipschitz_bound(&self) -> f32 {
+        self.bound
+    }
+}
+
+/// A ray with its coarse sample depths, as a renderer takes it (f32, unit direction).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CoarseRay {
+    /// Origin, normalised frame.
+    pub origin: [f32; 3],
+    /// Unit direction, normalised frame.
+    pub direction: [f32; 3],
+    /// The `coarse + 1` coarse sample depths ([`Estimator::march`]).
+    pub depths: Vec<f32>,
+}
+
+/// One ray of [`Estimator::draw_rays`]: what was drawn, the ray with its coarse samples, and
+/// (guided rays) λ̃ along it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DrawnRay {
+    /// The drawn pixel (camera, pixel, pdf, guided or not).
+    pub sample: RaySample,
+    /// The ray through it with its coarse samples.
+    pub ray: CoarseRay,
+    /// λ̃ as a distance along the ray (`None`: a ray without one).
+    pub surface: Option<SurfaceDistance>,
 }
 
 /// What one update did and cost.
@@ -95,6 +148,10 @@ pub struct Estimator {
     /// The camera grids' values of the last update (guided), for [`Estimator::state`].
     grids: Vec<Vec<f32>>,
     occupancy: Option<Occupancy>,
+    /// The part of the run whose update is in use ([`Estimator::update_due`]).
+    part: Option<u32>,
+    /// The Lipschitz bound claimed for the field at the next scheduled update.
+    lipschitz: f32,
 }
 
 /// λ̃ of a drawn ray along the ray ([`Estimator::surface_distance`]).
@@ -118,6 +175,10 @@ pub struct EstimatorState {
     pub grids: Vec<Vec<f32>>,
     /// The occupancy, one value per scene-grid cell ([`Occupancy::to_values`]), if skipping.
     pub occupancy: Option<Vec<f32>>,
+    /// The part of the run of the last scheduled update (`None`: none yet).
+    pub part: Option<u32>,
+    /// The Lipschitz bound the next scheduled update claims.
+    pub lipschitz: f32,
 }
 
 /// NeuS's near/far: the sphere of radius 1 around the origin, measured from the ray's closest
@@ -140,7 +201,70 @@ impl Estimator {
         if let Some(s) = config.fixed_s.filter(|s| !(s.is_finite() && *s > 0.0)) {
             return Err(GridError::InvalidConfig { what: "fixed s", message: format!("{s} (must be finite and > 0)") });
         }
-        Ok(Estimator { cameras, config, sampler: None, grids: Vec::new(), occupancy: None })
+        if config.updates == 0 {
+            return Err(GridError::InvalidConfig { what: "estimator", message: "updates per run must be ≥ 1".into() });
+        }
+        Ok(Estimator { cameras, config, sampler: None, grids: Vec::new(), occupancy: None, part: None, lipschitz: INITIAL_LIPSCHITZ })
+    }
+
+    /// The scheduled update: when `progress` ∈ [0, 1] enters a new one of the run's
+    /// `config.updates` parts, rebuilds the grids from `field` at scale `s` and returns the
+    /// report; otherwise (or with nothing to update) `None`. The field's own Lipschitz claim is
+    /// replaced by the bound the estimator carries: the slope the last update measured ×
+    /// [`CARRIED_LIPSCHITZ_MARGIN`] (at least 1).
+    pub fn update_due(&mut self, progress: f64, field: &dyn SdfField, s: f32) -> Result<Option<UpdateReport>, GridError> {
+        if !self.needs_updates() || self.part == Some(self.part_at(progress)) {
+            return Ok(None);
+        }
+        self.update_at(progress, field, s).map(Some)
+    }
+
+    /// [`Self::update_due`] now, whatever the schedule (the grids then belong to the part of
+    /// `progress`): for a caller whose field changed outside training.
+    pub fn update_at(&mut self, progress: f64, field: &dyn SdfField, s: f32) -> Result<UpdateReport, GridError> {
+        self.part = Some(self.part_at(progress));
+        let report = self.update(&Claimed { field, bound: self.lipschitz }, s)?;
+        self.lipschitz = (report.lipschitz.measured * CARRIED_LIPSCHITZ_MARGIN).max(1.0);
+        Ok(report)
+    }
+
+    /// The part of the run at `progress`.
+    fn part_at(&self, progress: f64) -> u32 {
+        let updates = self.config.updates;
+        ((progress * f64::from(updates)).floor() as u32).min(updates - 1)
+    }
+
+    /// The Lipschitz bound the estimator carries for the field (what the next scheduled update
+    /// claims; a mesh extraction of the same field may use it).
+    pub fn lipschitz_bound(&self) -> f32 {
+        self.lipschitz
+    }
+
+    /// `n` rays at training `progress` ([`Self::draw`]), each with its `coarse + 1` coarse
+    /// samples ([`Self::march`] with the explicit uniform `jitter(i)` ∈ [0, 1) of ray `i`) and
+    /// its λ̃ ([`Self::surface_distance`]). Deterministic in (seed, step, jitter).
+    pub fn draw_rays(&self, n: usize, progress: f64, seed: u64, step: u64, coarse: usize, jitter: &(dyn Fn(usize) -> f64 + Sync)) -> Vec<DrawnRay> {
+        self.draw(n, progress, seed, step)
+            .into_par_iter()
+            .enumerate()
+            .map(|(i, sample)| {
+                let [col, row] = sample.pixel;
+                let ray = self.coarse_ray(&self.cameras[sample.camera as usize], col, row, coarse, jitter(i));
+                let origin = DVec3::from_array(ray.origin.map(f64::from));
+                let direction = DVec3::from_array(ray.direction.map(f64::from));
+                let surface = self.surface_distance(&sample, origin, direction);
+                DrawnRay { sample, ray, surface }
+            })
+            .collect()
+    }
+
+    /// The ray through pixel (col, row) of any `camera` (e.g. a training view at another
+    /// resolution) with its `coarse + 1` coarse samples at `jitter` ∈ [0, 1).
+    pub fn coarse_ray(&self, camera: &PinholeCamera, col: u32, row: u32, coarse: usize, jitter: f64) -> CoarseRay {
+        let ray = camera.ray_through_pixel_index(col, row);
+        let mut depths = Vec::with_capacity(coarse + 1);
+        self.march(ray.origin, ray.direction, coarse, jitter, &mut depths);
+        CoarseRay { origin: ray.origin.as_vec3().to_array(), direction: ray.direction.as_vec3().to_array(), depths }
     }
 
     /// The configuration.
@@ -216,12 +340,25 @@ impl Estimator {
 
     /// What the last update built ([`EstimatorState`]).
     pub fn state(&self) -> EstimatorState {
-        EstimatorState { grids: self.grids.clone(), occupancy: self.occupancy.as_ref().map(Occupancy::to_values) }
+        EstimatorState {
+            grids: self.grids.clone(),
+            occupancy: self.occupancy.as_ref().map(Occupancy::to_values),
+            part: self.part,
+            lipschitz: self.lipschitz,
+        }
     }
 
     /// Restores what [`Self::state`] saved (same cameras and configuration).
     pub fn restore(&mut self, state: &EstimatorState) -> Result<(), GridError> {
         let bad = |message: String| GridError::InvalidConfig { what: "estimator state", message };
+        if !(state.lipschitz.is_finite() && state.lipschitz > 0.0) {
+            return Err(bad(format!("a Lipschitz bound of {}", state.lipschitz)));
+        }
+        (self.part, self.lipschitz) = (state.part, state.lipschitz);
+        if state.part.is_none() {
+            // No update was made yet: nothing else to restore.
+            return Ok(());
+        }
         if self.config.guided {
             if state.grids.len() != self.cameras.len() {
                 return Err(bad(format!("{} camera grids for {} cameras", state.grids.len(), self.cameras.len())));

@@ -40,7 +40,10 @@ mod distribution;
 mod estimator;
 
 pub use distribution::{CameraDistribution, ImageSpaceSample, Interpolation};
-pub use estimator::{Estimator, EstimatorConfig, EstimatorState, SurfaceDistance, UpdateReport, near_far};
+pub use estimator::{
+    CARRIED_LIPSCHITZ_MARGIN, CoarseRay, DrawnRay, Estimator, EstimatorConfig, EstimatorState, INITIAL_LIPSCHITZ, SurfaceDistance, UpdateReport,
+    near_far,
+};
 
 use camera_geom::PinholeCamera;
 use glam::DVec2;

@@ -247,6 +247,10 @@ fn stop_signal() -> Arc<AtomicBool> {
 fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Sample(args) => sample::run(&args),
+        Command::Train(args) if args.print_config => {
+            print!("{}", xtask::config::annotated_default());
+            Ok(())
+        }
         Command::Train(args) => match run::train(&args, &stop_signal())? {
             run::Outcome::Finished(_) => Ok(()),
             run::Outcome::Stopped { .. } => std::process::exit(130),

@@ -69,6 +69,9 @@ pub struct TrainArgs {
     /// estimated peak exceeds it is refused before it starts, with what to change.
     #[arg(long, value_parser = memory::parse_size)]
     pub max_memory: Option<f64>,
+    /// Print the default configuration as TOML, every key with its description, and exit.
+    #[arg(long, exclusive = true)]
+    pub print_config: bool,
     /// Configuration overrides `key=value` (e.g. `steps=500 guide.scene.partition=1`).
     pub overrides: Vec<String>,
 }

@@ -22,21 +22,11 @@
 //!   Lipschitz bound; equal to the dense reference within the mass tolerance (tests), with work
 //!   proportional to the surface for large s.
 //!
-//! **Which won (the ablation, BENCHMARKS.md):** trained at equal wall time (60 s; Spot, Bob and the
-//! built-in scene with backdrops and masks; 3 seeds each), F = 1 and view dependency off give mean
-//! Chamfers 3 % and 5 % below the defaults (F = 2, opaque) over the three scenes, with higher
-//! F-scores but lower masked PSNR on every scene; only F = 1 on Bob differs by more than one seed
-//! standard deviation. F = 1 also spent more time in updates, not less (2.3 s vs 0.5 s per run,
-//! not yet explained). The paper-literal view dependency is 6 % below on the mean (Bob beyond
-//! one standard deviation, Spot and the built-in scene level, masked PSNR lower), quadrature
-//! level; a fixed s in the guide (FS) 8 % above, worse on every scene; mass-preserving weighting
-//! 4 % above (every scene within one standard deviation). The defaults stay the
-//! paper's method. The guide itself is what matters: uniform sampling's Chamfer is 12–35 % higher
-//! on every scene at 60 s; at 2 minutes guided reaches 0.87× uniform's Chamfer over five golden
-//! scenes (two batches of 3 seeds: 0.85× and 0.89×; 0.77–0.93 per scene), at 5 minutes 0.90×
-//! (one batch; 0.78–0.96 per scene) with the extra points widened by a λ bin
-//! (with the paper's spread it plateaued after 2 minutes; docs/DECISIONS.md §18, BENCHMARKS.md
-//! "Why guided plateaued").
+//! **Which won:** the paper's defaults (F = 2, opaque view dependency, η⁻² weighting); no
+//! alternative beat them beyond the seed noise at equal wall time, and the guide itself is what
+//! matters against uniform sampling. The figures, with their commands and builds:
+//! BENCHMARKS.md, "The paper's ablation" and "Guided vs uniform at equal wall time"; the
+//! decisions: docs/DECISIONS.md §13 and §18.
 //!
 //! # Invariants
 //! - Knows nothing of the backbone: it sees an SDF only through [`SdfField`].

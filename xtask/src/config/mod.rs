@@ -22,6 +22,12 @@ use std::time::Duration;
 use surface_losses::{ExtraPoints, SurfaceLossConfig};
 use view_sampler::Interpolation;
 
+mod annotated;
+mod budget;
+pub use annotated::annotated_default;
+use budget::budget_from_short_keys;
+pub use budget::{Budget, parse_duration};
+
 /// Which rays the trainer draws.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
@@ -31,80 +37,6 @@ pub enum SamplerKind {
     Guided,
     /// Uniform pixels, the plain backbone (same rays and samples per ray).
     Uniform,
-}
-
-/// How long a run trains: a number of iterations, or training wall time (grid updates and
-/// surface losses included; validation pictures, checkpoints, meshing and evaluation excluded).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(try_from = "BudgetToml", into = "BudgetToml")]
-pub enum Budget {
-    /// This many iterations (≥ 1).
-    Steps(u64),
-    /// This much training time (> 0).
-    Time(Duration),
-}
-
-impl Budget {
-    /// A time budget of `seconds`; an error unless it is finite and positive.
-    pub fn seconds(seconds: f64) -> Result<Budget> {
-        if !(seconds.is_finite() && seconds > 0.0) {
-            bail!("a time budget must be a positive number of seconds, not {seconds}");
-        }
-        Duration::try_from_secs_f64(seconds).map(Budget::Time).map_err(|_| anyhow::anyhow!("a time budget of {seconds} s is too long"))
-    }
-
-    /// The time budget in seconds (`None` for a step budget).
-    pub fn time_s(self) -> Option<f64> {
-        match self {
-            Budget::Time(d) => Some(d.as_secs_f64()),
-            Budget::Steps(_) => None,
-        }
-    }
-
-    /// The step budget (`None` for a time budget).
-    pub fn steps(self) -> Option<u64> {
-        match self {
-            Budget::Steps(n) => Some(n),
-            Budget::Time(_) => None,
-        }
-    }
-}
-
-impl std::fmt::Display for Budget {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Budget::Steps(n) => write!(f, "{n} steps"),
-            Budget::Time(d) => write!(f, "{:.0} s budget", d.as_secs_f64()),
-        }
-    }
-}
-
-/// A budget as TOML writes it: exactly one of the two keys.
-#[derive(Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct BudgetToml {
-    #[serde(skip_serializing_if = "Option::is_none")]
-    steps: Option<u64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    seconds: Option<f64>,
-}
-
-impl TryFrom<BudgetToml> for Budget {
-    type Error = String;
-    fn try_from(text: BudgetToml) -> std::result::Result<Self, String> {
-        match (text.steps, text.seconds) {
-            (Some(0), None) => Err("budget.steps = 0 is out of range: expected ≥ 1".into()),
-            (Some(n), None) => Ok(Budget::Steps(n)),
-            (None, Some(s)) => Budget::seconds(s).map_err(|e| format!("budget.seconds: {e}")),
-            _ => Err("a budget is `{ steps = N }` or `{ seconds = X }`: exactly one of the two".into()),
-        }
-    }
-}
-
-impl From<Budget> for BudgetToml {
-    fn from(budget: Budget) -> Self {
-        BudgetToml { steps: budget.steps(), seconds: budget.time_s() }
-    }
 }
 
 /// How Adam stores the hash tables' moments.
@@ -540,50 +472,6 @@ fn set_dotted(table: &mut toml::Table, key: &str, raw: &str) -> Result<()> {
     Ok(())
 }
 
-/// Parses a duration such as `90`, `90s`, `10m`, `1.5h`, `1e3s` (a number, then an optional
-/// unit: s, m, h).
-pub fn parse_duration(text: &str) -> Result<Duration> {
-    let t = text.trim();
-    let unit_start = t.trim_end_matches(|c: char| c.is_ascii_alphabetic()).len();
-    let (number, unit) = t.split_at(unit_start);
-    let value: f64 = number.trim().parse().with_context(|| format!("{text:?} is not a duration (e.g. 90s, 10m, 1h)"))?;
-    let scale = match unit {
-        "" | "s" | "sec" => 1.0,
-        "m" | "min" => 60.0,
-        "h" => 3600.0,
-        other => bail!("{text:?}: unknown unit {other:?} (s, m, h)"),
-    };
-    let seconds = value * scale;
-    if !(seconds.is_finite() && seconds > 0.0) {
-        bail!("{text:?}: a duration must be positive");
-    }
-    Duration::try_from_secs_f64(seconds).with_context(|| format!("{text:?} is too long a duration"))
-}
-
-/// The budget's short keys (`steps = N`, `time_budget_s = X`, as earlier versions wrote them)
-/// turned into `budget`. Both in one table is how earlier versions wrote a run folder's
-/// configuration: the time budget, unless it is 0 (then the steps).
-fn budget_from_short_keys(table: &mut toml::Table) -> Result<()> {
-    let steps = table.remove("steps");
-    let seconds = table.remove("time_budget_s");
-    let one = |key: &str, value: toml::Value| toml::Table::from_iter([(key.to_string(), value)]);
-    let budget = match (steps, seconds) {
-        (None, None) => return Ok(()),
-        (Some(steps), None) => one("steps", steps),
-        (steps, Some(seconds)) => {
-            let seconds = seconds.as_integer().map_or(seconds.clone(), |i| toml::Value::Float(i as f64));
-            match steps {
-                Some(steps) if seconds.as_float() == Some(0.0) => one("steps", steps),
-                _ => one("seconds", seconds),
-            }
-        }
-    };
-    if table.insert("budget".into(), toml::Value::Table(budget)).is_some() {
-        bail!("give the budget once: `budget`, `steps` or `time_budget_s`");
-    }
-    Ok(())
-}
-
 impl TrainConfig {
     /// The defaults, then `file` (if any), then the `key=value` overrides; validated.
     pub fn load(file: Option<&Path>, overrides: &[String]) -> Result<TrainConfig> {
@@ -766,126 +654,4 @@ impl TrainConfig {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn defaults_are_valid_and_round_trip_through_toml() {
-        let c = TrainConfig::default();
-        c.validate().unwrap();
-        let back = TrainConfig::from_toml(&c.to_toml()).unwrap();
-        assert_eq!(back, c);
-        assert!(c.differences(&back).is_empty());
-    }
-
-    #[test]
-    fn overrides_set_nested_keys_and_typed_values() {
-        let c = TrainConfig::load(
-            None,
-            &[
-                "steps=7".into(),
-                "guide.scene.partition=1".into(),
-                "sampler=uniform".into(),
-                "guide.extra=log".into(),
-                "guide.camera.view_dependency=quadrature".into(),
-                "guide.camera.weighting=mass-preserving".into(),
-                "guide.interpolation=nearest".into(),
-                "model.preset=neus-cpu".into(),
-                "model.normals=central".into(),
-                "optim.schedule.decay=step".into(),
-                "output.mesh_formats=[\"obj\", \"glb\"]".into(),
-            ],
-        )
-        .unwrap();
-        assert_eq!(
-            (c.budget, c.guide.scene.partition, c.sampler, c.guide.extra),
-            (Budget::Steps(7), 1, SamplerKind::Uniform, ExtraPoints::LogVariance)
-        );
-        assert_eq!(c.guide.camera.view_dependency, prob_grid::ViewDependency::Quadrature);
-        assert_eq!(c.guide.camera.weighting, prob_grid::Weighting::MassPreserving);
-        assert_eq!((c.guide.interpolation, c.model.preset, c.model.normals), (Interpolation::Nearest, Preset::NeusCpu, NormalScheme::Central));
-        assert_eq!(c.optim.schedule.decay, sdf_backbone::Decay::Step);
-        assert_eq!(c.output.mesh_formats, vec![MeshFormat::Obj, MeshFormat::Glb]);
-        let d = TrainConfig::default().differences(&c);
-        assert!(d.contains(&"guide.scene.partition".to_string()) && d.contains(&"budget.steps".to_string()), "{d:?}");
-    }
-
-    #[test]
-    fn background_model_reads_its_names_and_the_earlier_boolean_key() {
-        let model = |o: &str| TrainConfig::load(None, &[o.to_string()]).unwrap().model.background_model;
-        assert_eq!(TrainConfig::default().model.background_model, BackgroundModel::Auto);
-        assert_eq!(model("model.background_model=\"fixed\""), BackgroundModel::Fixed);
-        assert_eq!(model("model.learned_background=true"), BackgroundModel::Learned);
-        assert_eq!(model("model.learned_background=false"), BackgroundModel::Fixed);
-        assert!(BackgroundModel::Auto.learned(false) && !BackgroundModel::Auto.learned(true));
-        let err = TrainConfig::load(None, &["model.background_model=sky".into()]).unwrap_err();
-        assert!(format!("{err:#}").contains("sky"), "{err:#}");
-    }
-
-    #[test]
-    fn unknown_keys_bad_enums_and_bad_values_are_named() {
-        for (o, expect) in [
-            ("guide.scene.partitoin=2", "partitoin"),
-            ("guide.scene.partition=0", "partition factor F"),
-            ("guide.fixed_s=-1", "guide.fixed_s"),
-            ("surface.beta=-1", "beta"),
-            ("model.preset=nerf", "nerf"),
-            ("guide.camera.view_dependency=sometimes", "sometimes"),
-            ("output.mesh_formats=[\"stl\"]", "stl"),
-            ("optim.schedule.warmup=1.5", "optim.schedule.warmup"),
-            ("optim.table_moments=f16", "f16"),
-            ("steps", "key=value"),
-        ] {
-            let err = TrainConfig::load(None, &[o.into()]).unwrap_err();
-            assert!(format!("{err:#}").contains(expect), "{o}: {err:#}");
-        }
-        // bf16 moments are for hash tables.
-        let err = TrainConfig::load(None, &["model.preset=\"neus-cpu\"".into(), "optim.table_moments=\"bf16\"".into()]).unwrap_err();
-        assert!(format!("{err:#}").contains("optim.table_moments"), "{err:#}");
-        assert_eq!(TrainConfig::load(None, &["optim.table_moments=\"bf16\"".into()]).unwrap().optim.table_moments, MomentStorage::Bf16);
-        let dir = tempfile::tempdir().unwrap();
-        let file = dir.path().join("bad.toml");
-        std::fs::write(&file, "[render]\nrayz = 5\n").unwrap();
-        let msg = format!("{:#}", TrainConfig::load(Some(&file), &[]).unwrap_err());
-        assert!(msg.contains("rayz") && msg.contains("bad.toml"), "{msg}");
-    }
-
-    #[test]
-    fn steps_alone_turn_the_time_budget_off() {
-        assert!(TrainConfig::default().timed());
-        let c = TrainConfig::load(None, &["steps=40".into()]).unwrap();
-        assert_eq!(c.budget, Budget::Steps(40));
-        // The last budget given wins.
-        let c = TrainConfig::load(None, &["steps=40".into(), "time_budget_s=30".into()]).unwrap();
-        assert_eq!(c.budget, Budget::Time(Duration::from_secs(30)));
-        let c = TrainConfig::load(None, &["time_budget_s=30".into(), "budget.steps=7".into()]).unwrap();
-        assert_eq!(c.budget, Budget::Steps(7));
-        for bad in ["steps=0", "time_budget_s=-1", "budget.seconds=0", "time_budget_s=1e300"] {
-            assert!(TrainConfig::load(None, &[bad.into()]).is_err(), "{bad}");
-        }
-    }
-
-    #[test]
-    fn a_run_folder_of_an_earlier_version_keeps_its_budget() {
-        let mut old = TrainConfig::default().to_toml().replace("[budget]\nseconds = 120.0\n", "");
-        old.insert_str(0, "steps = 300\ntime_budget_s = 90.0\n");
-        assert_eq!(TrainConfig::from_toml(&old).unwrap().budget, Budget::Time(Duration::from_secs(90)));
-        let old = old.replace("time_budget_s = 90.0", "time_budget_s = 0.0");
-        assert_eq!(TrainConfig::from_toml(&old).unwrap().budget, Budget::Steps(300));
-    }
-
-    #[test]
-    fn a_struct_built_budget_is_the_budget() {
-        // The trap of earlier versions: a `steps` field that only `load` made binding.
-        let c = TrainConfig { budget: Budget::Steps(5), ..TrainConfig::default() };
-        assert!(!c.timed() && c.budget.steps() == Some(5));
-    }
-
-    #[test]
-    fn durations_parse_with_units() {
-        let secs = |t: &str| parse_duration(t).unwrap().as_secs_f64();
-        assert_eq!((secs("90"), secs("10m"), secs("1.5h"), secs("45s"), secs("1e3s"), secs("2e1")), (90.0, 600.0, 5400.0, 45.0, 1000.0, 20.0));
-        assert!(parse_duration("-3m").is_err() && parse_duration("3 weeks").is_err() && parse_duration("m").is_err());
-        assert!(format!("{:#}", parse_duration("3d").unwrap_err()).contains("unknown unit"));
-    }
-}
+mod tests;

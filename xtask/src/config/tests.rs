@@ -1,0 +1,120 @@
+//! The configuration's tests.
+
+use super::*;
+
+#[test]
+fn defaults_are_valid_and_round_trip_through_toml() {
+    let c = TrainConfig::default();
+    c.validate().unwrap();
+    let back = TrainConfig::from_toml(&c.to_toml()).unwrap();
+    assert_eq!(back, c);
+    assert!(c.differences(&back).is_empty());
+}
+
+#[test]
+fn overrides_set_nested_keys_and_typed_values() {
+    let c = TrainConfig::load(
+        None,
+        &[
+            "steps=7".into(),
+            "guide.scene.partition=1".into(),
+            "sampler=uniform".into(),
+            "guide.extra=log".into(),
+            "guide.camera.view_dependency=quadrature".into(),
+            "guide.camera.weighting=mass-preserving".into(),
+            "guide.interpolation=nearest".into(),
+            "model.preset=neus-cpu".into(),
+            "model.normals=central".into(),
+            "optim.schedule.decay=step".into(),
+            "output.mesh_formats=[\"obj\", \"glb\"]".into(),
+        ],
+    )
+    .unwrap();
+    assert_eq!((c.budget, c.guide.scene.partition, c.sampler, c.guide.extra), (Budget::Steps(7), 1, SamplerKind::Uniform, ExtraPoints::LogVariance));
+    assert_eq!(c.guide.camera.view_dependency, prob_grid::ViewDependency::Quadrature);
+    assert_eq!(c.guide.camera.weighting, prob_grid::Weighting::MassPreserving);
+    assert_eq!((c.guide.interpolation, c.model.preset, c.model.normals), (Interpolation::Nearest, Preset::NeusCpu, NormalScheme::Central));
+    assert_eq!(c.optim.schedule.decay, sdf_backbone::Decay::Step);
+    assert_eq!(c.output.mesh_formats, vec![MeshFormat::Obj, MeshFormat::Glb]);
+    let d = TrainConfig::default().differences(&c);
+    assert!(d.contains(&"guide.scene.partition".to_string()) && d.contains(&"budget.steps".to_string()), "{d:?}");
+}
+
+#[test]
+fn background_model_reads_its_names_and_the_earlier_boolean_key() {
+    let model = |o: &str| TrainConfig::load(None, &[o.to_string()]).unwrap().model.background_model;
+    assert_eq!(TrainConfig::default().model.background_model, BackgroundModel::Auto);
+    assert_eq!(model("model.background_model=\"fixed\""), BackgroundModel::Fixed);
+    assert_eq!(model("model.learned_background=true"), BackgroundModel::Learned);
+    assert_eq!(model("model.learned_background=false"), BackgroundModel::Fixed);
+    assert!(BackgroundModel::Auto.learned(false) && !BackgroundModel::Auto.learned(true));
+    let err = TrainConfig::load(None, &["model.background_model=sky".into()]).unwrap_err();
+    assert!(format!("{err:#}").contains("sky"), "{err:#}");
+}
+
+#[test]
+fn unknown_keys_bad_enums_and_bad_values_are_named() {
+    for (o, expect) in [
+        ("guide.scene.partitoin=2", "partitoin"),
+        ("guide.scene.partition=0", "partition factor F"),
+        ("guide.fixed_s=-1", "guide.fixed_s"),
+        ("surface.beta=-1", "beta"),
+        ("model.preset=nerf", "nerf"),
+        ("guide.camera.view_dependency=sometimes", "sometimes"),
+        ("output.mesh_formats=[\"stl\"]", "stl"),
+        ("optim.schedule.warmup=1.5", "optim.schedule.warmup"),
+        ("optim.table_moments=f16", "f16"),
+        ("steps", "key=value"),
+    ] {
+        let err = TrainConfig::load(None, &[o.into()]).unwrap_err();
+        assert!(format!("{err:#}").contains(expect), "{o}: {err:#}");
+    }
+    // bf16 moments are for hash tables.
+    let err = TrainConfig::load(None, &["model.preset=\"neus-cpu\"".into(), "optim.table_moments=\"bf16\"".into()]).unwrap_err();
+    assert!(format!("{err:#}").contains("optim.table_moments"), "{err:#}");
+    assert_eq!(TrainConfig::load(None, &["optim.table_moments=\"bf16\"".into()]).unwrap().optim.table_moments, MomentStorage::Bf16);
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("bad.toml");
+    std::fs::write(&file, "[render]\nrayz = 5\n").unwrap();
+    let msg = format!("{:#}", TrainConfig::load(Some(&file), &[]).unwrap_err());
+    assert!(msg.contains("rayz") && msg.contains("bad.toml"), "{msg}");
+}
+
+#[test]
+fn steps_alone_turn_the_time_budget_off() {
+    assert!(TrainConfig::default().timed());
+    let c = TrainConfig::load(None, &["steps=40".into()]).unwrap();
+    assert_eq!(c.budget, Budget::Steps(40));
+    // The last budget given wins.
+    let c = TrainConfig::load(None, &["steps=40".into(), "time_budget_s=30".into()]).unwrap();
+    assert_eq!(c.budget, Budget::Time(Duration::from_secs(30)));
+    let c = TrainConfig::load(None, &["time_budget_s=30".into(), "budget.steps=7".into()]).unwrap();
+    assert_eq!(c.budget, Budget::Steps(7));
+    for bad in ["steps=0", "time_budget_s=-1", "budget.seconds=0", "time_budget_s=1e300"] {
+        assert!(TrainConfig::load(None, &[bad.into()]).is_err(), "{bad}");
+    }
+}
+
+#[test]
+fn a_run_folder_of_an_earlier_version_keeps_its_budget() {
+    let mut old = TrainConfig::default().to_toml().replace("[budget]\nseconds = 120.0\n", "");
+    old.insert_str(0, "steps = 300\ntime_budget_s = 90.0\n");
+    assert_eq!(TrainConfig::from_toml(&old).unwrap().budget, Budget::Time(Duration::from_secs(90)));
+    let old = old.replace("time_budget_s = 90.0", "time_budget_s = 0.0");
+    assert_eq!(TrainConfig::from_toml(&old).unwrap().budget, Budget::Steps(300));
+}
+
+#[test]
+fn a_struct_built_budget_is_the_budget() {
+    // The trap of earlier versions: a `steps` field that only `load` made binding.
+    let c = TrainConfig { budget: Budget::Steps(5), ..TrainConfig::default() };
+    assert!(!c.timed() && c.budget.steps() == Some(5));
+}
+
+#[test]
+fn durations_parse_with_units() {
+    let secs = |t: &str| parse_duration(t).unwrap().as_secs_f64();
+    assert_eq!((secs("90"), secs("10m"), secs("1.5h"), secs("45s"), secs("1e3s"), secs("2e1")), (90.0, 600.0, 5400.0, 45.0, 1000.0, 20.0));
+    assert!(parse_duration("-3m").is_err() && parse_duration("3 weeks").is_err() && parse_duration("m").is_err());
+    assert!(format!("{:#}", parse_duration("3d").unwrap_err()).contains("unknown unit"));
+}

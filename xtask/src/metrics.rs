@@ -18,7 +18,9 @@ pub struct ViewPsnr {
 
 /// The metrics of a finished run (`metrics.json`). Optional figures are `None` (JSON `null`)
 /// when the run cannot have them: no ground truth, an empty mesh, no masks, no training views
-/// rendered.
+/// rendered — and the distances (`chamfer`, `accuracy`, `completeness`) also when they are
+/// infinite: no point of the mesh (or of the truth) within `chamfer_max_dist` of the other, with
+/// `f_score` then 0 (JSON has no infinity; `trade` says so beside its means).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default)]
 pub struct RunMetrics {

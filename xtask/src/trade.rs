@@ -261,11 +261,22 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
                     continue;
                 }
                 let get = |figure: Figure| -> Vec<f64> { runs.iter().filter_map(figure).collect() };
-                let fmt = |(key, _, figure): &(&str, &str, Figure)| match mean_std(&get(*figure)) {
-                    Some((m, s)) if key.starts_with("psnr") => format!("{m:.2} ± {s:.2}"),
-                    Some((m, s)) if *key == "f_score" => format!("{m:.3} ± {s:.3}"),
-                    Some((m, s)) => format!("{m:.4} ± {s:.4}"),
-                    None => "—".into(),
+                // A run whose mesh has no point within the outlier distance of the truth has an
+                // infinite Chamfer (JSON null): said, never silently left out of the mean.
+                let unbounded = runs.iter().filter(|r| r.chamfer.is_none() && r.mesh_triangles > 0 && r.f_score.is_some()).count();
+                let fmt = |(key, _, figure): &(&str, &str, Figure)| {
+                    let cell = match mean_std(&get(*figure)) {
+                        Some((m, s)) if key.starts_with("psnr") => format!("{m:.2} ± {s:.2}"),
+                        Some((m, s)) if *key == "f_score" => format!("{m:.3} ± {s:.3}"),
+                        Some((m, s)) => format!("{m:.4} ± {s:.4}"),
+                        None => "—".into(),
+                    };
+                    let distance = matches!(*key, "chamfer" | "accuracy" | "completeness");
+                    if distance && unbounded > 0 {
+                        format!("{cell} over {} runs; {unbounded} with no part of the mesh near the truth (∞)", runs.len() - unbounded)
+                    } else {
+                        cell
+                    }
                 };
                 let iterations = mean_std(&get(|r| Some(r.steps as f64))).map_or("—".into(), |(m, s)| format!("{m:.0} ± {s:.0}"));
                 let per_iteration = mean_std(&get(RunMetrics::seconds_per_iteration)).map_or("—".into(), |(m, s)| format!("{m:.3} ± {s:.3}"));

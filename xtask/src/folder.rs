@@ -122,6 +122,11 @@ impl RunFolder {
         self.sink.write_with(&path, fill).with_context(|| format!("cannot write {}", path.display()))
     }
 
+    /// Writes `data.json`, the record of the data the run trains on.
+    pub fn write_data_record(&self, record: &DataRecord) -> Result<()> {
+        self.write("data.json", serde_json::to_string_pretty(record)?.as_bytes())
+    }
+
     /// Writes the trainer's checkpoint (streamed).
     pub fn write_checkpoint(&self, trainer: &Trainer) -> Result<()> {
         self.write_with("checkpoint.safetensors", &mut |w| trainer.write_checkpoint(w))

@@ -288,9 +288,9 @@ pub fn run(request: &RunRequest, options: &RunOptions, stop: &AtomicBool, sink: 
             if data.is_some() || record.fingerprint.is_none() {
                 // Re-pointed (or of an earlier version): the record now says where the data is.
                 record = DataRecord::new(trainer.data().path.as_deref(), trainer.data().description(), &trainer.data().scene)?;
-                folder.write("data.json", serde_json::to_string_pretty(&record)?.as_bytes())?;
+                folder.write_data_record(&record)?;
             }
-            run_folder(trainer, &folder, options, stop, &estimate, true)
+            run_folder(trainer, &folder, options, stop, &estimate)
         }
         RunRequest::Fresh { config, data, out, overwrite } => {
             // The memory is checked before any pixel is decoded or rendered.
@@ -301,8 +301,8 @@ pub fn run(request: &RunRequest, options: &RunOptions, stop: &AtomicBool, sink: 
             let record = DataRecord::new(trainer.data().path.as_deref(), trainer.data().description(), &trainer.data().scene)?;
             let result = folder
                 .write("config.toml", config.to_toml().as_bytes())
-                .and_then(|()| folder.write("data.json", serde_json::to_string_pretty(&record)?.as_bytes()))
-                .and_then(|()| run_folder(trainer, &folder, options, stop, &estimate, false));
+                .and_then(|()| folder.write_data_record(&record))
+                .and_then(|()| run_folder(trainer, &folder, options, stop, &estimate));
             if result.is_err() && created && !checkpoint_path(out).exists() {
                 // Nothing worth keeping was made: leave no stray folder.
                 let _ = std::fs::remove_dir_all(out);
@@ -318,14 +318,7 @@ fn pictures_due(picture_seconds: f64, trainer: &Trainer, share: f64) -> bool {
     share == 0.0 || picture_seconds <= share * trainer.state().train_seconds
 }
 
-fn run_folder(
-    mut trainer: Trainer,
-    folder: &RunFolder,
-    options: &RunOptions,
-    stop: &AtomicBool,
-    estimate: &MemoryEstimate,
-    resumed: bool,
-) -> Result<Outcome> {
+fn run_folder(mut trainer: Trainer, folder: &RunFolder, options: &RunOptions, stop: &AtomicBool, estimate: &MemoryEstimate) -> Result<Outcome> {
     let config = trainer.config().clone();
     let guided = config.sampler == SamplerKind::Guided;
     let split = trainer.split().clone();
@@ -378,8 +371,9 @@ fn run_folder(
     PHASE.store(PHASE_FINISHING, Ordering::SeqCst);
     let t = Instant::now();
     progress.phase("checkpoint", 0, 1);
-    // A resumed run whose budget was already spent (stopped during meshing) has its checkpoint.
-    if !(resumed && trainer.timing().steps == 0) {
+    // A run that made no step in this process (resumed after its budget was spent, stopped
+    // during meshing) has its checkpoint already.
+    if trainer.timing().steps > 0 {
         folder.write_checkpoint(&trainer)?;
     }
     progress.phase("checkpoint", 1, 1);

@@ -80,9 +80,101 @@ pub struct EvalArgs {
 }
 
 /// Vertices and triangles.
-type MeshArrays = (Vec<[f32; 3]>, Vec<[u32; 3]>);
+pub type MeshArrays = (Vec<[f32; 3]>, Vec<[u32; 3]>);
 
-fn read_mesh(path: &Path) -> Result<MeshArrays> {
+/// The ground truth of a mesh evaluation.
+#[derive(Debug, Clone)]
+pub enum GroundTruth {
+    /// Points (e.g. DTU's `stl*_total.ply`).
+    Points(Vec<[f32; 3]>),
+    /// A mesh, sampled at the protocol's spacing like the prediction.
+    Mesh(MeshArrays),
+}
+
+/// The protocol's distances in the mesh's units; `None`: from the ground truth's bounding-box
+/// diagonal (spacing / 1000, outlier distance / 20, F-score τ / 200).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Protocol {
+    /// Sampling spacing on meshes (DTU: 0.2 mm).
+    pub spacing: Option<f64>,
+    /// Outlier distance (DTU: 20 mm).
+    pub max_dist: Option<f64>,
+    /// F-score threshold τ.
+    pub tau: Option<f64>,
+}
+
+/// The distances an evaluation used.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Distances {
+    /// Sampling spacing on meshes.
+    pub spacing: f64,
+    /// Outlier distance.
+    pub max_dist: f64,
+    /// F-score threshold τ.
+    pub tau: f64,
+}
+
+impl GroundTruth {
+    /// The protocol's distances for this ground truth (`name` says which in errors): a given
+    /// distance must be finite and positive; a missing one comes from the bounding box, which
+    /// must not be degenerate.
+    pub fn distances(&self, protocol: Protocol, name: &str) -> Result<Distances> {
+        for (key, v) in [("spacing", protocol.spacing), ("max_dist", protocol.max_dist), ("tau", protocol.tau)] {
+            if let Some(v) = v.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                bail!("{key} = {v}: expected a positive distance");
+            }
+        }
+        let points = match self {
+            GroundTruth::Points(p) => p,
+            GroundTruth::Mesh((v, _)) => v,
+        };
+        let (lo, hi) =
+            points.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(a, b), p| (a.min(Vec3::from_array(*p)), b.max(Vec3::from_array(*p))));
+        let diagonal = f64::from((hi - lo).length());
+        if !(diagonal.is_finite() && diagonal > 0.0) {
+            let what = if name.is_empty() { "the ground truth".to_string() } else { format!("the ground truth {name}") };
+            bail!("{what} is degenerate (its bounding box has diagonal {diagonal}): a single point or non-finite coordinates");
+        }
+        Ok(Distances {
+            spacing: protocol.spacing.unwrap_or(diagonal / 1000.0),
+            max_dist: protocol.max_dist.unwrap_or(diagonal / 20.0),
+            tau: protocol.tau.unwrap_or(diagonal / 200.0),
+        })
+    }
+
+    /// The ground-truth points: the points, or the mesh sampled every `spacing`.
+    pub fn into_points(self, spacing: f64) -> Result<Vec<[f32; 3]>> {
+        match self {
+            GroundTruth::Points(p) => Ok(p),
+            GroundTruth::Mesh((v, f)) => Ok(eval_metrics::sample_mesh(&v, &f, spacing, GT_SAMPLING_SEED).context("the ground-truth mesh")?),
+        }
+    }
+}
+
+/// Seeds of the surface sampling of the ground-truth and predicted meshes.
+const GT_SAMPLING_SEED: u64 = 7;
+const PRED_SAMPLING_SEED: u64 = 11;
+
+/// A mesh (`vertices`, `triangles`) against `gt` under `protocol`: the DTU-protocol Chamfer and
+/// F-score in the mesh's units, and the distances used. What `cargo xtask eval --mesh` does
+/// without culling, alignment or ICP; the Python binding's `evaluate_mesh`.
+pub fn evaluate_mesh(
+    vertices: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    gt: GroundTruth,
+    protocol: Protocol,
+) -> Result<(eval_metrics::GeometryMetrics, Distances)> {
+    if triangles.is_empty() {
+        bail!("the mesh has no triangles");
+    }
+    let d = gt.distances(protocol, "")?;
+    let gt = gt.into_points(d.spacing)?;
+    let pred = eval_metrics::sample_mesh(vertices, triangles, d.spacing, PRED_SAMPLING_SEED).context("the mesh")?;
+    Ok((eval_metrics::chamfer(&pred, &gt, d.max_dist, d.tau)?, d))
+}
+
+/// Reads a mesh file (.ply, .obj, .gltf, .glb).
+pub fn read_mesh(path: &Path) -> Result<MeshArrays> {
     let is_ply = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("ply"));
     if is_ply {
         let ply = PlyData::read(path)?;
@@ -150,36 +242,18 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     // Ground truth: points, or a mesh to sample.
     let gt_mesh = args.gt_mesh.clone().or_else(|| args.data.as_ref().map(|d| d.join("gt_mesh.ply")).filter(|p| p.exists()));
     let gt_points_path = args.gt_points.clone().or_else(|| args.data.as_ref().map(|d| d.join("gt_points.ply")).filter(|p| p.exists()));
-    let (gt_v, gt_f, gt_points) = match (&gt_mesh, &gt_points_path) {
-        (Some(m), _) => {
-            let (v, f) = read_mesh(m).with_context(|| format!("reading the ground-truth mesh {}", m.display()))?;
-            (v, f, None)
-        }
+    let (gt, gt_name) = match (&gt_mesh, &gt_points_path) {
+        (Some(m), _) => (GroundTruth::Mesh(read_mesh(m).with_context(|| format!("reading the ground-truth mesh {}", m.display()))?), m),
         (None, Some(p)) => {
             let ply = PlyData::read(p).with_context(|| format!("reading the ground-truth points {}", p.display()))?;
-            (Vec::new(), Vec::new(), Some(ply.positions.iter().map(|p| p.to_array()).collect::<Vec<_>>()))
+            (GroundTruth::Points(ply.positions.iter().map(|p| p.to_array()).collect()), p)
         }
         (None, None) => bail!("no ground truth: give --gt-points, --gt-mesh, or --data with gt_mesh.ply / gt_points.ply"),
     };
-    let bounds = |pts: &[[f32; 3]]| {
-        pts.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(a, b), p| (a.min(Vec3::from_array(*p)), b.max(Vec3::from_array(*p))))
-    };
-    let (lo, hi) = bounds(gt_points.as_deref().unwrap_or(&gt_v));
-    let diagonal = f64::from((hi - lo).length());
-    if !(diagonal.is_finite() && diagonal > 0.0) {
-        bail!(
-            "the ground truth {} is degenerate (its bounding box has diagonal {diagonal}): a single point or non-finite coordinates",
-            gt_mesh.as_ref().or(gt_points_path.as_ref()).map_or(String::new(), |p| p.display().to_string())
-        );
-    }
-    let spacing = args.spacing.unwrap_or(diagonal / 1000.0);
-    let max_dist = args.max_dist.unwrap_or(diagonal / 20.0);
-    let tau = args.tau.unwrap_or(diagonal / 200.0);
-    let gt = match gt_points {
-        Some(p) => p,
-        None => eval_metrics::sample_mesh(&gt_v, &gt_f, spacing, 7).context("the ground-truth mesh")?,
-    };
-    let mut pred = eval_metrics::sample_mesh(&vertices, &triangles, spacing, 11)
+    let protocol = Protocol { spacing: args.spacing, max_dist: args.max_dist, tau: args.tau };
+    let Distances { spacing, max_dist, tau } = gt.distances(protocol, &gt_name.display().to_string())?;
+    let gt = gt.into_points(spacing)?;
+    let mut pred = eval_metrics::sample_mesh(&vertices, &triangles, spacing, PRED_SAMPLING_SEED)
         .with_context(|| format!("the mesh {}", args.mesh.as_ref().map_or(String::new(), |m| m.display().to_string())))?;
     let before = pred.len();
     if args.cull {

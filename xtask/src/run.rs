@@ -145,7 +145,7 @@ impl TrainArgs {
 pub const DEFAULT_OUT: &str = "out/train";
 
 /// `out/train`, or the first of `out/train-2`, `-3`, … that does not hold a run yet.
-fn free_default_out() -> PathBuf {
+pub fn free_default_out() -> PathBuf {
     let taken = |p: &Path| p.exists() && (is_run_folder(p) || std::fs::read_dir(p).map_or(true, |mut d| d.next().is_some()));
     let first = PathBuf::from(DEFAULT_OUT);
     if !taken(&first) {

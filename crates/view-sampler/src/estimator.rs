@@ -244,7 +244,26 @@ impl Estimator {
     /// samples ([`Self::march`] with the explicit uniform `jitter(i)` ∈ [0, 1) of ray `i`) and
     /// its λ̃ ([`Self::surface_distance`]). Deterministic in (seed, step, jitter).
     pub fn draw_rays(&self, n: usize, progress: f64, seed: u64, step: u64, coarse: usize, jitter: &(dyn Fn(usize) -> f64 + Sync)) -> Vec<DrawnRay> {
-        self.draw(n, progress, seed, step)
+        self.rays_of(self.draw(n, progress, seed, step), coarse, jitter)
+    }
+
+    /// [`Self::draw_rays`] with the uniform share given instead of the schedule's
+    /// ([`Self::draw_mixed`]).
+    pub fn draw_rays_mixed(
+        &self,
+        n: usize,
+        uniform_fraction: f64,
+        seed: u64,
+        step: u64,
+        coarse: usize,
+        jitter: &(dyn Fn(usize) -> f64 + Sync),
+    ) -> Vec<DrawnRay> {
+        self.rays_of(self.draw_mixed(n, uniform_fraction, seed, step), coarse, jitter)
+    }
+
+    /// The rays of drawn pixels with their coarse samples and λ̃.
+    fn rays_of(&self, samples: Vec<RaySample>, coarse: usize, jitter: &(dyn Fn(usize) -> f64 + Sync)) -> Vec<DrawnRay> {
+        samples
             .into_par_iter()
             .enumerate()
             .map(|(i, sample)| {
@@ -390,8 +409,15 @@ impl Estimator {
     /// their λ̃ (guided, after an update), else uniform pixels without λ̃. Deterministic in
     /// (seed, step) whatever the thread count.
     pub fn draw(&self, n: usize, progress: f64, seed: u64, step: u64) -> Vec<RaySample> {
+        self.draw_mixed(n, self.config.schedule.fraction(progress), seed, step)
+    }
+
+    /// [`Self::draw`] with the uniform share given instead of the schedule's: the first
+    /// `round(uniform_fraction · n)` rays are uniform, the rest guided (all uniform without a
+    /// guide or before the first update).
+    pub fn draw_mixed(&self, n: usize, uniform_fraction: f64, seed: u64, step: u64) -> Vec<RaySample> {
         match (&self.sampler, self.config.guided) {
-            (Some(sampler), true) => sampler.sample_batch(n, progress, seed, step),
+            (Some(sampler), true) => sampler.sample_batch_mixed(n, uniform_fraction, seed, step),
             _ => draw_batch(n, self.cameras.len(), seed, step, |_, camera, u| {
                 let (pixel, pixel_coords, pdf) = uniform_pixel(&self.cameras[camera], [u[0], u[1]]);
                 RaySample { camera: camera as u32, pixel, pixel_coords, pdf_pixel: pdf as f32, guided: false, depth: None }

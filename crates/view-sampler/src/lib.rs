@@ -239,7 +239,15 @@ impl ViewSampler {
     /// first `round(fraction · n)` are uniform, the rest guided. Deterministic in (seed, step),
     /// whatever the thread count.
     pub fn sample_batch(&self, n: usize, progress: f64, seed: u64, step: u64) -> Vec<RaySample> {
-        let uniform = (self.config.schedule.fraction(progress) * n as f64).round() as usize;
+        self.sample_batch_mixed(n, self.config.schedule.fraction(progress), seed, step)
+    }
+
+    /// [`Self::sample_batch`] with the uniform share given instead of the schedule's:
+    /// the first `round(uniform_fraction · n)` rays are uniform (`uniform_fraction` clamped to
+    /// [0, 1]; NaN counts as 0).
+    pub fn sample_batch_mixed(&self, n: usize, uniform_fraction: f64, seed: u64, step: u64) -> Vec<RaySample> {
+        let fraction = if uniform_fraction.is_nan() { 0.0 } else { uniform_fraction.clamp(0.0, 1.0) };
+        let uniform = (fraction * n as f64).round() as usize;
         draw_batch(n, self.cameras.len(), seed, step, |i, camera, u| self.sample_ray(camera, i >= uniform, u))
     }
 }

@@ -451,13 +451,30 @@ impl Default for OutputConfig {
     }
 }
 
-/// Sets `a.b.c = value` in a TOML table; the value is parsed as TOML (`5`, `1e-3`, `true`,
-/// `[1, 2]`, `"text"`) and taken as a bare string otherwise.
-fn set_dotted(table: &mut toml::Table, key: &str, raw: &str) -> Result<()> {
-    let value: toml::Value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
-        .ok()
-        .and_then(|mut t| t.remove("v"))
-        .unwrap_or_else(|| toml::Value::String(raw.to_string()));
+/// A `key=value` override's value as TOML (`5`, `1e-3`, `true`, `[1, 2]`, `"text"`), taken as a
+/// bare string when it is not TOML: where text from a command line becomes typed.
+pub fn override_value(raw: &str) -> toml::Value {
+    toml::from_str::<toml::Table>(&format!("v = {raw}")).ok().and_then(|mut t| t.remove("v")).unwrap_or_else(|| toml::Value::String(raw.to_string()))
+}
+
+/// Whether a dotted key names a key of the default configuration (or its budget).
+fn is_default_key(key: &str) -> bool {
+    if key == "steps" || key == "time_budget_s" || key == "budget" || key.starts_with("budget.") {
+        return true;
+    }
+    let Ok(toml::Value::Table(table)) = toml::Value::try_from(TrainConfig::default()) else { return false };
+    let mut value = &toml::Value::Table(table);
+    for part in key.split('.') {
+        match value.get(part) {
+            Some(v) => value = v,
+            None => return false,
+        }
+    }
+    true
+}
+
+/// Sets `a.b.c = value` in a TOML table.
+fn set_dotted(table: &mut toml::Table, key: &str, value: toml::Value) -> Result<()> {
     let mut parts: Vec<&str> = key.split('.').collect();
     let last = parts.pop().filter(|s| !s.is_empty()).with_context(|| format!("override {key:?}: empty key"))?;
     let mut t = table;
@@ -475,6 +492,20 @@ fn set_dotted(table: &mut toml::Table, key: &str, raw: &str) -> Result<()> {
 impl TrainConfig {
     /// The defaults, then `file` (if any), then the `key=value` overrides; validated.
     pub fn load(file: Option<&Path>, overrides: &[String]) -> Result<TrainConfig> {
+        let values = overrides
+            .iter()
+            .map(|o| {
+                let (k, v) = o.split_once('=').with_context(|| format!("override {o:?} is not key=value"))?;
+                Ok((k.trim().to_string(), override_value(v.trim())))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        TrainConfig::load_values(file, &values)
+    }
+
+    /// The defaults, then `file` (if any), then typed overrides (dotted key, value: what a
+    /// caller that has typed values, such as the Python binding, gives); validated. A budget
+    /// among them (`steps`, `time_budget_s`, `budget…`) replaces the file's.
+    pub fn load_values(file: Option<&Path>, overrides: &[(String, toml::Value)]) -> Result<TrainConfig> {
         let mut table = match file {
             Some(path) => {
                 let text = std::fs::read_to_string(path).with_context(|| format!("cannot read config {}", path.display()))?;
@@ -483,18 +514,21 @@ impl TrainConfig {
             None => toml::Table::new(),
         };
         budget_from_short_keys(&mut table).with_context(|| format!("config {}", file.map_or(Default::default(), |p| p.display().to_string())))?;
-        for o in overrides {
-            let (k, v) = o.split_once('=').with_context(|| format!("override {o:?} is not key=value"))?;
-            let k = k.trim();
+        for (k, v) in overrides {
             // A budget given on the command line replaces the file's (one budget per run).
             if k == "steps" || k == "time_budget_s" || k == "budget" || k.starts_with("budget.") {
                 table.remove("budget");
             }
-            set_dotted(&mut table, k, v.trim())?;
+            set_dotted(&mut table, k, v.clone())?;
             budget_from_short_keys(&mut table)?;
         }
-        let origin = file.map_or("the command line".to_string(), |p| format!("{} and the command line", p.display()));
-        let config: TrainConfig = table.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("config from {origin}: {}", e.message()))?;
+        let origin = file.map_or("the overrides".to_string(), |p| format!("{} and the overrides", p.display()));
+        let config: TrainConfig = table.try_into().map_err(|e: toml::de::Error| {
+            // serde names the field, not its section: name the override that is not a key.
+            let unknown = overrides.iter().map(|(k, _)| k).find(|k| !is_default_key(k));
+            let key = unknown.map_or(String::new(), |k| format!(" (no key {k})"));
+            anyhow::anyhow!("config from {origin}{key}: {}", e.message())
+        })?;
         config.validate().with_context(|| format!("config from {origin}"))?;
         Ok(config)
     }

@@ -74,6 +74,13 @@ pub struct EvalArgs {
     /// Up-sampling rounds of the --run renders (default: the run's `render.render_upsample_rounds`).
     #[arg(long, requires = "run")]
     pub render_rounds: Option<usize>,
+    /// Weight a --run render may drop on each side of a ray (default: the run's
+    /// `render.render_trim`; 0 renders every sample).
+    #[arg(long, requires = "run")]
+    pub render_trim: Option<f64>,
+    /// Whether --run renders skip empty space (default: the run's `render.render_skip_empty`).
+    #[arg(long, requires = "run")]
+    pub render_skip_empty: Option<bool>,
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
@@ -322,10 +329,21 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     let mut trainer = open_run(dir, None)?;
     let r = &trainer.config().render;
     let (fine, rounds) = (args.render_fine.unwrap_or(r.render_fine), args.render_rounds.unwrap_or(r.render_upsample_rounds));
+    let trim = args.render_trim.unwrap_or(r.render_trim);
+    let skip_empty = args.render_skip_empty.unwrap_or(r.render_skip_empty);
     let downscale = args.downscale.unwrap_or(trainer.config().output.eval_downscale);
-    trainer.set_render_upsampling(fine, rounds)?;
+    trainer.set_render_upsampling(fine, rounds, trim, skip_empty)?;
     let views = trainer.split().evaluation_views();
+    let started = std::time::Instant::now();
     let metrics = views.iter().map(|&v| trainer.view_metrics(v, downscale)).collect::<Result<Vec<_>>>()?;
+    let seconds = started.elapsed().as_secs_f64();
+    let pixels: u64 = views
+        .iter()
+        .map(|&v| {
+            let c = &trainer.data().scene.views[v].camera;
+            u64::from(c.width / downscale) * u64::from(c.height / downscale)
+        })
+        .sum();
     let mut per_view = Vec::new();
     for (&v, (whole, masked, ssim)) in views.iter().zip(&metrics) {
         per_view.push(json!({"view": v, "psnr": whole, "psnr_masked": masked, "ssim": ssim}));
@@ -339,18 +357,19 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     };
     let result = json!({"run": dir.display().to_string(), "step": trainer.state().step, "views": views, "psnr": mean("psnr"),
         "psnr_masked": mean("psnr_masked"), "ssim": mean("ssim"), "per_view": per_view, "downscale": downscale,
-        "render_fine": fine, "render_upsample_rounds": rounds});
+        "render_fine": fine, "render_upsample_rounds": rounds, "render_trim": trim, "render_skip_empty": skip_empty, "seconds": seconds, "pixels_per_s": pixels as f64 / seconds});
     write_atomic(&dir.join("eval.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;
     if args.json {
         println!("{result}");
     } else {
         println!(
-            "mean over {} {} views: PSNR {:.2} dB, masked {:?}, SSIM {:?} (written to {})",
+            "mean over {} {} views: PSNR {:.2} dB, masked {:?}, SSIM {:?}; {pixels} pixels rendered in {seconds:.1} s ({:.0} pixels/s) (written to {})",
             views.len(),
             if trainer.split().held_out.is_empty() { "training (none held out)" } else { "held-out" },
             mean("psnr").unwrap_or(f64::NAN),
             mean("psnr_masked"),
             mean("ssim"),
+            pixels as f64 / seconds,
             dir.join("eval.json").display()
         );
     }

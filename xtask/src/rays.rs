@@ -2,7 +2,6 @@
 //! ray, NeuS's hierarchical up-sampling, and (guided) the extra points around λ̃ with what the
 //! surface losses need per ray.
 
-use camera_geom::PinholeCamera;
 use datasets::View;
 use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
 use rayon::prelude::*;
@@ -52,11 +51,6 @@ fn ray_input(ray: CoarseRay) -> RayInput<f32> {
     RayInput { origin: ray.origin, direction: ray.direction, depths: ray.depths, target: [0.0; 3], mask: None }
 }
 
-/// The ray through pixel (col, row) of `camera` with the estimator's coarse depths (one jitter).
-pub fn pixel_ray(estimator: &Estimator, camera: &PinholeCamera, col: u32, row: u32, coarse: usize, jitter: f64) -> RayInput<f32> {
-    ray_input(estimator.coarse_ray(camera, col, row, coarse, jitter))
-}
-
 /// Builds the `n` rays of iteration `step` at `progress` (the estimator's draw, camera indices
 /// into `views`): coarse depths, up-sampling (fewer for rays that get extra points), extra
 /// points around λ̃ at scale `s`; targets and masks (`use_masks`) from the views.
@@ -80,12 +74,15 @@ pub fn build_batch(
     let drawn = estimator.draw_rays(n, progress, seed, step, sampling.coarse, &|i| jitters[i]);
     let guided = drawn.iter().any(|d| d.sample.depth.is_some());
     let n_extra = if guided { sampling.extra_points } else { 0 };
-    let mut rays: Vec<RayInput<f32>> = drawn
-        .par_iter()
-        .map(|d| {
-            let view = views[d.sample.camera as usize];
-            let [col, row] = d.sample.pixel;
-            let mut ray = ray_input(d.ray.clone());
+    // The coarse rays become the backbone's rays by value (their depths are not copied).
+    let (heads, coarse): (Vec<_>, Vec<_>) = drawn.into_iter().map(|d| ((d.sample, d.surface), d.ray)).unzip();
+    let mut rays: Vec<RayInput<f32>> = coarse
+        .into_par_iter()
+        .zip(heads.par_iter())
+        .map(|(coarse, (sample, _))| {
+            let view = views[sample.camera as usize];
+            let [col, row] = sample.pixel;
+            let mut ray = ray_input(coarse);
             ray.target = view.image.get_f32(col, row);
             ray.mask = if use_masks { view.mask.as_ref().map(|m| if m.get(col, row) { 1.0 } else { 0.0 }) } else { None };
             ray
@@ -95,9 +92,9 @@ pub fn build_batch(
     let surfaces = rays
         .par_iter_mut()
         .zip(rngs.par_iter_mut())
-        .zip(drawn.par_iter())
-        .map(|((ray, rng), d)| {
-            let Some(surface) = d.surface else {
+        .zip(heads.par_iter())
+        .map(|((ray, rng), (_, surface))| {
+            let Some(surface) = surface else {
                 return RaySurface { depth: 0.0, background: true };
             };
             if n_extra > 0 {
@@ -111,5 +108,5 @@ pub fn build_batch(
             RaySurface { depth: surface.distance, background: surface.background }
         })
         .collect();
-    Batch { drawn: drawn.into_iter().map(|d| d.sample).collect(), rays, surfaces }
+    Batch { drawn: heads.into_iter().map(|(sample, _)| sample).collect(), rays, surfaces }
 }

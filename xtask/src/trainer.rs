@@ -32,15 +32,17 @@
 use crate::config::{Budget, MeshFilter, MomentStorage, SamplerKind, TrainConfig};
 use crate::data::{SceneData, ViewSplit, uses_masks};
 use crate::outputs::{ViewRender, filter_components, heat_map};
-use crate::rays::{Batch, Sampling, build_batch, pixel_ray};
+use crate::rays::{Batch, Sampling, build_batch};
 use anyhow::{Context, Result, bail};
 use datasets::images::RgbImage;
-use prob_grid::{IsoMesh, MarchingCubesConfig, marching_cubes_with_progress};
+use prob_grid::{IsoMesh, MarchingCubesConfig, Occupancy, marching_cubes_with_progress};
 use rayon::prelude::*;
-use sdf_backbone::{Adam, Backbone, CheckpointReader, CheckpointWriter, NoSampleLoss, RayInput, RayOutput, SampleLoss, StepRates, build};
+use sdf_backbone::{
+    Adam, Backbone, CheckpointReader, CheckpointWriter, NoSampleLoss, RayInput, RayOutput, SampleLoss, StepRates, build, trim_to_weight,
+};
 use std::time::Instant;
 use surface_losses::{RaySurface, SurfaceLossConfig};
-use view_sampler::{Estimator, EstimatorConfig, UniformSchedule, UpdateReport};
+use view_sampler::{Estimator, EstimatorConfig, UniformSchedule, UpdateReport, march_through};
 
 /// What a checkpoint holds besides the parameters and Adam's moments.
 #[derive(Debug, Clone)]
@@ -500,12 +502,14 @@ impl Trainer {
         Ok(())
     }
 
-    /// Sets the renders' up-sampling (`render.render_fine` in `rounds` rounds): what a render
-    /// costs and resolves, not what the model learnt, so a finished run can be re-rendered with
-    /// another (`cargo xtask eval --run DIR --render-fine N --render-rounds R`).
-    pub fn set_render_upsampling(&mut self, fine: usize, rounds: usize) -> Result<()> {
+    /// Sets how renders sample (`render.render_fine` in `rounds` rounds, `render.render_trim`,
+    /// `render.render_skip_empty`): what a render costs and resolves, not what the model learnt,
+    /// so a finished run can be re-rendered with others (`cargo xtask eval --run DIR
+    /// --render-fine N --render-rounds R --render-trim W --render-skip-empty B`).
+    pub fn set_render_upsampling(&mut self, fine: usize, rounds: usize, trim: f64, skip_empty: bool) -> Result<()> {
         let mut config = self.config.clone();
-        (config.render.render_fine, config.render.render_upsample_rounds) = (fine, rounds);
+        let r = &mut config.render;
+        (r.render_fine, r.render_upsample_rounds, r.render_trim, r.render_skip_empty) = (fine, rounds, trim, skip_empty);
         config.validate()?;
         self.config = config;
         Ok(())
@@ -532,12 +536,38 @@ impl Trainer {
         let camera = camera_geom::PinholeCamera::new(k, width, height, c.camera_from_world, c.pixel_centers)
             .with_context(|| format!("view {:?} ({}×{}) rendered at downscale {downscale}", view.name, c.width, c.height))?;
         let r = &self.config.render;
-        let mut rays: Vec<RayInput<f32>> = (0..height)
+        let occupancy = if r.render_skip_empty { Some(self.render_occupancy()?) } else { None };
+        let (mut rays, hits): (Vec<RayInput<f32>>, Vec<bool>) = (0..height)
             .into_par_iter()
             .flat_map_iter(|row| (0..width).map(move |col| (col, row)))
-            .map(|(col, row)| RayInput { target: image.get_f32(col, row), ..pixel_ray(&self.estimator, &camera, col, row, r.coarse, 0.5) })
-            .collect();
-        self.backbone.upsample(&self.state.params, &mut rays, r.render_fine, r.render_upsample_rounds, r.upsample_s);
+            .map(|(col, row)| {
+                let ray = camera.ray_through_pixel_index(col, row);
+                let mut depths = Vec::with_capacity(r.coarse + 1);
+                // The render's own occupancy, else the estimator's (training with skipping).
+                let crosses = march_through(occupancy.as_ref().or(self.estimator.occupancy()), ray.origin, ray.direction, r.coarse, 0.5, &mut depths);
+                let empty = occupancy.is_some() && !crosses;
+                if empty {
+                    // Nothing along it can carry weight: one interval at its far end.
+                    depths.drain(..depths.len() - 2);
+                }
+                let (origin, direction) = (ray.origin.as_vec3().to_array(), ray.direction.as_vec3().to_array());
+                (RayInput { origin, direction, depths, target: image.get_f32(col, row), mask: None }, !empty)
+            })
+            .unzip();
+        // Up-sampling and the trim for the rays that cross occupied space.
+        let index: Vec<usize> = (0..rays.len()).filter(|&i| hits[i]).collect();
+        let mut crossing: Vec<RayInput<f32>> =
+            index.iter().map(|&i| RayInput { depths: std::mem::take(&mut rays[i].depths), ..rays[i].clone() }).collect();
+        let sdf = self.backbone.upsample_with_sdf(&self.state.params, &mut crossing, r.render_fine, r.render_upsample_rounds, r.upsample_s);
+        if r.render_trim > 0.0 {
+            let s = self.s() as f32;
+            crossing.par_iter_mut().zip(sdf.par_iter()).for_each(|(ray, sdf)| {
+                trim_to_weight(&mut ray.depths, sdf, s, r.render_trim as f32);
+            });
+        }
+        for (ray, &i) in crossing.into_iter().zip(&index) {
+            rays[i] = ray;
+        }
         let outputs = self.render_rays(&rays);
         let target = rays.iter().map(|r| r.target).collect();
         let mask = mask.map(|m| (0..height).flat_map(|r| (0..width).map(move |c| (c, r))).map(|(c, r)| m.get(c, r)).collect());
@@ -559,6 +589,16 @@ impl Trainer {
     /// components filtered by `output.mesh_filter`; `progress(blocks done, blocks)`.
     pub fn extract_mesh(&self, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<IsoMesh> {
         Ok(self.extract_mesh_with_stats(progress)?.0)
+    }
+
+    /// The occupancy of the current field at the current s on the guide's scene grid (dilated by
+    /// `render.occupancy_dilation`, at least one cell), for renders (`render.render_skip_empty`).
+    fn render_occupancy(&self) -> Result<Occupancy> {
+        let mut field = self.backbone.field(&self.state.params);
+        field.lipschitz = self.estimator.lipschitz_bound();
+        let scene = &self.config.guide.scene;
+        let active = prob_grid::evaluate(&field, self.s() as f32, scene).context("the occupancy of a render")?;
+        Ok(Occupancy::from_active(&active, scene, self.config.render.occupancy_dilation.max(1)))
     }
 
     /// PSNR (whole image, inside the mask) and SSIM of view `view` rendered at `downscale`.

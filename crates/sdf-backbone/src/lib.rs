@@ -36,6 +36,7 @@ pub mod profile;
 pub mod real;
 pub mod render;
 pub mod scratch;
+pub mod upsample;
 
 pub use backbone::{Backbone, BackboneError, BackboneField, InputEncoding, ParamLayout, Preset, SdfNet, StepRates, adam_step, architecture, build};
 pub use background::BackgroundModel;
@@ -46,8 +47,8 @@ pub use mlp::{Mlp, MlpConfig};
 pub use module::{Activation, Chain, Module, batch_gradients};
 pub use optim::{Adam, AdamStep, CompactMoments, Decay, LrSchedule, Moments, WarmupCosine, WarmupStep};
 pub use pipeline::{
-    ColorLoss, DeferredGradient, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, interval_weights,
-    scale_from_variance,
+    ColorLoss, DeferredGradient, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, scale_from_variance,
 };
 pub use real::Real;
 pub use render::{RayGradients, RayRender, merge_sorted, render_ray, render_ray_backward, sample_intervals};
+pub use upsample::{interval_weights, trim_to_weight};

@@ -377,40 +377,6 @@ impl<S, C> Pipeline<S, C> {
         out
     }
 
-    /// NeuS's hierarchical up-sampling: `rounds` rounds, each evaluating the SDF at the ray's
-    /// current depths, weighting the intervals as rendering would at scale `base_s · 2^round`
-    /// (NeuS: 64 · 2^i), and inserting `n_fine / rounds` depths at the weights' quantiles
-    /// (midpoints, deterministic). Depths stay sorted. No gradient flows through the placement.
-    pub fn upsample(&self, params: &[f32], rays: &mut [RayInput<f32>], n_fine: usize, rounds: usize, base_s: f64)
-    where
-        S: Module<f32> + Sync,
-    {
-        use rayon::prelude::*;
-        if n_fine == 0 || rounds == 0 {
-            return;
-        }
-        let net = &self.sdf;
-        let p_sdf = &params[..net.n_params()];
-        let n_out = net.n_outputs();
-        rays.par_chunks_mut(16).for_each(|rays| {
-            for round in 0..rounds {
-                let k = n_fine / rounds + usize::from(round < n_fine % rounds);
-                let s = (base_s * f64::from(1u32 << round.min(30))) as f32;
-                for ray in rays.iter_mut() {
-                    let points: Vec<f32> = ray.depths.iter().flat_map(|&t| [0, 1, 2].map(|j| ray.origin[j] + t * ray.direction[j])).collect();
-                    let rows = ray.depths.len();
-                    let mut y = vec![0.0; rows * n_out];
-                    let mut ctx = vec![0.0; rows * net.ctx_per_row()];
-                    net.forward(p_sdf, &points, &mut y, &mut ctx);
-                    let sdf: Vec<f32> = y.chunks_exact(n_out).map(|r| r[0]).collect();
-                    let weights = interval_weights(&sdf, s);
-                    let new = crate::render::sample_intervals(&ray.depths, &weights, k);
-                    ray.depths = crate::render::merge_sorted(&ray.depths, &new);
-                }
-            }
-        });
-    }
-
     /// The loss of `rays` (the batch's rays from index `first`) divided by `m` (the whole batch's
     /// ray count; the colour loss by `color_norm`), gradients added to `d_params`, which covers
     /// every parameter after the SDF network's deferred ones ([`Module::deferred_params`]); their
@@ -757,11 +723,4 @@ impl<S, C> Pipeline<S, C> {
         self.sdf.backward_deferring(p_sdf, &points, &sdf_ctx, &d_sdf_out, d_sdf_params, &mut record);
         (total, outputs, Some((points, record)))
     }
-}
-
-/// Rendering weights of the intervals between samples with SDF values `sdf` at scale `s`.
-pub fn interval_weights(sdf: &[f32], s: f32) -> Vec<f32> {
-    let colors = vec![[0.0f32; 3]; sdf.len().saturating_sub(1)];
-    let t: Vec<f32> = (0..sdf.len()).map(|i| i as f32).collect();
-    render_ray(sdf, &t, &colors, s).weights
 }

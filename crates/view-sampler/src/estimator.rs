@@ -441,34 +441,42 @@ impl Estimator {
     /// skipping is on and the ray crosses any (the last depth ends the last interval), else over
     /// the whole [near, far] (the last depth is far). `depths` is cleared first.
     pub fn march(&self, origin: DVec3, direction: DVec3, n: usize, jitter: f64, depths: &mut Vec<f32>) {
-        depths.clear();
-        let (near, far) = near_far(origin, direction);
-        let mut segments: Vec<[f32; 2]> = Vec::new();
-        if let Some(occupancy) = &self.occupancy {
-            occupancy.segments(origin.as_vec3(), direction.as_vec3(), near as f32, far as f32, &mut segments);
-        }
-        let total: f64 = segments.iter().map(|s| f64::from(s[1] - s[0])).sum();
-        if segments.is_empty() || !(total > 1e-6) {
-            let step = (far - near) / n as f64;
-            depths.extend((0..n).map(|i| (near + (i as f64 + jitter) * step) as f32));
-            depths.push(far as f32);
-            return;
-        }
-        // Stratified positions along the concatenated occupied length.
-        let mut k = 0;
-        let mut start = 0.0f64;
-        for i in 0..n {
-            let x = (i as f64 + jitter) / n as f64 * total;
-            while k + 1 < segments.len() && x > start + f64::from(segments[k][1] - segments[k][0]) {
-                start += f64::from(segments[k][1] - segments[k][0]);
-                k += 1;
-            }
-            let t = f64::from(segments[k][0]) + (x - start);
-            depths.push((t as f32).min(segments[k][1]));
-        }
-        let end = segments.last().expect("segments")[1];
-        depths.push(end.max(*depths.last().expect("n ≥ 1")));
+        march_through(self.occupancy.as_ref(), origin, direction, n, jitter, depths);
     }
+}
+
+/// [`Estimator::march`] through any `occupancy` (e.g. one a renderer built for its own field):
+/// returns whether the ray crosses occupied space (always true without an occupancy); a ray
+/// that does not gets stratified depths over the whole [near, far].
+pub fn march_through(occupancy: Option<&Occupancy>, origin: DVec3, direction: DVec3, n: usize, jitter: f64, depths: &mut Vec<f32>) -> bool {
+    depths.clear();
+    let (near, far) = near_far(origin, direction);
+    let mut segments: Vec<[f32; 2]> = Vec::new();
+    if let Some(occupancy) = occupancy {
+        occupancy.segments(origin.as_vec3(), direction.as_vec3(), near as f32, far as f32, &mut segments);
+    }
+    let total: f64 = segments.iter().map(|s| f64::from(s[1] - s[0])).sum();
+    if segments.is_empty() || !(total > 1e-6) {
+        let step = (far - near) / n as f64;
+        depths.extend((0..n).map(|i| (near + (i as f64 + jitter) * step) as f32));
+        depths.push(far as f32);
+        return occupancy.is_none();
+    }
+    // Stratified positions along the concatenated occupied length.
+    let mut k = 0;
+    let mut start = 0.0f64;
+    for i in 0..n {
+        let x = (i as f64 + jitter) / n as f64 * total;
+        while k + 1 < segments.len() && x > start + f64::from(segments[k][1] - segments[k][0]) {
+            start += f64::from(segments[k][1] - segments[k][0]);
+            k += 1;
+        }
+        let t = f64::from(segments[k][0]) + (x - start);
+        depths.push((t as f32).min(segments[k][1]));
+    }
+    let end = segments.last().expect("segments")[1];
+    depths.push(end.max(*depths.last().expect("n ≥ 1")));
+    true
 }
 
 #[cfg(test)]

@@ -42,7 +42,7 @@ mod estimator;
 pub use distribution::{CameraDistribution, ImageSpaceSample, Interpolation};
 pub use estimator::{
     CARRIED_LIPSCHITZ_MARGIN, CoarseRay, DrawnRay, Estimator, EstimatorConfig, EstimatorState, INITIAL_LIPSCHITZ, SurfaceDistance, UpdateReport,
-    near_far,
+    march_through, near_far,
 };
 
 use camera_geom::PinholeCamera;

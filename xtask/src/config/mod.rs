@@ -235,6 +235,16 @@ pub struct RenderConfig {
     pub render_fine: usize,
     /// Up-sampling rounds of the renders (scales `upsample_s` · 2^round).
     pub render_upsample_rounds: usize,
+    /// Rendering weight a render may drop on each side of a ray: after up-sampling, a render's
+    /// ray keeps only its samples between the first and last that carry more (most of a ray
+    /// carries none: before the surface, behind it, or all of a ray that misses), so a pixel's
+    /// colour differs by at most twice this and costs a fraction of the samples (0: every
+    /// sample; BENCHMARKS.md, "Rendering for evaluation").
+    pub render_trim: f64,
+    /// Renders skip empty space: an occupancy of the field at the current s is built for each
+    /// render, a ray's coarse samples lie in its occupied cells, and a ray that crosses none is
+    /// rendered with one interval (its colour is the background's) instead of every sample.
+    pub render_skip_empty: bool,
     /// Rays per work item (gradient chunk). Small enough that a work item's stored activations
     /// (rows × the MLPs' widths) stay in the core's cache between its forward and backward pass:
     /// 8 rays of 64 samples step 4–11 % faster than 32 (BENCHMARKS.md, "Where a step's time goes").
@@ -396,6 +406,8 @@ impl Default for RenderConfig {
             upsample_s: 64.0,
             render_fine: 32,
             render_upsample_rounds: 2,
+            render_trim: 1e-4,
+            render_skip_empty: true,
             chunk: 8,
             skip_empty: false,
             occupancy_dilation: 1,
@@ -614,6 +626,7 @@ impl TrainConfig {
             "≥ 1 when render.render_fine > 0",
         )?;
         need(finite_pos(self.render.upsample_s), "render.upsample_s", self.render.upsample_s, "> 0")?;
+        need((0.0..0.5).contains(&self.render.render_trim), "render.render_trim", self.render.render_trim, "in [0, 0.5)")?;
         need(self.render.chunk >= 1, "render.chunk", self.render.chunk, "≥ 1")?;
         need(self.render.occupancy_dilation <= 8, "render.occupancy_dilation", self.render.occupancy_dilation, "in 0..=8")?;
         need(finite_pos(self.optim.lr), "optim.lr", self.optim.lr, "> 0")?;

@@ -158,7 +158,8 @@ def main():
                 f"Chamfer {m['chamfer']:.4f} (accuracy {m['accuracy']:.4f}, completeness {m['completeness']:.4f}), F-score {m['fscore']:.3f}"
             )
     for sampler, chamfers in results.items():
-        print(f"{sampler:8s} Chamfer {np.mean(chamfers):.4f} ± {np.std(chamfers):.4f} over {len(chamfers)} seed(s)")
+        spread = np.std(chamfers, ddof=1) if len(chamfers) > 1 else 0.0
+        print(f"{sampler:8s} Chamfer {np.mean(chamfers):.4f} ± {spread:.4f} (sample std) over {len(chamfers)} seed(s)")
 
 
 if __name__ == "__main__":

@@ -11,7 +11,8 @@
 //!   checkpoints, resume, stop signal, final mesh and metrics; [`run::open_run`] reopens a run.
 //! - [`folder`]: the run folder (marker, reuse rules, atomic files, the data record and its
 //!   fingerprint); [`metrics`]: [`metrics::RunMetrics`], the typed `metrics.json`.
-//! - [`outputs`], [`progress`], [`draw`]: renders, panels, mesh files and filters, progress.
+//! - [`outputs`], [`progress`], [`draw`]: renders, panels, mesh files and filters, progress;
+//!   [`snapshot`]: meshes and metrics at given training times of one run.
 //! - [`fuzz`]: every parser of user input under mutated bytes.
 //! - [`eval`], [`trade`], [`sample`], [`bench`](mod@bench), [`bench_backbone`], [`bench_memory`], [`bench_overhead`]: the
 //!   other commands; [`memory`]: the memory model; [`plot`]: labelled plots.
@@ -35,5 +36,6 @@ pub mod progress;
 pub mod rays;
 pub mod run;
 pub mod sample;
+pub mod snapshot;
 pub mod trade;
 pub mod trainer;

@@ -8,7 +8,7 @@
 //! that fails before its first checkpoint removes the run folder it created.
 
 use crate::config::{Budget, SamplerKind, TrainConfig, parse_duration};
-use crate::data::{SceneData, SceneSize};
+use crate::data::{SceneData, SceneSize, ViewSplit};
 pub use crate::folder::{AtomicFiles, RunFolder, Sink, checkpoint_path, read_run_config};
 use crate::folder::{DataRecord, is_run_folder};
 use crate::memory::{self, MemoryEstimate};
@@ -16,6 +16,7 @@ use crate::metrics::{RunMetrics, ViewPsnr};
 use crate::outputs::{geometry_metrics, mesh_files, mesh_picture};
 use crate::plot::{Panel, Series, render};
 use crate::progress::Progress;
+use crate::snapshot::{Snapshots, write_snapshot};
 use crate::trainer::{StepReport, Trainer};
 use anyhow::{Context, Result, bail};
 use sdf_backbone::CheckpointReader;
@@ -340,6 +341,8 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, options: &RunOptions, st
     let start = Instant::now();
     let mut measured_seconds = 0.0;
     let mut picture_seconds = 0.0;
+    let mut snapshots = Snapshots::new(&config.output.snapshots, trainer.state().train_seconds);
+    let snapshot_views = final_eval_views(&config, &split);
     while !trainer.done() {
         let report = trainer.step()?;
         log_step(folder, &progress, &trainer, &report)?;
@@ -360,6 +363,12 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, options: &RunOptions, st
             measured_seconds += t.elapsed().as_secs_f64();
             folder.log(&record)?;
             history.push(record);
+        }
+        for at in snapshots.due(trainer.state().train_seconds) {
+            let t = Instant::now();
+            let record = write_snapshot(&trainer, folder, at, &snapshot_views)?;
+            measured_seconds += t.elapsed().as_secs_f64();
+            folder.log(&record)?;
         }
         if stopping {
             progress.abandon();
@@ -403,13 +412,13 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, options: &RunOptions, st
 }
 
 /// `pictures/curves.png` from the run's log: loss, batch PSNR and s against iterations and
-/// against training time, and, when the run logged metrics (`output.metrics_every`), Chamfer and
-/// held-out PSNR.
+/// against training time, and, when the run logged metrics (`output.metrics_every`,
+/// `output.snapshots`), Chamfer and held-out PSNR.
 fn curves(folder: &RunFolder) -> Result<()> {
     let text = std::fs::read_to_string(folder.dir().join("log.jsonl")).unwrap_or_default();
     let records: Vec<serde_json::Value> = text.lines().filter_map(|l| serde_json::from_str(l).ok()).collect();
     let steps: Vec<&serde_json::Value> = records.iter().filter(|r| r["loss"].is_number()).collect();
-    let evals: Vec<&serde_json::Value> = records.iter().filter(|r| r["eval"] == true).collect();
+    let evals: Vec<&serde_json::Value> = records.iter().filter(|r| r["eval"] == true || r["snapshot"].is_number()).collect();
     if steps.len() < 2 {
         return Ok(());
     }
@@ -506,6 +515,14 @@ fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
     (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
 }
 
+/// The views of the final PSNR: `output.eval_views` spread over the held-out views (all views
+/// when none is held out).
+fn final_eval_views(config: &TrainConfig, split: &ViewSplit) -> Vec<usize> {
+    let candidates = split.evaluation_views();
+    let every = candidates.len().div_ceil(config.output.eval_views.max(1));
+    candidates.iter().copied().step_by(every.max(1)).collect()
+}
+
 /// Times of the training loop and its side work, for the metrics.
 struct FinishTiming {
     train_wall: f64,
@@ -532,9 +549,7 @@ fn finish(
     sdf_backbone::scratch::release_all();
     validation_pictures(trainer, folder, step)?;
     // Image metrics on the held-out views (all views when none are held out).
-    let candidates = split.evaluation_views();
-    let every = candidates.len().div_ceil(config.output.eval_views.max(1));
-    let eval_views: Vec<usize> = candidates.iter().copied().step_by(every.max(1)).collect();
+    let eval_views = final_eval_views(config, split);
     let fit_every = split.train.len().div_ceil(config.output.eval_train_views.max(1));
     let fit_views: Vec<usize> =
         if config.output.eval_train_views == 0 { Vec::new() } else { split.train.iter().copied().step_by(fit_every.max(1)).collect() };

@@ -37,9 +37,7 @@ use anyhow::{Context, Result, bail};
 use datasets::images::RgbImage;
 use prob_grid::{IsoMesh, MarchingCubesConfig, Occupancy, marching_cubes_with_progress};
 use rayon::prelude::*;
-use sdf_backbone::{
-    Adam, Backbone, CheckpointReader, CheckpointWriter, NoSampleLoss, RayInput, RayOutput, SampleLoss, StepRates, build, trim_to_weight,
-};
+use sdf_backbone::{Adam, Backbone, CheckpointReader, CheckpointWriter, NoSampleLoss, RayInput, RayOutput, SampleLoss, StepRates, build};
 use std::time::Instant;
 use surface_losses::{RaySurface, SurfaceLossConfig};
 use view_sampler::{Estimator, EstimatorConfig, UniformSchedule, UpdateReport, march_through};
@@ -558,12 +556,11 @@ impl Trainer {
         let index: Vec<usize> = (0..rays.len()).filter(|&i| hits[i]).collect();
         let mut crossing: Vec<RayInput<f32>> =
             index.iter().map(|&i| RayInput { depths: std::mem::take(&mut rays[i].depths), ..rays[i].clone() }).collect();
-        let sdf = self.backbone.upsample_with_sdf(&self.state.params, &mut crossing, r.render_fine, r.render_upsample_rounds, r.upsample_s);
+        let (params, fine, rounds) = (&self.state.params, r.render_fine, r.render_upsample_rounds);
         if r.render_trim > 0.0 {
-            let s = self.s() as f32;
-            crossing.par_iter_mut().zip(sdf.par_iter()).for_each(|(ray, sdf)| {
-                trim_to_weight(&mut ray.depths, sdf, s, r.render_trim as f32);
-            });
+            self.backbone.upsample_trimmed(params, &mut crossing, fine, rounds, r.upsample_s, self.s() as f32, r.render_trim as f32);
+        } else {
+            self.backbone.upsample(params, &mut crossing, fine, rounds, r.upsample_s);
         }
         for (ray, &i) in crossing.into_iter().zip(&index) {
             rays[i] = ray;

@@ -3,28 +3,12 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
-/// A tiny guided run: 6 iterations on a 40 × 30 built-in scene, small grids and mesh.
-const TINY: &[&str] = &[
-    "steps=6",
-    "render.rays=32",
-    "render.coarse=8",
-    "render.fine=8",
-    "guide.extra_points=4",
-    "data.builtin.width=40",
-    "output.mesh_resolution=24",
-    "output.validate_every=0",
-    "output.checkpoint_every=0",
-    "output.eval_views=1",
-    "output.validate_downscale=4",
-    "output.log_every=1",
-    "guide.updates=3",
-    "guide.scene.resolution=16",
-    "guide.camera.ru=8",
-    "guide.camera.rv=8",
-    "guide.camera.rl=16",
-    "output.mesh_formats=[\"ply\", \"obj\", \"glb\"]",
-    "output.vertex_colors=true",
-];
+mod common;
+
+/// The shared tiny guided run (6 iterations on a 40 × 30 built-in scene), checkpointed only at
+/// the end, logging every step, writing every mesh format with vertex colours.
+const TINY_HERE: &[&str] =
+    &["output.checkpoint_every=0", "output.log_every=1", "output.mesh_formats=[\"ply\", \"obj\", \"glb\"]", "output.vertex_colors=true"];
 
 fn xtask(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_xtask")).args(args).output().expect("xtask runs")
@@ -33,7 +17,8 @@ fn xtask(args: &[&str]) -> Output {
 fn train(out: &Path, extra: &[&str]) -> Output {
     let mut args = vec!["train", "--out", out.to_str().unwrap()];
     args.extend_from_slice(extra);
-    args.extend_from_slice(TINY);
+    args.extend_from_slice(common::TINY);
+    args.extend_from_slice(TINY_HERE);
     xtask(&args)
 }
 
@@ -161,7 +146,8 @@ fn validation_pictures_take_at_most_their_share_of_the_training_time() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("pictures");
     let mut args = vec!["train", "--out", out.to_str().unwrap()];
-    args.extend_from_slice(TINY);
+    args.extend_from_slice(common::TINY);
+    args.extend_from_slice(TINY_HERE);
     // A picture at full resolution after every iteration: uncapped, the pictures would take
     // most of the run.
     args.extend_from_slice(&["steps=40", "output.validate_every=1", "output.validate_downscale=1", "output.validate_share=0.1"]);
@@ -181,4 +167,25 @@ fn validation_pictures_take_at_most_their_share_of_the_training_time() {
     // before it fit the share); pictures vary in time, so allow twice the mean for it.
     let one = pictures_s / taken as f64;
     assert!(pictures_s <= 0.1 * train_s + 2.0 * one, "pictures took {pictures_s:.3} s of {train_s:.3} s training ({taken} pictures)");
+}
+
+#[test]
+fn snapshots_write_a_mesh_and_metrics_at_their_times_outside_the_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let o = train(&out, &["output.snapshots=[0.001, 1e9]"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let snapshot = out.join("snapshots/0.001s");
+    for f in ["mesh.ply", "mesh.obj", "mesh.glb", "metrics.json"] {
+        assert!(snapshot.join(f).exists(), "no {f} in the snapshot");
+    }
+    assert!(!out.join("snapshots/1000000000s").exists(), "a snapshot the run never reached");
+    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(snapshot.join("metrics.json")).unwrap()).unwrap();
+    assert!(m["chamfer"].as_f64().is_some_and(f64::is_finite) && m["psnr"].as_f64().is_some(), "{m}");
+    assert!(m["step"].as_u64().is_some_and(|s| (1..6).contains(&s)), "{m}");
+    let log = std::fs::read_to_string(out.join("log.jsonl")).unwrap();
+    assert_eq!(log.lines().filter(|l| l.contains("\"snapshot\"")).count(), 1);
+    // The run still trained its 6 steps and wrote its own mesh.
+    let metrics: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(metrics["steps"], 6);
 }

@@ -116,15 +116,23 @@ impl<S, C> Pipeline<S, C> {
         });
     }
 
-    /// [`Self::upsample`], returning the SDF at every final depth of each ray (for
-    /// [`trim_to_weight`]); with no up-sampling, the SDF at the rays' depths.
-    pub fn upsample_with_sdf(&self, params: &[f32], rays: &mut [RayInput<f32>], n_fine: usize, rounds: usize, base_s: f64) -> Vec<Vec<f32>>
+    /// [`Self::upsample`] for a render: each ray then trimmed by [`trim_to_weight`] at the
+    /// model's scale `s`, chunk by chunk (a chunk's SDF values are dropped with it, and the
+    /// trimmed depths release their memory).
+    #[allow(clippy::too_many_arguments)]
+    pub fn upsample_trimmed(&self, params: &[f32], rays: &mut [RayInput<f32>], n_fine: usize, rounds: usize, base_s: f64, s: f32, negligible: f32)
     where
         S: Module<f32> + Sync,
     {
         use rayon::prelude::*;
         let net = &self.sdf;
-        rays.par_chunks_mut(CHUNK).flat_map_iter(|rays| upsample_chunk(net, params, rays, n_fine, rounds, base_s, true)).collect()
+        rays.par_chunks_mut(CHUNK).for_each(|rays| {
+            let sdf = upsample_chunk(net, params, rays, n_fine, rounds, base_s, true);
+            for (ray, sdf) in rays.iter_mut().zip(&sdf) {
+                trim_to_weight(&mut ray.depths, sdf, s, negligible);
+                ray.depths.shrink_to_fit();
+            }
+        });
     }
 }
 
@@ -237,7 +245,8 @@ mod tests {
         let mut new = rays.clone();
         backbone.upsample(&params, &mut new, n_fine, rounds, base_s);
         let mut kept = rays.clone();
-        let values = backbone.upsample_with_sdf(&params, &mut kept, n_fine, rounds, base_s);
+        let values: Vec<Vec<f32>> =
+            kept.chunks_mut(CHUNK).flat_map(|c| upsample_chunk(&backbone.sdf, &params, c, n_fine, rounds, base_s, true)).collect();
         for (ray, (a, (b, v))) in rays.iter().zip(new.iter().zip(kept.iter().zip(&values))) {
             let mut depths = ray.depths.clone();
             for round in 0..rounds {

@@ -326,6 +326,10 @@ pub struct OutputConfig {
     /// Mesh + Chamfer and PSNR of one held-out view every n iterations, logged (0: only at the
     /// end; not counted in the training time).
     pub metrics_every: u64,
+    /// Snapshots at these training times (seconds): the mesh and its metrics (Chamfer,
+    /// F-score, PSNR of the evaluation views) in `snapshots/<seconds>s/` and the log, not counted
+    /// in the training time — quality against time from one run. Empty: none.
+    pub snapshots: Vec<f64>,
     /// Checkpoint every n iterations (0: only at the end).
     pub checkpoint_every: u64,
     /// Log scalars every n iterations.
@@ -449,6 +453,7 @@ impl Default for OutputConfig {
             eval_views: 3,
             eval_train_views: 2,
             metrics_every: 0,
+            snapshots: Vec::new(),
             checkpoint_every: 100,
             log_every: 10,
             mesh_resolution: 192,
@@ -626,6 +631,12 @@ impl TrainConfig {
             "≥ 1 when render.render_fine > 0",
         )?;
         need(finite_pos(self.render.upsample_s), "render.upsample_s", self.render.upsample_s, "> 0")?;
+        need(
+            self.output.snapshots.iter().all(|&t| finite_pos(t)),
+            "output.snapshots",
+            &self.output.snapshots,
+            "training times in seconds, each > 0",
+        )?;
         need((0.0..0.5).contains(&self.render.render_trim), "render.render_trim", self.render.render_trim, "in [0, 0.5)")?;
         need(self.render.chunk >= 1, "render.chunk", self.render.chunk, "≥ 1")?;
         need(self.render.occupancy_dilation <= 8, "render.occupancy_dilation", self.render.occupancy_dilation, "in 0..=8")?;

@@ -1,0 +1,84 @@
+//! Snapshots along one run (`output.snapshots`): at given training times the mesh and its
+//! metrics are written to `snapshots/<seconds>s/` (`mesh.*`, `metrics.json`) and logged
+//! (`"snapshot"` records in `log.jsonl`), outside the training time, so that one run per seed
+//! draws quality against time; budgeted runs remain for the headline figures (their schedules
+//! follow the fraction of *their* budget, so a snapshot at 60 s of a 10-minute run is not a
+//! 1-minute run).
+
+use crate::folder::RunFolder;
+use crate::outputs::{geometry_metrics, mesh_files};
+use crate::trainer::Trainer;
+use anyhow::{Context, Result};
+use serde_json::json;
+
+/// The snapshot times still to take.
+#[derive(Debug, Clone, Default)]
+pub struct Snapshots {
+    pending: Vec<f64>,
+}
+
+impl Snapshots {
+    /// The times of `times` after `trained` seconds (a resumed run keeps the snapshots it took).
+    pub fn new(times: &[f64], trained: f64) -> Snapshots {
+        let mut pending: Vec<f64> = times.iter().copied().filter(|&t| t > trained).collect();
+        pending.sort_by(f64::total_cmp);
+        pending.dedup();
+        Snapshots { pending }
+    }
+
+    /// The snapshot times reached after `trained` seconds, removed from the pending ones.
+    pub fn due(&mut self, trained: f64) -> Vec<f64> {
+        let n = self.pending.iter().take_while(|&&t| t <= trained).count();
+        self.pending.drain(..n).collect()
+    }
+}
+
+/// The folder of the snapshot at `at` seconds, relative to the run folder.
+pub fn snapshot_dir(at: f64) -> String {
+    format!("snapshots/{at}s")
+}
+
+/// Writes the snapshot at `at` seconds of `trainer` into `folder`: the mesh (the run's mesh
+/// formats, world units) and `metrics.json` (Chamfer, accuracy, completeness, F-score when the
+/// data has ground truth; PSNR whole and masked over `views`). Returns the record it logged.
+pub fn write_snapshot(trainer: &Trainer, folder: &RunFolder, at: f64, views: &[usize]) -> Result<serde_json::Value> {
+    let config = trainer.config();
+    let dir = snapshot_dir(at);
+    std::fs::create_dir_all(folder.dir().join(&dir)).with_context(|| format!("cannot create {}", folder.dir().join(&dir).display()))?;
+    let mesh = trainer.extract_mesh(&|_, _| {})?;
+    for (format, bytes) in mesh_files(&mesh, &trainer.data().scene.world_from_normalized, None, &config.output.mesh_formats) {
+        folder.write(&format!("{dir}/mesh.{}", format.extension()), &bytes)?;
+    }
+    let o = &config.output;
+    let geometry = match trainer.data().ground_truth(o.chamfer_spacing)? {
+        Some(gt) if !mesh.triangles.is_empty() => Some(geometry_metrics(&mesh, &gt, o.chamfer_spacing, o.chamfer_max_dist, o.fscore_tau)?),
+        _ => None,
+    };
+    let psnr = views.iter().map(|&v| Ok(trainer.render_view(v, o.eval_downscale)?.psnr())).collect::<Result<Vec<_>>>()?;
+    let mean = |values: Vec<f64>| (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
+    let record = json!({
+        "snapshot": at, "step": trainer.state().step, "train_s": trainer.state().train_seconds,
+        "chamfer": geometry.map(|g| g.chamfer), "accuracy": geometry.map(|g| g.accuracy), "completeness": geometry.map(|g| g.completeness),
+        "f_score": geometry.map(|g| g.f_score), "f_score_tau": o.fscore_tau,
+        "psnr": mean(psnr.iter().map(|p| p.0).collect()), "psnr_masked": mean(psnr.iter().filter_map(|p| p.1).collect()), "psnr_views": views,
+        "mesh_triangles": mesh.triangles.len(),
+    });
+    folder.write(&format!("{dir}/metrics.json"), serde_json::to_string_pretty(&record)?.as_bytes())?;
+    Ok(record)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn snapshots_come_once_in_order_and_a_resumed_run_keeps_the_ones_it_took() {
+        let mut s = Snapshots::new(&[120.0, 60.0, 300.0, 60.0], 0.0);
+        assert!(s.due(59.9).is_empty());
+        assert_eq!(s.due(130.0), vec![60.0, 120.0]);
+        assert!(s.due(131.0).is_empty());
+        assert_eq!(s.due(1e9), vec![300.0]);
+        let mut resumed = Snapshots::new(&[60.0, 120.0, 300.0], 120.0);
+        assert_eq!(resumed.due(1e9), vec![300.0]);
+    }
+}

@@ -99,3 +99,36 @@ def test_keyword_spellings_reach_the_same_key(tmp_path):
     a = psneus.train(out=tmp_path / "a", steps=1, data__masks=False, **tiny)
     b = psneus.train(out=tmp_path / "b", steps=1, **{"data.masks": False}, **tiny)
     assert a["psnr"] == b["psnr"] and a["chamfer"] == b["chamfer"]
+
+
+def test_ctrl_c_in_train_writes_the_checkpoint_and_resume_finishes(tmp_path):
+    """KeyboardInterrupt reaches Python while the Rust run trains with the GIL released: the
+    run stops after its iteration with a checkpoint, and `train(resume=out)` finishes it."""
+    import json
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "run"
+    options = {k: v for k, v in TINY.items() if k != "steps"}
+    options["output.log_every"] = 1
+    script = (
+        "import psneus, sys\n"
+        "try:\n"
+        f"    psneus.train(out={str(out)!r}, budget='6s', **{options!r})\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted'); sys.exit(3)\n"
+    )
+    child = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    log = out / "log.jsonl"
+    deadline = time.time() + 60
+    while time.time() < deadline and not (log.exists() and '"loss"' in log.read_text()):
+        time.sleep(0.05)
+    child.send_signal(signal.SIGINT)
+    stdout, stderr = child.communicate(timeout=60)
+    assert child.returncode == 3 and "interrupted" in stdout, stderr
+    assert (out / "checkpoint.safetensors").exists() and not (out / "metrics.json").exists()
+    steps = [json.loads(line)["step"] for line in log.read_text().splitlines() if '"loss"' in line]
+    metrics = psneus.train(resume=out)
+    assert metrics["steps"] > max(steps) and (out / "metrics.json").exists()

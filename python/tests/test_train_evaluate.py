@@ -113,8 +113,10 @@ def test_ctrl_c_in_train_writes_the_checkpoint_and_resume_finishes(tmp_path):
     out = tmp_path / "run"
     options = {k: v for k, v in TINY.items() if k != "steps"}
     options["output.log_every"] = 1
+    # As in an interactive interpreter: a child of a background job inherits SIGINT ignored.
     script = (
-        "import psneus, sys\n"
+        "import psneus, signal, sys\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "try:\n"
         f"    psneus.train(out={str(out)!r}, budget='6s', **{options!r})\n"
         "except KeyboardInterrupt:\n"

@@ -575,4 +575,31 @@ mod tests {
         plain.march(o, d, 4, 0.5, &mut depths);
         assert_eq!(depths, vec![2.25, 2.75, 3.25, 3.75, 4.0]);
     }
+
+    /// `march_through` (a renderer's own occupancy) says which rays cross occupied space: the
+    /// miss is reported, not hidden behind the stratified fallback.
+    #[test]
+    fn march_through_reports_the_rays_that_cross_no_occupied_cell() {
+        let sphere = Shape::Sphere { center: DVec3::ZERO, radius: 0.5 };
+        let mut e = Estimator::new(cameras(), config(false)).unwrap();
+        e.update(&sphere, 200.0).unwrap();
+        let occupancy = e.occupancy().expect("skipping keeps an occupancy");
+        let mut depths = Vec::new();
+        assert!(march_through(Some(occupancy), DVec3::new(0.0, 0.0, -3.0), DVec3::Z, 8, 0.5, &mut depths));
+        assert!(!march_through(Some(occupancy), DVec3::new(0.95, 0.95, -3.0), DVec3::Z, 8, 0.5, &mut depths));
+        assert_eq!(depths.len(), 9, "a miss still gets its stratified depths");
+        assert!(march_through(None, DVec3::new(0.95, 0.95, -3.0), DVec3::Z, 8, 0.5, &mut depths), "no occupancy: every ray may hold the surface");
+    }
+
+    /// `draw_mixed` takes the uniform share it is given, whatever the schedule says.
+    #[test]
+    fn draw_mixed_takes_the_given_uniform_share() {
+        let sphere = Shape::Sphere { center: DVec3::ZERO, radius: 0.5 };
+        let mut e = Estimator::new(cameras(), config(true)).unwrap();
+        e.update(&sphere, 100.0).unwrap();
+        for (fraction, guided) in [(0.0, 500), (0.3, 350), (1.0, 0), (f64::NAN, 500)] {
+            assert_eq!(e.draw_mixed(500, fraction, 2, 0).iter().filter(|r| r.guided).count(), guided, "uniform share {fraction}");
+        }
+        assert_eq!(e.draw(500, 0.0, 2, 0), e.draw_mixed(500, 0.2, 2, 0), "the schedule's share at the start is 0.2");
+    }
 }

@@ -190,6 +190,22 @@ pub fn geometry_metrics(mesh: &IsoMesh, gt: &[[f32; 3]], spacing: f64, max_dist:
     Ok(eval_metrics::chamfer(&pred, gt, max_dist, tau)?)
 }
 
+/// Chamfer and F-score of `mesh` against `data`'s ground truth with a run's protocol
+/// (`output.chamfer_spacing`, `chamfer_max_dist`, `fscore_tau`); `None` when the data has no
+/// ground truth or the mesh no triangles. What the periodic metrics and the snapshots measure.
+pub fn run_geometry(
+    data: &crate::data::SceneData,
+    output: &crate::config::OutputConfig,
+    mesh: &IsoMesh,
+) -> Result<Option<eval_metrics::GeometryMetrics>> {
+    match data.ground_truth(output.chamfer_spacing)? {
+        Some(gt) if !mesh.triangles.is_empty() => {
+            Ok(Some(geometry_metrics(mesh, &gt, output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau)?))
+        }
+        _ => Ok(None),
+    }
+}
+
 /// The mesh (normalised frame) seen from `cameras`, shaded by its normals, side by side.
 pub fn mesh_picture(mesh: &IsoMesh, cameras: &[camera_geom::PinholeCamera]) -> RgbImage {
     use datasets::golden::{mesh_io::TexturedMesh, render::Geometry};

@@ -13,7 +13,7 @@ pub use crate::folder::{AtomicFiles, RunFolder, Sink, checkpoint_path, read_run_
 use crate::folder::{DataRecord, is_run_folder};
 use crate::memory::{self, MemoryEstimate};
 use crate::metrics::{RunMetrics, ViewPsnr};
-use crate::outputs::{geometry_metrics, mesh_files, mesh_picture};
+use crate::outputs::{geometry_metrics, mesh_files, mesh_picture, run_geometry};
 use crate::plot::{Panel, Series, render};
 use crate::progress::Progress;
 use crate::snapshot::{Snapshots, write_snapshot};
@@ -499,12 +499,7 @@ fn interim_metrics(trainer: &Trainer) -> Result<serde_json::Value> {
     let view = trainer.split().evaluation_views()[0];
     let (psnr, masked) = trainer.render_view(view, config.output.eval_downscale)?.psnr();
     let mesh = trainer.extract_mesh(&|_, _| {})?;
-    let geometry = match trainer.data().ground_truth(config.output.chamfer_spacing)? {
-        Some(gt) if !mesh.triangles.is_empty() => {
-            Some(geometry_metrics(&mesh, &gt, config.output.chamfer_spacing, config.output.chamfer_max_dist, config.output.fscore_tau)?)
-        }
-        _ => None,
-    };
+    let geometry = run_geometry(trainer.data(), &config.output, &mesh)?;
     let t = trainer.timing();
     Ok(json!({"eval": true, "step": trainer.state().step, "psnr": psnr, "psnr_masked": masked, "chamfer": geometry.map(|g| g.chamfer),
         "f_score": geometry.map(|g| g.f_score), "time_s": t.step_seconds + t.grid_seconds}))

@@ -6,7 +6,7 @@
 //! 1-minute run).
 
 use crate::folder::RunFolder;
-use crate::outputs::{geometry_metrics, mesh_files};
+use crate::outputs::{mesh_files, run_geometry};
 use crate::trainer::Trainer;
 use anyhow::{Context, Result};
 use serde_json::json;
@@ -50,10 +50,7 @@ pub fn write_snapshot(trainer: &Trainer, folder: &RunFolder, at: f64, views: &[u
         folder.write(&format!("{dir}/mesh.{}", format.extension()), &bytes)?;
     }
     let o = &config.output;
-    let geometry = match trainer.data().ground_truth(o.chamfer_spacing)? {
-        Some(gt) if !mesh.triangles.is_empty() => Some(geometry_metrics(&mesh, &gt, o.chamfer_spacing, o.chamfer_max_dist, o.fscore_tau)?),
-        _ => None,
-    };
+    let geometry = run_geometry(trainer.data(), o, &mesh)?;
     let psnr = views.iter().map(|&v| Ok(trainer.render_view(v, o.eval_downscale)?.psnr())).collect::<Result<Vec<_>>>()?;
     let mean = |values: Vec<f64>| (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
     let record = json!({

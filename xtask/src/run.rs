@@ -204,7 +204,7 @@ pub fn check_memory(config: &TrainConfig, size: &SceneSize, max_memory: Option<f
     let mut backbone = sdf_backbone::architecture(config.model.preset);
     backbone.config.normals = config.model.normals;
     if config.model.background_model.learned(config.data.masks && size.masks) {
-        backbone.add_learned_background(&mut Vec::new(), 0);
+        backbone.add_learned_background(&mut Vec::new(), crate::trainer::background_model(config), 0);
     }
     let n_params = backbone.n_params::<f32>();
     let estimate =

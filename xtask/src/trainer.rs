@@ -127,7 +127,7 @@ impl SampleLoss for SurfaceHook<'_> {
 fn configured_backbone(config: &TrainConfig, use_masks: bool) -> (Backbone, Vec<f32>) {
     let (mut backbone, mut params) = build(config.model.preset, config.model.init_radius, config.seed);
     if config.model.background_model.learned(use_masks) {
-        backbone.add_learned_background(&mut params, config.seed + 4);
+        backbone.add_learned_background(&mut params, background_model(config), config.seed + 4);
     }
     backbone.config.eikonal_weight = config.model.eikonal;
     backbone.config.mask_weight = if use_masks { config.model.mask } else { 0.0 };
@@ -136,6 +136,11 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool) -> (Backbone, Vec<
     backbone.config.background = config.model.background;
     backbone.config.normals = config.model.normals;
     (backbone, params)
+}
+
+/// The learned background of a run without masks ([`sdf_backbone::BackgroundModel::cpu`]).
+pub fn background_model(config: &TrainConfig) -> sdf_backbone::BackgroundModel {
+    sdf_backbone::BackgroundModel::cpu(config.model.background_frequencies, config.model.background_view)
 }
 
 /// The estimator's configuration from the trainer's.

@@ -95,7 +95,7 @@ fn breakdown() {
 /// The kernels alone on 20 512 rows: a 64 → 64 layer with and without softplus.
 #[allow(dead_code)]
 fn kernels() {
-    use sdf_backbone::kernels::{Strided, dense_forward, dispatch, gemm};
+    use sdf_backbone::kernels::{Dense, Strided, dense_forward, dispatch, gemm};
     let rows = 20512;
     let a: Vec<f32> = (0..rows * 64).map(|i| ((i * 7919) % 2000) as f32 / 1000.0 - 1.0).collect();
     let wt: Vec<f32> = (0..64 * 64).map(|i| ((i * 31) % 100) as f32 / 100.0 - 0.5).collect();
@@ -107,7 +107,16 @@ fn kernels() {
         let t = best(|| {
             dispatch(
                 #[inline(always)]
-                || dense_forward(&a, 64, 64, &wt, &bias, 64, act, 1.0, &mut y, 64, 0, &mut d, rows),
+                || {
+                    dense_forward(
+                        &Dense { a: &a, a_s: 64, n_in: 64, wt: &wt, bias: &bias, n_out_pad: 64, act, scale: 1.0 },
+                        &mut y,
+                        64,
+                        0,
+                        &mut d,
+                        rows,
+                    )
+                },
             )
         });
         println!("dense_forward 64 → 64, {act:?}: {:.2} ms = {:.1} GFLOP/s", t * 1e3, flop / t / 1e9);

@@ -355,11 +355,9 @@ impl Backbone {
         ParamLayout { encoding: 0..n_enc, sdf_mlp: n_enc..n_sdf, color: n_sdf..n_col, variance: n_col, background: n_col + 1..n_col + 1 + n_bg }
     }
 
-    /// Adds a learned background (NeRF++'s inverted sphere: 16 samples per ray beyond the bound,
-    /// PE with 4 frequencies, MLP 2 × 64; [`crate::background::BackgroundModel`]) and its
-    /// parameters at the end of `params`.
-    pub fn add_learned_background(&mut self, params: &mut Vec<f32>, seed: u64) {
-        let model = crate::background::BackgroundModel::new(16, 4, 64, 2);
+    /// Adds a learned background `model` (NeRF++'s inverted sphere beyond the bound,
+    /// [`crate::background::BackgroundModel`]) and its parameters at the end of `params`.
+    pub fn add_learned_background(&mut self, params: &mut Vec<f32>, model: crate::background::BackgroundModel, seed: u64) {
         let mut p = vec![0.0f32; model.n_params()];
         model.init(&mut p, seed);
         params.truncate(self.layout().variance + 1);

@@ -5,7 +5,7 @@
 //! A point at distance r > 1 from the origin is represented by `(x/r, 1/r)` ∈ the unit 4-ball's
 //! shell × (0, 1]: bounded whatever r. Along each ray, `samples` points beyond the bound are
 //! placed at inverse distances `1/r_k = (k + ½)/K` (far to near reversed: increasing t), the
-//! network maps `[PE_L(x/r, 1/r), SH₄(d)]` to a density σ (softplus) and a colour (sigmoid),
+//! network maps `[PE_L(x/r, 1/r)]` (and `SH₄(d)` when view-dependent) to a density σ (softplus) and a colour (sigmoid),
 //! and the ray's background is rendered by standard volume rendering, the last sample taking
 //! all the transmittance left (the background is opaque at infinity):
 //! `w_k = T_k (1 − e^{−σ_k δ_k})`, `T_k = Π_{j<k} e^{−σ_j δ_j}`, `C_bg = Σ w_k c_k`.
@@ -22,12 +22,14 @@ use crate::scratch::Buf;
 /// The background model: its network and how it samples.
 #[derive(Debug, Clone)]
 pub struct BackgroundModel {
-    /// `[PE_L(x/r, 1/r) (4 + 8L), SH₄(d) (16)]` → `[σ_raw, rgb_raw]`.
+    /// `[PE_L(x/r, 1/r) (4 + 8L), SH₄(d) (16, when view-dependent)]` → `[σ_raw, rgb_raw]`.
     pub net: Mlp,
     /// Samples per ray beyond the bound.
     pub samples: usize,
     /// Frequencies L of the positional encoding of (x/r, 1/r).
     pub frequencies: usize,
+    /// Whether the colour depends on the view direction (SH₄(d) among the inputs).
+    pub view_dependent: bool,
 }
 
 /// What the forward pass keeps for the backward pass.
@@ -48,8 +50,13 @@ impl BackgroundModel {
     /// A model with `samples` samples per ray, `frequencies` frequencies, an MLP of `layers` ×
     /// `width` (ReLU).
     pub fn new(samples: usize, frequencies: usize, width: usize, layers: usize) -> BackgroundModel {
+        BackgroundModel::with_view(samples, frequencies, width, layers, true)
+    }
+
+    /// [`Self::new`], with the view direction among the inputs or not (`view_dependent`).
+    pub fn with_view(samples: usize, frequencies: usize, width: usize, layers: usize, view_dependent: bool) -> BackgroundModel {
         let net = Mlp::new(MlpConfig {
-            n_inputs: 4 + 8 * frequencies + 16,
+            n_inputs: 4 + 8 * frequencies + if view_dependent { 16 } else { 0 },
             width,
             hidden_layers: layers,
             n_outputs: 4,
@@ -57,7 +64,13 @@ impl BackgroundModel {
             hidden_activation: Activation::Relu,
             output_activation: Activation::Identity,
         });
-        BackgroundModel { net, samples, frequencies }
+        BackgroundModel { net, samples, frequencies, view_dependent }
+    }
+
+    /// The model a run learns without masks (16 samples per ray, MLP 2 × 64) with `frequencies`
+    /// frequencies, its colour depending on the view direction or not (`view_dependent`).
+    pub fn cpu(frequencies: usize, view_dependent: bool) -> BackgroundModel {
+        BackgroundModel::with_view(16, frequencies, 64, 2, view_dependent)
     }
 
     /// Parameters of the network.
@@ -102,7 +115,9 @@ impl BackgroundModel {
                     }
                     f = f + f;
                 }
-                row[4 + 8 * self.frequencies..].copy_from_slice(&sh[r]);
+                if self.view_dependent {
+                    row[4 + 8 * self.frequencies..].copy_from_slice(&sh[r]);
+                }
             }
         }
         let mut raw = Buf::<R>::zeroed(rows_n * 4);

@@ -1,9 +1,12 @@
 //! Dense-layer kernels at the CPU's vector width, without `unsafe`: plain Rust loops over
 //! fixed-size tiles, compiled once per instruction set and chosen at run time by `pulp`
 //! (AVX-512 where the CPU has it, else AVX2 + FMA, else SSE2). The loops are written so that
-//! LLVM vectorises them: register tiles of `MR` rows × `W` columns (`W` a multiple of 16 floats,
-//! one AVX-512 register per 16), column counts padded to a multiple of [`LANE`] (zeros in the
-//! padding), fused multiply-adds.
+//! LLVM vectorises them: register tiles of `M` rows × `W` columns (`W` a multiple of 16 floats),
+//! column counts padded to a multiple of [`LANE`] (zeros in the padding), fused multiply-adds.
+//! The tile's accumulators must fit the register file, so its shape follows the CPU
+//! ([`wide_tiles`]): 4 × 64 with AVX-512 (16 of its 32 zmm registers), 6 × 16 otherwise (12 of
+//! AVX2's 16 ymm registers; the 4 × 64 tile spills there: the layer-shaped product ran at 0.4× —
+//! BENCHMARKS.md, "On an AVX2 CPU").
 //!
 //! One micro-kernel serves every product of a layer: `C[m][0..n] (+)= Σₖ L(m, k) · B[k][0..n]`
 //! with L read through strides, so that the forward pass (L = A, B = Wᵀ), the input gradient
@@ -26,8 +29,19 @@ pub fn pad(n: usize) -> usize {
     n.div_ceil(LANE) * LANE
 }
 
-/// Rows per register tile.
-const MR: usize = 4;
+/// Whether the CPU has 32 vector registers of 16 floats (AVX-512), so that the wide tile
+/// (4 × 64) fits in registers; else the narrow one (6 × 16).
+#[inline(always)]
+pub fn wide_tiles() -> bool {
+    #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+    {
+        std::arch::is_x86_feature_detected!("avx512f")
+    }
+    #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
+    {
+        false
+    }
+}
 
 /// Runs `f` compiled for the widest instruction set the CPU has. Pass the closure as
 /// `dispatch(#[inline(always)] || …)`: a closure that is not inlined into the dispatched function
@@ -57,15 +71,24 @@ pub struct Strided<'a, R> {
     pub sk: usize,
 }
 
-/// One `MR × W` tile of `C = Σₖ L(m, k) B[k][n0..n0 + W]` starting at row `m0` (`mr ≤ MR` rows
+/// One `M × W` tile of `C = Σₖ L(m, k) B[k][n0..n0 + W]` starting at row `m0` (`mr ≤ M` rows
 /// valid), added to `acc`.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn tile<R: Real, const W: usize>(acc: &mut [[R; W]; MR], l: Strided<'_, R>, b: &[R], bs: usize, m0: usize, mr: usize, n0: usize, k: usize) {
-    let rows: [usize; MR] = std::array::from_fn(|i| (m0 + i.min(mr - 1)) * l.sm);
+fn tile<R: Real, const M: usize, const W: usize>(
+    acc: &mut [[R; W]; M],
+    l: Strided<'_, R>,
+    b: &[R],
+    bs: usize,
+    m0: usize,
+    mr: usize,
+    n0: usize,
+    k: usize,
+) {
+    let rows: [usize; M] = std::array::from_fn(|i| (m0 + i.min(mr - 1)) * l.sm);
     for kk in 0..k {
         let brow: &[R; W] = b[kk * bs + n0..kk * bs + n0 + W].try_into().expect("tile width");
-        for i in 0..MR {
+        for i in 0..M {
             let x = l.data[rows[i] + kk * l.sk];
             let a = &mut acc[i];
             for j in 0..W {
@@ -75,6 +98,19 @@ fn tile<R: Real, const W: usize>(acc: &mut [[R; W]; MR], l: Strided<'_, R>, b: &
     }
 }
 
+/// Runs `$run!(W)` for the tile width `$w` (a multiple of [`LANE`], at most `$wmax`): one arm
+/// per width, those wider than `$wmax` never taken (and folded away).
+macro_rules! width_arms {
+    ($w:expr, $wmax:expr, $run:ident) => {
+        match $w {
+            64 if $wmax >= 64 => $run!(64),
+            48 if $wmax >= 48 => $run!(48),
+            32 if $wmax >= 32 => $run!(32),
+            _ => $run!(16),
+        }
+    };
+}
+
 /// `C[m][0..n] = (accumulate ? C : 0) + Σ_{k<kk} L(m, k) · B[k][0..n]` for m < `m`; `n` a
 /// multiple of [`LANE`]; `B` and `C` row-major with strides `bs`, `cs`. Call inside
 /// [`dispatch`].
@@ -82,32 +118,48 @@ fn tile<R: Real, const W: usize>(acc: &mut [[R; W]; MR], l: Strided<'_, R>, b: &
 #[inline(always)]
 pub fn gemm<R: Real>(c: &mut [R], cs: usize, l: Strided<'_, R>, b: &[R], bs: usize, m: usize, n: usize, k: usize, accumulate: bool) {
     debug_assert!(n.is_multiple_of(LANE));
+    if wide_tiles() {
+        gemm_tiles::<R, 4, { 4 * LANE }>(c, cs, l, b, bs, m, n, k, accumulate)
+    } else {
+        gemm_tiles::<R, 6, LANE>(c, cs, l, b, bs, m, n, k, accumulate)
+    }
+}
+
+/// [`gemm`] with tiles of `M` rows and at most `WMAX` columns.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn gemm_tiles<R: Real, const M: usize, const WMAX: usize>(
+    c: &mut [R],
+    cs: usize,
+    l: Strided<'_, R>,
+    b: &[R],
+    bs: usize,
+    m: usize,
+    n: usize,
+    k: usize,
+    accumulate: bool,
+) {
     let mut m0 = 0;
     while m0 < m {
-        let mr = MR.min(m - m0);
+        let mr = M.min(m - m0);
         let mut n0 = 0;
         while n0 < n {
-            let w = (n - n0).min(4 * LANE);
+            let w = (n - n0).min(WMAX);
             macro_rules! run {
                 ($w:expr) => {{
-                    let mut acc = [[R::ZERO; $w]; MR];
+                    let mut acc = [[R::ZERO; $w]; M];
                     if accumulate {
                         for i in 0..mr {
                             acc[i].copy_from_slice(&c[(m0 + i) * cs + n0..(m0 + i) * cs + n0 + $w]);
                         }
                     }
-                    tile::<R, $w>(&mut acc, l, b, bs, m0, mr, n0, k);
+                    tile::<R, M, $w>(&mut acc, l, b, bs, m0, mr, n0, k);
                     for i in 0..mr {
                         c[(m0 + i) * cs + n0..(m0 + i) * cs + n0 + $w].copy_from_slice(&acc[i]);
                     }
                 }};
             }
-            match w {
-                64 => run!(64),
-                48 => run!(48),
-                32 => run!(32),
-                _ => run!(16),
-            }
+            width_arms!(w, WMAX, run);
             n0 += w;
         }
         m0 += mr;
@@ -116,40 +168,53 @@ pub fn gemm<R: Real>(c: &mut [R], cs: usize, l: Strided<'_, R>, b: &[R], bs: usi
 
 /// The forward pass of a dense layer on `rows` rows, fused: `Z = A Wᵀ + b`, then `Y = act(Z)·scale`
 /// into `y` (row stride `ys`, columns `y0..y0 + n_out_pad`) and `act'(Z)` into `d` (row stride
-/// `n_out_pad`). `a` is rows × `a_s` (the first `n_in` columns used); `wt` is the packed Wᵀ,
-/// `n_in` × `n_out_pad` (zero padding); `bias` has `n_out_pad` values. Call inside [`dispatch`].
-#[allow(clippy::too_many_arguments)]
+/// `n_out_pad`), for `rows` rows of the [`Dense`] layer's input. Call inside [`dispatch`].
 #[inline(always)]
-pub fn dense_forward<R: Real>(
-    a: &[R],
-    a_s: usize,
-    n_in: usize,
-    wt: &[R],
-    bias: &[R],
-    n_out_pad: usize,
-    act: Activation,
-    scale: R,
-    y: &mut [R],
-    ys: usize,
-    y0: usize,
-    d: &mut [R],
-    rows: usize,
-) {
+pub fn dense_forward<R: Real>(layer: &Dense<'_, R>, y: &mut [R], ys: usize, y0: usize, d: &mut [R], rows: usize) {
+    if wide_tiles() { dense_tiles::<R, 4, { 4 * LANE }>(layer, y, ys, y0, d, rows) } else { dense_tiles::<R, 6, LANE>(layer, y, ys, y0, d, rows) }
+}
+
+/// A dense layer's operands for [`dense_forward`]: its input `a` (row stride `a_s`, the first
+/// `n_in` columns used), the packed Wᵀ `wt` (`n_in` × `n_out_pad`), the bias, the activation and
+/// the output scale.
+pub struct Dense<'a, R> {
+    /// The input rows.
+    pub a: &'a [R],
+    /// Row stride of `a`.
+    pub a_s: usize,
+    /// Inputs used per row.
+    pub n_in: usize,
+    /// Wᵀ, packed, zero-padded to `n_out_pad` columns.
+    pub wt: &'a [R],
+    /// `n_out_pad` values.
+    pub bias: &'a [R],
+    /// Output columns, padded to [`LANE`].
+    pub n_out_pad: usize,
+    /// The activation.
+    pub act: Activation,
+    /// Factor on the activated output.
+    pub scale: R,
+}
+
+/// [`dense_forward`] with tiles of `M` rows and at most `WMAX` columns.
+#[inline(always)]
+fn dense_tiles<R: Real, const M: usize, const WMAX: usize>(layer: &Dense<'_, R>, y: &mut [R], ys: usize, y0: usize, d: &mut [R], rows: usize) {
+    let &Dense { a, a_s, n_in, wt, bias, n_out_pad, act, scale } = layer;
     let l = Strided { data: a, sm: a_s, sk: 1 };
     let mut m0 = 0;
     while m0 < rows {
-        let mr = MR.min(rows - m0);
+        let mr = M.min(rows - m0);
         let mut n0 = 0;
         while n0 < n_out_pad {
-            let w = (n_out_pad - n0).min(4 * LANE);
+            let w = (n_out_pad - n0).min(WMAX);
             macro_rules! run {
                 ($w:expr) => {{
-                    let mut acc = [[R::ZERO; $w]; MR];
+                    let mut acc = [[R::ZERO; $w]; M];
                     let b: &[R; $w] = bias[n0..n0 + $w].try_into().expect("bias width");
                     for row in acc.iter_mut() {
                         *row = *b;
                     }
-                    tile::<R, $w>(&mut acc, l, wt, n_out_pad, m0, mr, n0, n_in);
+                    tile::<R, M, $w>(&mut acc, l, wt, n_out_pad, m0, mr, n0, n_in);
                     for i in 0..mr {
                         let (yr, dr) = (
                             &mut y[(m0 + i) * ys + y0 + n0..(m0 + i) * ys + y0 + n0 + $w],
@@ -159,12 +224,7 @@ pub fn dense_forward<R: Real>(
                     }
                 }};
             }
-            match w {
-                64 => run!(64),
-                48 => run!(48),
-                32 => run!(32),
-                _ => run!(16),
-            }
+            width_arms!(w, WMAX, run);
             n0 += w;
         }
         m0 += mr;
@@ -218,15 +278,22 @@ mod tests {
         // L row-major (sm = k, sk = 1) and column-major (sm = 1, sk = m).
         let lt: Vec<f64> = (0..k * m).map(|i| lv[(i % m) * k + i / m]).collect();
         for (l, accumulate) in [(Strided { data: &lv[..], sm: k, sk: 1 }, false), (Strided { data: &lt[..], sm: 1, sk: m }, true)] {
-            let mut c = vec![1.0f64; m * n];
-            dispatch(
-                #[inline(always)]
-                || gemm(&mut c, n, l, &b, n, m, n, k, accumulate),
-            );
-            for i in 0..m {
-                for j in 0..n {
-                    let expected: f64 = (0..k).map(|kk| lv[i * k + kk] * b[kk * n + j]).sum::<f64>() + if accumulate { 1.0 } else { 0.0 };
-                    assert_eq!(c[i * n + j], expected, "({i}, {j})");
+            // The wide tile (AVX-512), the narrow one (else), and whichever this CPU chooses.
+            for shape in 0..3 {
+                let mut c = vec![1.0f64; m * n];
+                dispatch(
+                    #[inline(always)]
+                    || match shape {
+                        0 => gemm_tiles::<f64, 4, { 4 * LANE }>(&mut c, n, l, &b, n, m, n, k, accumulate),
+                        1 => gemm_tiles::<f64, 6, LANE>(&mut c, n, l, &b, n, m, n, k, accumulate),
+                        _ => gemm(&mut c, n, l, &b, n, m, n, k, accumulate),
+                    },
+                );
+                for i in 0..m {
+                    for j in 0..n {
+                        let expected: f64 = (0..k).map(|kk| lv[i * k + kk] * b[kk * n + j]).sum::<f64>() + if accumulate { 1.0 } else { 0.0 };
+                        assert_eq!(c[i * n + j], expected, "shape {shape}: ({i}, {j})");
+                    }
                 }
             }
         }

@@ -1,6 +1,6 @@
 //! Dense layers with activations, an optional skip connection, and NeuS's geometric initialisation.
 
-use crate::kernels::{Strided, dense_forward, gemm, pad};
+use crate::kernels::{Dense, Strided, dense_forward, gemm, pad};
 use crate::module::{Activation, Module};
 use crate::real::Real;
 use crate::scratch::Buf;
@@ -227,7 +227,7 @@ impl<R: Real> Module<R> for Mlp {
                     if l == last {
                         // Into a padded temporary, then the unpadded output.
                         let mut y = Buf::<R>::zeroed(rows * op);
-                        dense_forward(a, ip, n_in, wt, bias, op, act, scale, &mut y, op, 0, d, rows);
+                        dense_forward(&Dense { a, a_s: ip, n_in, wt, bias, n_out_pad: op, act, scale }, &mut y, op, 0, d, rows);
                         for (o, yr) in output.chunks_exact_mut(n_y).zip(y.chunks_exact(op)) {
                             o.copy_from_slice(&yr[..n_y]);
                         }
@@ -235,7 +235,7 @@ impl<R: Real> Module<R> for Mlp {
                         // Straight into the next layer's input block (its padding stays zero).
                         let next_ip = pad(self.layers[l + 1].0);
                         let y = &mut next[..rows * next_ip];
-                        dense_forward(a, ip, n_in, wt, bias, op, act, scale, y, next_ip, 0, d, rows);
+                        dense_forward(&Dense { a, a_s: ip, n_in, wt, bias, n_out_pad: op, act, scale }, y, next_ip, 0, d, rows);
                         if self.config.skip == Some(l + 1) {
                             // [h, x] / √2: the raw input after the previous layer's output.
                             for (row, x) in y.chunks_exact_mut(next_ip).zip(input.chunks_exact(n_x)) {

@@ -442,11 +442,11 @@ fn whole_pipeline_gradients_match_finite_differences() {
         let pipeline = Pipeline {
             sdf: Chain { a: pe, b: sdf_mlp },
             color,
-            // The learned background on one of the two variants.
             // The learned background (NeRF++) on one of the variants: 5 samples beyond the bound.
             background: (normals == NormalScheme::Tetrahedral).then(|| BackgroundModel {
                 net: Mlp::new(MlpConfig {
-                    n_inputs: 4 + 8 + 16,
+                    // No view direction: the default model (docs/DECISIONS.md §23).
+                    n_inputs: 4 + 8,
                     width: 4,
                     hidden_layers: 1,
                     n_outputs: 4,
@@ -456,6 +456,7 @@ fn whole_pipeline_gradients_match_finite_differences() {
                 }),
                 samples: 5,
                 frequencies: 1,
+                view_dependent: false,
             }),
             config: PipelineConfig {
                 // h = 1e-2: the Laplacian divides by h², and with h = 1e-3 the finite differences

@@ -207,6 +207,14 @@ pub struct ModelConfig {
     /// auto (learned without masks, fixed with them), learned, fixed.
     #[serde(alias = "learned_background")]
     pub background_model: BackgroundModel,
+    /// Frequencies of the learned background's positional encoding of (x/r, 1/r) (NeRF++: 10).
+    /// With 4 (the earlier default) the background could not carry a textured backdrop early in a
+    /// run and the object's network painted it as walls inside the bound (docs/DECISIONS.md §23).
+    pub background_frequencies: usize,
+    /// Whether the learned background's colour depends on the view direction (NeRF++: yes). Off
+    /// by default: with it the background can paint the object itself as a light field and
+    /// leave the surface empty (docs/DECISIONS.md §23); surroundings are mostly diffuse.
+    pub background_view: bool,
     /// Without masks: weight of the opacity entropy of each ray (pushes a ray to hit the
     /// surface or miss it; a thin part becomes a surface rather than a haze). Unused with masks,
     /// whose BCE does the same with the truth.
@@ -395,6 +403,8 @@ impl Default for ModelConfig {
             normals: NormalScheme::Tetrahedral,
             background: [0.0; 3],
             background_model: BackgroundModel::Auto,
+            background_frequencies: 8,
+            background_view: false,
             opacity_entropy: 0.0,
         }
     }
@@ -600,6 +610,7 @@ impl TrainConfig {
         need(non_neg(self.model.eikonal), "model.eikonal", self.model.eikonal, "≥ 0")?;
         need(non_neg(self.model.mask), "model.mask", self.model.mask, "≥ 0")?;
         need(non_neg(self.model.opacity_entropy), "model.opacity_entropy", self.model.opacity_entropy, "≥ 0")?;
+        need((1..=16).contains(&self.model.background_frequencies), "model.background_frequencies", self.model.background_frequencies, "in 1..=16")?;
         need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;
         if self.model.normals == NormalScheme::Analytic {
             need(

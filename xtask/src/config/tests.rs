@@ -52,6 +52,23 @@ fn background_model_reads_its_names_and_the_earlier_boolean_key() {
     assert!(format!("{err:#}").contains("sky"), "{err:#}");
 }
 
+/// The learned background's keys reach the model: by default 8 frequencies and no view
+/// direction (docs/DECISIONS.md §23); the earlier model on request; 0 frequencies is an error.
+#[test]
+fn learned_background_defaults_to_eight_frequencies_without_the_view_direction() {
+    let model = |o: &[&str]| {
+        let overrides: Vec<String> = o.iter().map(|s| s.to_string()).collect();
+        crate::trainer::background_model(&TrainConfig::load(None, &overrides).unwrap())
+    };
+    let default = model(&[]);
+    assert_eq!((default.frequencies, default.view_dependent), (8, false));
+    let earlier = model(&["model.background_frequencies=4", "model.background_view=true"]);
+    assert_eq!((earlier.frequencies, earlier.view_dependent), (4, true));
+    assert_ne!(default.n_params(), earlier.n_params());
+    let err = TrainConfig::load(None, &["model.background_frequencies=0".into()]).unwrap_err();
+    assert!(format!("{err:#}").contains("model.background_frequencies"), "{err:#}");
+}
+
 #[test]
 fn unknown_keys_bad_enums_and_bad_values_are_named() {
     for (o, expect) in [

@@ -29,13 +29,14 @@ pub fn pad(n: usize) -> usize {
     n.div_ceil(LANE) * LANE
 }
 
-/// Whether the CPU has 32 vector registers of 16 floats (AVX-512), so that the wide tile
-/// (4 × 64) fits in registers; else the narrow one (6 × 16).
+/// Whether [`dispatch`] runs the AVX-512 build (32 vector registers of 16 floats), so that the
+/// wide tile (4 × 64) fits in registers; else the narrow one (6 × 16). Asked of `pulp`'s own
+/// detection, so the tile shape and the instruction set chosen cannot disagree.
 #[inline(always)]
 pub fn wide_tiles() -> bool {
     #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
     {
-        std::arch::is_x86_feature_detected!("avx512f")
+        matches!(Arch::new(), Arch::V4(_))
     }
     #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
     {

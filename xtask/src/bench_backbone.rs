@@ -297,11 +297,13 @@ fn preset_figures(preset: Preset, reps: usize, gemm_best: f64, only: Option<Norm
             "max_resolution": grid.as_ref().map(|g| g.finest_resolution),
             "sdf_hidden": sdf_mlp.config().width, "sdf_layers": sdf_mlp.config().hidden_layers,
             "colour_hidden": backbone.color.config().width, "colour_layers": backbone.color.config().hidden_layers,
-            "normals": format!("{normals:?}").to_lowercase(), "rays": n_rays, "samples": n_samples,
+            "normals": normals_name(normals), "rays": n_rays, "samples": n_samples,
             "step_s": step, "samples_per_s": samples / step, "flop_per_sample": flop_per_sample,
             "step_gflops": flop_per_sample * samples / step / 1e9, "mlp_s": t_mlp, "mlp_gflops": mlp_gflops,
             "mlp_fraction_of_gemm": mlp_gflops / gemm_best, "gemm_gflops": gemm_best,
             "threads": rayon::current_num_threads(),
+            // The trainer's default model: its preset and the normals `model.normals = auto` gives it.
+            "default": preset == default_model().preset && normals == default_model().normal_scheme(),
         }));
     }
     let rss = peak_rss_mb();
@@ -309,6 +311,16 @@ fn preset_figures(preset: Preset, reps: usize, gemm_best: f64, only: Option<Norm
         f["peak_rss_mb"] = json!(rss);
     }
     out
+}
+
+/// The trainer's default model configuration.
+fn default_model() -> crate::config::ModelConfig {
+    crate::config::ModelConfig::default()
+}
+
+/// A normal scheme as the figures name it (`tetrahedral`, `central`, `analytic`).
+fn normals_name(normals: NormalScheme) -> String {
+    format!("{normals:?}").to_lowercase()
 }
 
 /// Runs one preset in a child process (`--preset`), returning its JSON figures.
@@ -375,7 +387,13 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
             None => None,
         };
         if args.profile {
-            profile_step(preset, only.unwrap_or(NormalScheme::Tetrahedral), args.reps, args.chunk, gemm_best);
+            profile_step(
+                preset,
+                only.unwrap_or(crate::config::ModelConfig { preset, ..default_model() }.normal_scheme()),
+                args.reps,
+                args.chunk,
+                gemm_best,
+            );
             return Ok(());
         }
         for f in preset_figures(preset, args.reps, gemm_best, only) {
@@ -403,8 +421,9 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
     if !args.quick {
         presets.extend([Preset::Neus, Preset::Neuralangelo]);
     }
-    // The default preset's steps: tetrahedral (the trainer's default normals) and analytic.
-    let (mut default_steps, mut analytic_steps) = (Vec::new(), Vec::new());
+    // The default preset's steps: with the trainer's default normals, and with tetrahedral ones.
+    let default_normals = normals_name(default_model().normal_scheme());
+    let (mut default_steps, mut tetrahedral_steps) = (Vec::new(), Vec::new());
     for preset in presets {
         match child_figures(preset, args.reps, gemm_best) {
             Ok(figures) => {
@@ -414,11 +433,11 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
                     } else {
                         print_row(f);
                     }
-                    if preset == Preset::NeuralangeloCpu && f["normals"] == "tetrahedral" {
+                    if f["default"] == true {
                         default_steps.push(number(f, "step_s"));
                     }
-                    if preset == Preset::NeuralangeloCpu && f["normals"] == "analytic" {
-                        analytic_steps.push(number(f, "step_s"));
+                    if preset == default_model().preset && f["normals"] == "tetrahedral" {
+                        tetrahedral_steps.push(number(f, "step_s"));
                     }
                 }
             }
@@ -427,15 +446,15 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
         }
     }
     if let Some(python) = &args.peer {
-        let (rays, samples) = batch_of(Preset::NeuralangeloCpu);
+        let (rays, samples) = batch_of(default_model().preset);
         let peer = peer_figures(python, rays, samples)?;
         // Our default step again after the peer, so that both sides see the same machine state.
-        if let Ok(figures) = child_figures(Preset::NeuralangeloCpu, args.reps, gemm_best) {
-            default_steps.extend(figures.iter().filter(|f| f["normals"] == "tetrahedral").map(|f| number(f, "step_s")));
-            analytic_steps.extend(figures.iter().filter(|f| f["normals"] == "analytic").map(|f| number(f, "step_s")));
+        if let Ok(figures) = child_figures(default_model().preset, args.reps, gemm_best) {
+            default_steps.extend(figures.iter().filter(|f| f["default"] == true).map(|f| number(f, "step_s")));
+            tetrahedral_steps.extend(figures.iter().filter(|f| f["normals"] == "tetrahedral").map(|f| number(f, "step_s")));
         }
         let ours = default_steps.iter().copied().fold(f64::INFINITY, f64::min);
-        let ours_analytic = analytic_steps.iter().copied().fold(f64::INFINITY, f64::min);
+        let ours_tetrahedral = tetrahedral_steps.iter().copied().fold(f64::INFINITY, f64::min);
         let steps: Vec<&Value> = peer.iter().filter(|f| f["figure"] == "torch_step").collect();
         let best = steps.iter().filter(|f| f["step_s"].is_number()).min_by(|a, b| number(a, "step_s").total_cmp(&number(b, "step_s")));
         for f in &steps {
@@ -454,18 +473,18 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
             }
         }
         let best_s = best.map_or(f64::NAN, |b| number(b, "step_s"));
-        let ratio = json!({"figure": "peer_ratio", "ours_step_s": ours, "peer_best_step_s": best_s,
+        let ratio = json!({"figure": "peer_ratio", "ours_step_s": ours, "ours_normals": default_normals, "peer_best_step_s": best_s,
             "peer_best": best.map(|b| format!("{} {}", b["normals"].as_str().unwrap_or("?"), b["mode"].as_str().unwrap_or("?"))),
-            "speedup": best_s / ours, "ours_analytic_step_s": ours_analytic, "speedup_analytic": best_s / ours_analytic,
+            "speedup": best_s / ours, "ours_tetrahedral_step_s": ours_tetrahedral, "speedup_tetrahedral": best_s / ours_tetrahedral,
             "threads": threads});
         if args.json {
             println!("{ratio}");
         } else {
             println!(
-                "default preset, 512 × 128: best PyTorch-CPU variant {best_s:.3} s ({}); psneus tetrahedral (the default) {ours:.3} s per step, {:.2}× faster; analytic {ours_analytic:.3} s, {:.2}× faster",
+                "default preset, 512 × 128: best PyTorch-CPU variant {best_s:.3} s ({}); psneus {default_normals} (the default) {ours:.3} s per step, {:.2}× faster; tetrahedral {ours_tetrahedral:.3} s, {:.2}× faster",
                 ratio["peer_best"],
                 best_s / ours,
-                best_s / ours_analytic
+                best_s / ours_tetrahedral
             );
         }
     }

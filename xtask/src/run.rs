@@ -202,7 +202,7 @@ pub fn stop_message() -> &'static str {
 /// what to change when the peak exceeds `max_memory` (default: the memory available).
 pub fn check_memory(config: &TrainConfig, size: &SceneSize, max_memory: Option<f64>) -> Result<MemoryEstimate> {
     let mut backbone = sdf_backbone::architecture(config.model.preset);
-    backbone.config.normals = config.model.normals;
+    backbone.config.normals = config.model.normal_scheme();
     if config.model.background_model.learned(config.data.masks && size.masks) {
         backbone.add_learned_background(&mut Vec::new(), crate::trainer::background_model(config), 0);
     }

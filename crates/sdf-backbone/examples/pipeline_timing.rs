@@ -92,11 +92,12 @@ fn breakdown() {
     );
 }
 
-/// The kernels alone on 20 512 rows: a 64 → 64 layer with and without softplus.
+/// The kernels alone on `ROWS` rows (default 20 512): a 64 → 64 layer with and without softplus.
 #[allow(dead_code)]
 fn kernels() {
     use sdf_backbone::kernels::{Dense, Strided, dense_forward, dispatch, gemm};
-    let rows = 20512;
+    let rows = std::env::var("ROWS").ok().and_then(|r| r.parse().ok()).unwrap_or(20512);
+    println!("{rows} rows:");
     let a: Vec<f32> = (0..rows * 64).map(|i| ((i * 7919) % 2000) as f32 / 1000.0 - 1.0).collect();
     let wt: Vec<f32> = (0..64 * 64).map(|i| ((i * 31) % 100) as f32 / 100.0 - 0.5).collect();
     let bias = vec![0.01f32; 64];

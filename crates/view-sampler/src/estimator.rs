@@ -17,12 +17,9 @@
 //!   field's Lipschitz claim against its own values ([`prob_grid::LipschitzCheck`]): a wrong bound
 //!   is detected and the evaluation redone, not trusted.
 //!
-//!   Measured (BENCHMARKS.md, 60 s, 3 scenes × 3 seeds): with skipping and half the samples per
-//!   ray (16 coarse in occupied space + 16 fine, 8 of them extra points) the trainer ran 2.0× the
-//!   iterations of the default (32 + 32 without skipping) in the same time; Chamfer 15 % lower on
-//!   Bob (outside the noise), level on Spot, 4 % higher on the built-in scene (inside the noise,
-//!   accuracy worse on its thin ring). Not the trainer's default (`render.skip_empty`) until it
-//!   wins on every scene.
+//!   The trainer skips empty space by default (`render.skip_empty`, 16 coarse + 16 fine samples
+//!   per ray): why, and what it buys at equal wall time, is in the repository's
+//!   docs/DECISIONS.md §24.
 //!
 //! Sampling is outside any gradient graph: everything here returns numbers.
 

@@ -12,7 +12,7 @@
 //! a number of steps or by training time alike ([`Budget`]): learning rate (warm-up and decay), coarse-to-fine levels,
 //! the curvature ramp, the uniform-ray fractions and the grid updates (`guide.updates` per run).
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use datasets::io::MeshFormat;
 use prob_grid::{CameraGridConfig, SceneGridConfig};
 use sdf_backbone::{LrSchedule, NormalScheme, Preset};
@@ -24,6 +24,7 @@ use view_sampler::Interpolation;
 
 mod annotated;
 mod budget;
+mod validate;
 pub use annotated::annotated_default;
 use budget::budget_from_short_keys;
 pub use budget::{Budget, parse_duration};
@@ -48,6 +49,22 @@ pub enum MomentStorage {
     F32,
     /// bf16 with stochastic rounding: half the memory of the moments (sdf-backbone `optim`).
     Bf16,
+}
+
+/// How the run takes its normals (`model.normals`): a scheme of `sdf-backbone`, or `auto`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Normals {
+    /// Analytic where the model allows it (a hash-grid preset, no curvature loss), else
+    /// tetrahedral: the analytic step is the faster one at level mesh quality
+    /// (docs/DECISIONS.md §24).
+    Auto,
+    /// Central differences: 6 probes per sample.
+    Central,
+    /// Tetrahedral differences: 4 probes per sample.
+    Tetrahedral,
+    /// The exact gradient by forward-mode derivatives (hash-grid presets, no curvature loss).
+    Analytic,
 }
 
 /// Which connected components of the extracted mesh are kept.
@@ -199,8 +216,9 @@ pub struct ModelConfig {
     /// 5e-4; default 0: not measured to help on short runs).
     pub curvature: f64,
     /// Normals (and curvature) by tetrahedral (4 probes) or central (6 probes) differences, or
-    /// `analytic`: the exact ∇ₓS by forward-mode derivatives (hash-grid presets, no curvature).
-    pub normals: NormalScheme,
+    /// `analytic`: the exact ∇ₓS by forward-mode derivatives (hash-grid presets, no curvature);
+    /// `auto`: analytic where that holds, else tetrahedral ([`ModelConfig::normal_scheme`]).
+    pub normals: Normals,
     /// Colour behind the object in renders (and, without masks and without a learned
     /// background, in the loss).
     pub background: [f64; 3],
@@ -227,8 +245,9 @@ pub struct ModelConfig {
 pub struct RenderConfig {
     /// Rays per iteration.
     pub rays: usize,
-    /// Coarse samples per ray (NeuS: 64), stratified over [near, far] or, with empty-space
-    /// skipping, over the ray's occupied cells.
+    /// Coarse samples per ray (NeuS: 64), stratified over the ray's occupied cells (with
+    /// `skip_empty`, the default) or over [near, far]. 16 + 16 where the surface can be cost half
+    /// of 32 + 32 over the whole ray per iteration (docs/DECISIONS.md §24: the equal-time gain).
     pub coarse: usize,
     /// Up-sampled samples per ray (NeuS: 64 in 4 rounds); guided runs give `guide.extra_points`
     /// of them to the points around λ̃, so both samplers use coarse + fine per ray.
@@ -258,7 +277,8 @@ pub struct RenderConfig {
     /// 8 rays of 64 samples step 4–11 % faster than 32 (BENCHMARKS.md, "Where a step's time goes").
     pub chunk: usize,
     /// Empty-space skipping (both samplers): coarse samples only in the scene-grid cells that
-    /// can hold the surface at the current s, refreshed at each grid update.
+    /// can hold the surface at the current s, refreshed at each grid update (false: over the
+    /// whole ray, as NeuS).
     pub skip_empty: bool,
     /// Dilation of the occupancy in scene-grid cells.
     pub occupancy_dilation: u32,
@@ -299,7 +319,7 @@ pub struct GuideConfig {
     pub fixed_s: f64,
     /// Fractions of uniform rays over equal parts of the run (paper: 0.2, 0.4, 0.6, 0.8).
     pub uniform_fractions: Vec<f64>,
-    /// Extra points per ray around λ̃ (paper: 32 of 128).
+    /// Extra points per ray around λ̃ (paper: 32 of 128; here half the fine samples).
     pub extra_points: usize,
     /// How the extra points are drawn: gaussian (paper), uniform (RU), log (Log).
     pub extra: ExtraPoints,
@@ -400,7 +420,7 @@ impl Default for ModelConfig {
             eikonal: 0.1,
             mask: 1.0,
             curvature: 0.0,
-            normals: NormalScheme::Tetrahedral,
+            normals: Normals::Auto,
             background: [0.0; 3],
             background_model: BackgroundModel::Auto,
             background_frequencies: 8,
@@ -410,12 +430,27 @@ impl Default for ModelConfig {
     }
 }
 
+impl ModelConfig {
+    /// The normal scheme the run uses: the chosen one, or for `auto` analytic on a hash-grid
+    /// preset without a curvature loss (the curvature's Laplacian comes from the probes of
+    /// numerical normals) and tetrahedral otherwise.
+    pub fn normal_scheme(&self) -> NormalScheme {
+        match self.normals {
+            Normals::Central => NormalScheme::Central,
+            Normals::Tetrahedral => NormalScheme::Tetrahedral,
+            Normals::Analytic => NormalScheme::Analytic,
+            Normals::Auto if self.preset.has_hash_grid() && self.curvature == 0.0 => NormalScheme::Analytic,
+            Normals::Auto => NormalScheme::Tetrahedral,
+        }
+    }
+}
+
 impl Default for RenderConfig {
     fn default() -> Self {
         RenderConfig {
             rays: 256,
-            coarse: 32,
-            fine: 32,
+            coarse: 16,
+            fine: 16,
             upsample_rounds: 2,
             upsample_s: 64.0,
             render_fine: 32,
@@ -423,7 +458,7 @@ impl Default for RenderConfig {
             render_trim: 1e-4,
             render_skip_empty: true,
             chunk: 8,
-            skip_empty: false,
+            skip_empty: true,
             occupancy_dilation: 1,
         }
     }
@@ -437,7 +472,7 @@ impl Default for OptimConfig {
 
 impl Default for GuideConfig {
     /// The paper's knobs at 2-core sizes: scene grid 64³ (paper 128³), camera grids 32 × 32 × 64
-    /// (paper 64 × 64 × 128), F = 2, opaque view dependency, η⁻² weighting, 16 extra points.
+    /// (paper 64 × 64 × 128), F = 2, opaque view dependency, η⁻² weighting, 8 extra points.
     fn default() -> Self {
         GuideConfig {
             updates: 6,
@@ -446,7 +481,7 @@ impl Default for GuideConfig {
             interpolation: Interpolation::Linear,
             fixed_s: 0.0,
             uniform_fractions: vec![0.2, 0.4, 0.6, 0.8],
-            extra_points: 16,
+            extra_points: 8,
             extra: ExtraPoints::Gaussian,
             extra_bin_spread: true,
         }
@@ -572,122 +607,6 @@ impl TrainConfig {
     /// Whether the run is bounded by time rather than steps.
     pub fn timed(&self) -> bool {
         matches!(self.budget, Budget::Time(_))
-    }
-
-    /// Checks every range; the error names the key.
-    pub fn validate(&self) -> Result<()> {
-        fn need(ok: bool, key: &str, value: impl std::fmt::Debug, expected: &str) -> Result<()> {
-            if ok { Ok(()) } else { bail!("{key} = {value:?} is out of range: expected {expected}") }
-        }
-        let finite_pos = |v: f64| v.is_finite() && v > 0.0;
-        let non_neg = |v: f64| v.is_finite() && v >= 0.0;
-        need(self.budget != Budget::Steps(0), "budget.steps", 0, "≥ 1")?;
-        need(self.budget != Budget::Time(Duration::ZERO), "budget.seconds", 0, "> 0")?;
-        need(self.data.downscale >= 1, "data.downscale", self.data.downscale, "≥ 1")?;
-        need(
-            self.data.holdout_every != 1,
-            "data.holdout_every",
-            self.data.holdout_every,
-            "0 (none held out) or ≥ 2 (1 would hold out every view and leave none to train on)",
-        )?;
-        need(
-            self.data.bound.is_empty() || (self.data.bound.len() == 4 && self.data.bound.iter().all(|v| v.is_finite()) && self.data.bound[3] > 0.0),
-            "data.bound",
-            &self.data.bound,
-            "[] or [x, y, z, radius > 0]",
-        )?;
-        need(self.data.builtin.width >= 16, "data.builtin.width", self.data.builtin.width, "≥ 16")?;
-        need(self.data.builtin.views >= 2, "data.builtin.views", self.data.builtin.views, "≥ 2")?;
-        need(
-            prob_grid::Shape::by_name(&self.data.builtin.shape).is_some(),
-            "data.builtin.shape",
-            &self.data.builtin.shape,
-            &prob_grid::Shape::NAMES.join(", "),
-        )?;
-        need(self.model.init_radius > 0.0 && self.model.init_radius < 1.0, "model.init_radius", self.model.init_radius, "in (0, 1)")?;
-        need(self.model.initial_levels >= 1, "model.initial_levels", self.model.initial_levels, "≥ 1")?;
-        need((0.0..=1.0).contains(&self.model.all_levels_at), "model.all_levels_at", self.model.all_levels_at, "in [0, 1]")?;
-        need(non_neg(self.model.eikonal), "model.eikonal", self.model.eikonal, "≥ 0")?;
-        need(non_neg(self.model.mask), "model.mask", self.model.mask, "≥ 0")?;
-        need(non_neg(self.model.opacity_entropy), "model.opacity_entropy", self.model.opacity_entropy, "≥ 0")?;
-        need((1..=16).contains(&self.model.background_frequencies), "model.background_frequencies", self.model.background_frequencies, "in 1..=16")?;
-        need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;
-        if self.model.normals == NormalScheme::Analytic {
-            need(
-                self.model.curvature == 0.0,
-                "model.curvature",
-                self.model.curvature,
-                "0 with model.normals = \"analytic\" (the curvature's Laplacian comes from the probes of numerical normals)",
-            )?;
-            need(
-                self.model.preset.has_hash_grid(),
-                "model.preset",
-                self.model.preset.name(),
-                "a hash-grid preset (neuralangelo-cpu, neuralangelo) with model.normals = \"analytic\"",
-            )?;
-        }
-        need(self.model.background.iter().all(|c| (0.0..=1.0).contains(c)), "model.background", self.model.background, "each in [0, 1]")?;
-        need(self.render.rays >= 1, "render.rays", self.render.rays, "≥ 1")?;
-        need(self.render.coarse >= 2, "render.coarse", self.render.coarse, "≥ 2")?;
-        need(
-            self.render.upsample_rounds >= 1 || self.render.fine == 0,
-            "render.upsample_rounds",
-            self.render.upsample_rounds,
-            "≥ 1 when render.fine > 0",
-        )?;
-        need(
-            self.render.render_upsample_rounds >= 1 || self.render.render_fine == 0,
-            "render.render_upsample_rounds",
-            self.render.render_upsample_rounds,
-            "≥ 1 when render.render_fine > 0",
-        )?;
-        need(finite_pos(self.render.upsample_s), "render.upsample_s", self.render.upsample_s, "> 0")?;
-        need(
-            self.output.snapshots.iter().all(|&t| finite_pos(t)),
-            "output.snapshots",
-            &self.output.snapshots,
-            "training times in seconds, each > 0",
-        )?;
-        need((0.0..0.5).contains(&self.render.render_trim), "render.render_trim", self.render.render_trim, "in [0, 0.5)")?;
-        need(self.render.chunk >= 1, "render.chunk", self.render.chunk, "≥ 1")?;
-        need(self.render.occupancy_dilation <= 8, "render.occupancy_dilation", self.render.occupancy_dilation, "in 0..=8")?;
-        need(finite_pos(self.optim.lr), "optim.lr", self.optim.lr, "> 0")?;
-        need(non_neg(self.optim.lr_grid), "optim.lr_grid", self.optim.lr_grid, "≥ 0")?;
-        self.optim.schedule.validate().map_err(|e| anyhow::anyhow!("optim.schedule.{e}"))?;
-        need(non_neg(self.optim.clip_norm), "optim.clip_norm", self.optim.clip_norm, "≥ 0")?;
-        need(
-            self.optim.table_moments == MomentStorage::F32 || self.model.preset.has_hash_grid(),
-            "model.preset",
-            self.model.preset.name(),
-            "a hash-grid preset (neuralangelo-cpu, neuralangelo) with optim.table_moments = \"bf16\"",
-        )?;
-        need(self.guide.updates >= 1, "guide.updates", self.guide.updates, "≥ 1")?;
-        self.guide.scene.validate().map_err(|e| anyhow::anyhow!("guide.scene: {e}"))?;
-        self.guide.camera.validate().map_err(|e| anyhow::anyhow!("guide.camera: {e}"))?;
-        need(non_neg(self.guide.fixed_s), "guide.fixed_s", self.guide.fixed_s, "≥ 0 (0: the backbone's s)")?;
-        need(
-            !self.guide.uniform_fractions.is_empty() && self.guide.uniform_fractions.iter().all(|f| (0.0..=1.0).contains(f)),
-            "guide.uniform_fractions",
-            &self.guide.uniform_fractions,
-            "a non-empty list of fractions in [0, 1]",
-        )?;
-        need(
-            self.guide.extra_points <= self.render.fine,
-            "guide.extra_points",
-            self.guide.extra_points,
-            "≤ render.fine (the extra points replace up-sampled ones)",
-        )?;
-        self.surface.validate().map_err(|e| anyhow::anyhow!("surface.{e}"))?;
-        need((0.0..=1.0).contains(&self.output.validate_share), "output.validate_share", self.output.validate_share, "in [0, 1]")?;
-        need(self.output.validate_downscale >= 1, "output.validate_downscale", self.output.validate_downscale, "≥ 1")?;
-        need(self.output.eval_downscale >= 1, "output.eval_downscale", self.output.eval_downscale, "≥ 1")?;
-        need(self.output.log_every >= 1, "output.log_every", self.output.log_every, "≥ 1")?;
-        need((8..=2048).contains(&self.output.mesh_resolution), "output.mesh_resolution", self.output.mesh_resolution, "in 8..=2048")?;
-        need((0.0..1.0).contains(&self.output.min_component_area), "output.min_component_area", self.output.min_component_area, "in [0, 1)")?;
-        need(finite_pos(self.output.chamfer_spacing), "output.chamfer_spacing", self.output.chamfer_spacing, "> 0")?;
-        need(finite_pos(self.output.chamfer_max_dist), "output.chamfer_max_dist", self.output.chamfer_max_dist, "> 0")?;
-        need(finite_pos(self.output.fscore_tau), "output.fscore_tau", self.output.fscore_tau, "> 0")?;
-        Ok(())
     }
 
     /// The configuration as TOML (written to the run folder).

@@ -33,7 +33,8 @@ fn overrides_set_nested_keys_and_typed_values() {
     assert_eq!((c.budget, c.guide.scene.partition, c.sampler, c.guide.extra), (Budget::Steps(7), 1, SamplerKind::Uniform, ExtraPoints::LogVariance));
     assert_eq!(c.guide.camera.view_dependency, prob_grid::ViewDependency::Quadrature);
     assert_eq!(c.guide.camera.weighting, prob_grid::Weighting::MassPreserving);
-    assert_eq!((c.guide.interpolation, c.model.preset, c.model.normals), (Interpolation::Nearest, Preset::NeusCpu, NormalScheme::Central));
+    assert_eq!((c.guide.interpolation, c.model.preset, c.model.normals), (Interpolation::Nearest, Preset::NeusCpu, Normals::Central));
+    assert_eq!(c.model.normal_scheme(), NormalScheme::Central);
     assert_eq!(c.optim.schedule.decay, sdf_backbone::Decay::Step);
     assert_eq!(c.output.mesh_formats, vec![MeshFormat::Obj, MeshFormat::Glb]);
     let d = TrainConfig::default().differences(&c);
@@ -67,6 +68,28 @@ fn learned_background_defaults_to_eight_frequencies_without_the_view_direction()
     assert_ne!(default.n_params(), earlier.n_params());
     let err = TrainConfig::load(None, &["model.background_frequencies=0".into()]).unwrap_err();
     assert!(format!("{err:#}").contains("model.background_frequencies"), "{err:#}");
+}
+
+/// `auto` (the default) may not choose a scheme the model cannot run: analytic needs a hash
+/// grid and no curvature loss, so the NeuS presets and a curvature run get tetrahedral normals
+/// (and validate) while an explicit `analytic` there is an error naming the key.
+#[test]
+fn auto_normals_are_analytic_only_where_the_model_allows_it() {
+    let scheme = |o: &[&str]| {
+        let c = TrainConfig::load(None, &o.iter().map(|s| s.to_string()).collect::<Vec<_>>()).unwrap();
+        c.model.normal_scheme()
+    };
+    assert_eq!(TrainConfig::default().model.normals, Normals::Auto);
+    assert_eq!(scheme(&[]), NormalScheme::Analytic);
+    assert_eq!(scheme(&["model.preset=neuralangelo"]), NormalScheme::Analytic);
+    assert_eq!(scheme(&["model.preset=neus-cpu"]), NormalScheme::Tetrahedral);
+    assert_eq!(scheme(&["model.preset=neus"]), NormalScheme::Tetrahedral);
+    assert_eq!(scheme(&["model.curvature=5e-4"]), NormalScheme::Tetrahedral);
+    assert_eq!(scheme(&["model.normals=tetrahedral"]), NormalScheme::Tetrahedral);
+    for bad in [["model.normals=analytic", "model.preset=neus-cpu"], ["model.normals=analytic", "model.curvature=5e-4"]] {
+        let err = TrainConfig::load(None, &bad.map(String::from)).unwrap_err();
+        assert!(format!("{err:#}").contains(bad[1].split('=').next().unwrap()), "{err:#}");
+    }
 }
 
 #[test]

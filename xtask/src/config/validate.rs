@@ -1,0 +1,124 @@
+//! The range checks of a [`TrainConfig`]: every key's allowed values, and the combinations
+//! that cannot run, each error naming the key and what it expects.
+
+use super::{Budget, MomentStorage, Normals, TrainConfig};
+use anyhow::{Result, bail};
+use std::time::Duration;
+
+impl TrainConfig {
+    /// Checks every range; the error names the key.
+    pub fn validate(&self) -> Result<()> {
+        fn need(ok: bool, key: &str, value: impl std::fmt::Debug, expected: &str) -> Result<()> {
+            if ok { Ok(()) } else { bail!("{key} = {value:?} is out of range: expected {expected}") }
+        }
+        let finite_pos = |v: f64| v.is_finite() && v > 0.0;
+        let non_neg = |v: f64| v.is_finite() && v >= 0.0;
+        need(self.budget != Budget::Steps(0), "budget.steps", 0, "≥ 1")?;
+        need(self.budget != Budget::Time(Duration::ZERO), "budget.seconds", 0, "> 0")?;
+        need(self.data.downscale >= 1, "data.downscale", self.data.downscale, "≥ 1")?;
+        need(
+            self.data.holdout_every != 1,
+            "data.holdout_every",
+            self.data.holdout_every,
+            "0 (none held out) or ≥ 2 (1 would hold out every view and leave none to train on)",
+        )?;
+        need(
+            self.data.bound.is_empty() || (self.data.bound.len() == 4 && self.data.bound.iter().all(|v| v.is_finite()) && self.data.bound[3] > 0.0),
+            "data.bound",
+            &self.data.bound,
+            "[] or [x, y, z, radius > 0]",
+        )?;
+        need(self.data.builtin.width >= 16, "data.builtin.width", self.data.builtin.width, "≥ 16")?;
+        need(self.data.builtin.views >= 2, "data.builtin.views", self.data.builtin.views, "≥ 2")?;
+        need(
+            prob_grid::Shape::by_name(&self.data.builtin.shape).is_some(),
+            "data.builtin.shape",
+            &self.data.builtin.shape,
+            &prob_grid::Shape::NAMES.join(", "),
+        )?;
+        need(self.model.init_radius > 0.0 && self.model.init_radius < 1.0, "model.init_radius", self.model.init_radius, "in (0, 1)")?;
+        need(self.model.initial_levels >= 1, "model.initial_levels", self.model.initial_levels, "≥ 1")?;
+        need((0.0..=1.0).contains(&self.model.all_levels_at), "model.all_levels_at", self.model.all_levels_at, "in [0, 1]")?;
+        need(non_neg(self.model.eikonal), "model.eikonal", self.model.eikonal, "≥ 0")?;
+        need(non_neg(self.model.mask), "model.mask", self.model.mask, "≥ 0")?;
+        need(non_neg(self.model.opacity_entropy), "model.opacity_entropy", self.model.opacity_entropy, "≥ 0")?;
+        need((1..=16).contains(&self.model.background_frequencies), "model.background_frequencies", self.model.background_frequencies, "in 1..=16")?;
+        need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;
+        if self.model.normals == Normals::Analytic {
+            need(
+                self.model.curvature == 0.0,
+                "model.curvature",
+                self.model.curvature,
+                "0 with model.normals = \"analytic\" (the curvature's Laplacian comes from the probes of numerical normals)",
+            )?;
+            need(
+                self.model.preset.has_hash_grid(),
+                "model.preset",
+                self.model.preset.name(),
+                "a hash-grid preset (neuralangelo-cpu, neuralangelo) with model.normals = \"analytic\"",
+            )?;
+        }
+        need(self.model.background.iter().all(|c| (0.0..=1.0).contains(c)), "model.background", self.model.background, "each in [0, 1]")?;
+        need(self.render.rays >= 1, "render.rays", self.render.rays, "≥ 1")?;
+        need(self.render.coarse >= 2, "render.coarse", self.render.coarse, "≥ 2")?;
+        need(
+            self.render.upsample_rounds >= 1 || self.render.fine == 0,
+            "render.upsample_rounds",
+            self.render.upsample_rounds,
+            "≥ 1 when render.fine > 0",
+        )?;
+        need(
+            self.render.render_upsample_rounds >= 1 || self.render.render_fine == 0,
+            "render.render_upsample_rounds",
+            self.render.render_upsample_rounds,
+            "≥ 1 when render.render_fine > 0",
+        )?;
+        need(finite_pos(self.render.upsample_s), "render.upsample_s", self.render.upsample_s, "> 0")?;
+        need(
+            self.output.snapshots.iter().all(|&t| finite_pos(t)),
+            "output.snapshots",
+            &self.output.snapshots,
+            "training times in seconds, each > 0",
+        )?;
+        need((0.0..0.5).contains(&self.render.render_trim), "render.render_trim", self.render.render_trim, "in [0, 0.5)")?;
+        need(self.render.chunk >= 1, "render.chunk", self.render.chunk, "≥ 1")?;
+        need(self.render.occupancy_dilation <= 8, "render.occupancy_dilation", self.render.occupancy_dilation, "in 0..=8")?;
+        need(finite_pos(self.optim.lr), "optim.lr", self.optim.lr, "> 0")?;
+        need(non_neg(self.optim.lr_grid), "optim.lr_grid", self.optim.lr_grid, "≥ 0")?;
+        self.optim.schedule.validate().map_err(|e| anyhow::anyhow!("optim.schedule.{e}"))?;
+        need(non_neg(self.optim.clip_norm), "optim.clip_norm", self.optim.clip_norm, "≥ 0")?;
+        need(
+            self.optim.table_moments == MomentStorage::F32 || self.model.preset.has_hash_grid(),
+            "model.preset",
+            self.model.preset.name(),
+            "a hash-grid preset (neuralangelo-cpu, neuralangelo) with optim.table_moments = \"bf16\"",
+        )?;
+        need(self.guide.updates >= 1, "guide.updates", self.guide.updates, "≥ 1")?;
+        self.guide.scene.validate().map_err(|e| anyhow::anyhow!("guide.scene: {e}"))?;
+        self.guide.camera.validate().map_err(|e| anyhow::anyhow!("guide.camera: {e}"))?;
+        need(non_neg(self.guide.fixed_s), "guide.fixed_s", self.guide.fixed_s, "≥ 0 (0: the backbone's s)")?;
+        need(
+            !self.guide.uniform_fractions.is_empty() && self.guide.uniform_fractions.iter().all(|f| (0.0..=1.0).contains(f)),
+            "guide.uniform_fractions",
+            &self.guide.uniform_fractions,
+            "a non-empty list of fractions in [0, 1]",
+        )?;
+        need(
+            self.guide.extra_points <= self.render.fine,
+            "guide.extra_points",
+            self.guide.extra_points,
+            "≤ render.fine (the extra points replace up-sampled ones)",
+        )?;
+        self.surface.validate().map_err(|e| anyhow::anyhow!("surface.{e}"))?;
+        need((0.0..=1.0).contains(&self.output.validate_share), "output.validate_share", self.output.validate_share, "in [0, 1]")?;
+        need(self.output.validate_downscale >= 1, "output.validate_downscale", self.output.validate_downscale, "≥ 1")?;
+        need(self.output.eval_downscale >= 1, "output.eval_downscale", self.output.eval_downscale, "≥ 1")?;
+        need(self.output.log_every >= 1, "output.log_every", self.output.log_every, "≥ 1")?;
+        need((8..=2048).contains(&self.output.mesh_resolution), "output.mesh_resolution", self.output.mesh_resolution, "in 8..=2048")?;
+        need((0.0..1.0).contains(&self.output.min_component_area), "output.min_component_area", self.output.min_component_area, "in [0, 1)")?;
+        need(finite_pos(self.output.chamfer_spacing), "output.chamfer_spacing", self.output.chamfer_spacing, "> 0")?;
+        need(finite_pos(self.output.chamfer_max_dist), "output.chamfer_max_dist", self.output.chamfer_max_dist, "> 0")?;
+        need(finite_pos(self.output.fscore_tau), "output.fscore_tau", self.output.fscore_tau, "> 0")?;
+        Ok(())
+    }
+}

@@ -134,6 +134,7 @@ fn rays(n_rays: usize, n_samples: usize) -> Vec<RayInput<f32>> {
                 depths: (0..=n_samples).map(|i| 2.0 + 2.0 * i as f32 / n_samples as f32).collect(),
                 target: [0.5, 0.4, 0.3],
                 mask: Some(1.0),
+                weight: 1.0,
             }
         })
         .collect()

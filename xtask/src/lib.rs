@@ -30,6 +30,7 @@ pub mod folder;
 pub mod fuzz;
 pub mod memory;
 pub mod metrics;
+pub mod mining;
 pub mod outputs;
 pub mod plot;
 pub mod progress;

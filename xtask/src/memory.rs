@@ -162,7 +162,10 @@ pub fn estimate(
     let cells = (config.guide.camera.ru * config.guide.camera.rv * config.guide.camera.rl) as f64;
     let guided = config.sampler == crate::config::SamplerKind::Guided;
     let scene_cells = (config.guide.scene.resolution as f64).powi(3);
-    let guide = if guided { views as f64 * cells * F32 * 3.0 } else { 0.0 } + scene_cells * 20.0;
+    // The loss-guided samplers' error map: per view at most cells² errors (f32) and sums (f64).
+    let mining_cells = f64::from(config.mining.cells).powi(2);
+    let mining = if config.sampler.mines() { views as f64 * mining_cells * (F32 + 8.0) } else { 0.0 };
+    let guide = if guided { views as f64 * cells * F32 * 3.0 } else { 0.0 } + scene_cells * 20.0 + mining;
     // The step's largest buffer, a work item's SDF context, against glibc's largest mmap
     // threshold (32 MiB on 64-bit Linux).
     let sdf_ctx_bytes = F32 * rows_per_chunk * Module::<f32>::ctx_per_row(&backbone.sdf) as f64;

@@ -7,7 +7,7 @@ use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
 use rayon::prelude::*;
 use sdf_backbone::{Backbone, RayInput, merge_sorted};
 use surface_losses::{ExtraPoints, RaySurface, extra_depths};
-use view_sampler::{CoarseRay, Estimator, RaySample};
+use view_sampler::{CoarseRay, ErrorMap, Estimator, RaySample};
 
 /// Samples per ray and how they are placed.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -26,6 +26,21 @@ pub struct Sampling {
     pub extra: ExtraPoints,
     /// Widen their spread by λ̃'s own resolution (one λ bin of the camera grid), in quadrature.
     pub extra_bin_spread: bool,
+}
+
+/// Where a batch's pixels come from.
+#[derive(Debug, Clone, Copy)]
+pub enum PixelSource<'a> {
+    /// The estimator's draw: guided, or uniform without a guide.
+    Estimator,
+    /// A loss-guided sampler: pixels from the error map, each ray's pixel terms weighted by
+    /// [`ErrorMap::mining_weight`] at `alpha` (0: the error map's hard mining).
+    Mined {
+        /// The error map.
+        map: &'a ErrorMap,
+        /// Soft mining's α at this step.
+        alpha: f64,
+    },
 }
 
 /// The rays of one iteration with the surface-loss information of each.
@@ -48,12 +63,13 @@ pub fn stream_seed(seed: u64, step: u64, item: u64) -> u64 {
 
 /// The backbone's ray of an estimator's ray (no target yet).
 fn ray_input(ray: CoarseRay) -> RayInput<f32> {
-    RayInput { origin: ray.origin, direction: ray.direction, depths: ray.depths, target: [0.0; 3], mask: None }
+    RayInput { origin: ray.origin, direction: ray.direction, depths: ray.depths, target: [0.0; 3], mask: None, weight: 1.0 }
 }
 
 /// Builds the `n` rays of iteration `step` at `progress` (the estimator's draw, camera indices
 /// into `views`): coarse depths, up-sampling (fewer for rays that get extra points), extra
-/// points around λ̃ at scale `s`; targets and masks (`use_masks`) from the views.
+/// points around λ̃ at scale `s`; targets and masks (`use_masks`) from the views; the pixels from
+/// `pixels`.
 /// Deterministic in (seed, step).
 #[allow(clippy::too_many_arguments)]
 pub fn build_batch(
@@ -63,6 +79,7 @@ pub fn build_batch(
     backbone: &Backbone,
     params: &[f32],
     sampling: &Sampling,
+    pixels: PixelSource<'_>,
     (n, progress): (usize, f64),
     seed: u64,
     step: u64,
@@ -71,7 +88,10 @@ pub fn build_batch(
     // One stream per ray: its coarse jitter first, then its extra points' uniforms.
     let mut rngs: Vec<Xoshiro256PlusPlus> = (0..n).map(|i| Xoshiro256PlusPlus::seed_from_u64(stream_seed(seed, step, i as u64))).collect();
     let jitters: Vec<f64> = rngs.iter_mut().map(|rng| rng.random()).collect();
-    let drawn = estimator.draw_rays(n, progress, seed, step, sampling.coarse, &|i| jitters[i]);
+    let drawn = match pixels {
+        PixelSource::Estimator => estimator.draw_rays(n, progress, seed, step, sampling.coarse, &|i| jitters[i]),
+        PixelSource::Mined { map, .. } => estimator.rays_of(map.draw(n, seed, step), sampling.coarse, &|i| jitters[i]),
+    };
     let guided = drawn.iter().any(|d| d.sample.depth.is_some());
     let n_extra = if guided { sampling.extra_points } else { 0 };
     // The coarse rays become the backbone's rays by value (their depths are not copied).
@@ -85,6 +105,9 @@ pub fn build_batch(
             let mut ray = ray_input(coarse);
             ray.target = view.image.get_f32(col, row);
             ray.mask = if use_masks { view.mask.as_ref().map(|m| if m.get(col, row) { 1.0 } else { 0.0 }) } else { None };
+            if let PixelSource::Mined { map, alpha } = pixels {
+                ray.weight = map.mining_weight(sample, alpha);
+            }
             ray
         })
         .collect();

@@ -321,12 +321,11 @@ fn pictures_due(picture_seconds: f64, trainer: &Trainer, share: f64) -> bool {
 
 fn run_folder(mut trainer: Trainer, folder: &RunFolder, options: &RunOptions, stop: &AtomicBool, estimate: &MemoryEstimate) -> Result<Outcome> {
     let config = trainer.config().clone();
-    let guided = config.sampler == SamplerKind::Guided;
     let split = trainer.split().clone();
     eprintln!(
-        "train: {} · {} · {} views ({} held out) · {} parameters · {} rays × {} samples · {} → {}",
+        "train: {} · {} sampler · {} views ({} held out) · {} parameters · {} rays × {} samples · {} → {}",
         trainer.data().description(),
-        if guided { "guided sampler" } else { "uniform sampler" },
+        config.sampler.name(),
         trainer.data().scene.views.len(),
         split.held_out.len(),
         trainer.state().params.len(),

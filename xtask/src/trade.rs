@@ -39,8 +39,8 @@ pub struct TradeArgs {
     /// Seeds 0 … n − 1.
     #[arg(long, default_value_t = 3)]
     pub seeds: u64,
-    /// Variants (repeat) `NAME` or `NAME:key=value,key=value`; `uniform` and `guided` alone
-    /// mean the samplers. Default: uniform and guided.
+    /// Variants (repeat) `NAME` or `NAME:key=value,key=value`; `uniform`, `guided`, `error-map`
+    /// and `soft-mining` alone mean the samplers. Default: uniform and guided.
     #[arg(long)]
     pub variant: Vec<String>,
     /// Output folder.
@@ -53,6 +53,9 @@ pub struct TradeArgs {
     pub overrides: Vec<String>,
 }
 
+/// Variant names that mean a sampler (`sampler = NAME`).
+const SAMPLER_NAMES: [&str; 4] = ["uniform", "guided", "error-map", "soft-mining"];
+
 /// A named set of overrides.
 #[derive(Debug, Clone)]
 struct Variant {
@@ -63,8 +66,8 @@ struct Variant {
 fn parse_variant(text: &str) -> Variant {
     let (name, rest) = text.split_once(':').unwrap_or((text, ""));
     let mut overrides: Vec<String> = rest.split(',').map(str::trim).filter(|s| !s.is_empty()).map(String::from).collect();
-    // `uniform` and `guided` name the sampler unless the variant sets it itself.
-    if (name == "uniform" || name == "guided") && !overrides.iter().any(|o| o.trim_start().starts_with("sampler")) {
+    // A sampler's name names the sampler unless the variant sets it itself.
+    if SAMPLER_NAMES.contains(&name) && !overrides.iter().any(|o| o.trim_start().starts_with("sampler")) {
         overrides.push(format!("sampler={name}"));
     }
     Variant { name: name.to_string(), overrides }

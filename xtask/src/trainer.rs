@@ -32,7 +32,7 @@
 use crate::config::{Budget, MeshFilter, MomentStorage, SamplerKind, TrainConfig};
 use crate::data::{SceneData, ViewSplit, uses_masks};
 use crate::outputs::{ViewRender, filter_components, heat_map};
-use crate::rays::{Batch, Sampling, build_batch};
+use crate::rays::{Batch, PixelSource, Sampling, build_batch};
 use anyhow::{Context, Result, bail};
 use datasets::images::RgbImage;
 use prob_grid::{IsoMesh, MarchingCubesConfig, Occupancy, marching_cubes_with_progress};
@@ -40,7 +40,7 @@ use rayon::prelude::*;
 use sdf_backbone::{Adam, Backbone, CheckpointReader, CheckpointWriter, NoSampleLoss, RayInput, RayOutput, SampleLoss, StepRates, build};
 use std::time::Instant;
 use surface_losses::{RaySurface, SurfaceLossConfig};
-use view_sampler::{Estimator, EstimatorConfig, UniformSchedule, UpdateReport, march_through};
+use view_sampler::{ErrorMap, Estimator, EstimatorConfig, UniformSchedule, UpdateReport, march_through};
 
 /// What a checkpoint holds besides the parameters and Adam's moments.
 #[derive(Debug, Clone)]
@@ -105,6 +105,8 @@ pub struct Trainer {
     use_masks: bool,
     backbone: Backbone,
     estimator: Estimator,
+    /// The loss-guided samplers' error map (`None` for guided and uniform runs).
+    miner: Option<ErrorMap>,
     state: TrainState,
     grads: Vec<f32>,
     timing: Timing,
@@ -174,7 +176,8 @@ impl Trainer {
         let split = ViewSplit::new(&config, &data.scene);
         let use_masks = uses_masks(&config, &data.scene);
         let (backbone, params) = configured_backbone(&config, use_masks);
-        let cameras = split.train.iter().map(|&i| data.scene.views[i].camera).collect();
+        let cameras: Vec<_> = split.train.iter().map(|&i| data.scene.views[i].camera).collect();
+        let miner = crate::mining::error_map(&config, &cameras);
         let estimator = Estimator::new(cameras, estimator_config(&config)).context("the guide's configuration")?;
         let mut adam = match config.optim.table_moments {
             MomentStorage::F32 => Adam::new(params.len()),
@@ -189,6 +192,7 @@ impl Trainer {
             use_masks,
             backbone,
             estimator,
+            miner,
             state,
             grads: Vec::new(),
             timing: Timing::default(),
@@ -336,6 +340,9 @@ impl Trainer {
         if !loss.is_finite() {
             bail!("the loss became {loss} at step {step}");
         }
+        if let Some(map) = &mut self.miner {
+            crate::mining::record(map, &batch.drawn, &batch.rays, &outputs);
+        }
         self.state.step += 1;
         let step_seconds = t_step.elapsed().as_secs_f64();
         let seconds = start.elapsed().as_secs_f64();
@@ -424,6 +431,10 @@ impl Trainer {
             &self.backbone,
             &self.state.params,
             &self.sampling(),
+            match &self.miner {
+                Some(map) => PixelSource::Mined { map, alpha: crate::mining::alpha_at(&self.config, progress) },
+                None => PixelSource::Estimator,
+            },
             (n, progress),
             self.config.seed,
             step,
@@ -457,6 +468,10 @@ impl Trainer {
         }
         if let Some(occupancy) = &guide.occupancy {
             w.tensor("guide.occupancy", occupancy);
+        }
+        let errors = self.miner.as_ref().map(ErrorMap::state);
+        if let Some(errors) = &errors {
+            w.tensor("sampler.error_map", errors);
         }
         w.meta("step", self.state.step.to_string())
             .meta("update_part", guide.part.map_or("none".into(), |p| p.to_string()))
@@ -493,6 +508,10 @@ impl Trainer {
             occupancy = reader.len("guide.occupancy").map(|_| reader.read_vec(input, "guide.occupancy")).transpose()?;
         }
         let guide = view_sampler::EstimatorState { grids, occupancy, part: update_part, lipschitz };
+        let errors = match &self.miner {
+            Some(_) => Some(reader.read_vec(input, "sampler.error_map").context("the checkpoint's error map")?),
+            None => None,
+        };
         reader.restore_state(input, &mut self.state.params, &mut self.state.adam)?;
         self.state.step = step;
         self.state.train_seconds = train_seconds;
@@ -502,6 +521,9 @@ impl Trainer {
             self.backbone.set_active_levels(self.active_levels(levels, last));
         }
         self.estimator.restore(&guide).context("the checkpoint's grids")?;
+        if let (Some(map), Some(errors)) = (&mut self.miner, errors) {
+            map.restore(&errors).context("the checkpoint's error map")?;
+        }
         Ok(())
     }
 
@@ -554,7 +576,7 @@ impl Trainer {
                     depths.drain(..depths.len() - 2);
                 }
                 let (origin, direction) = (ray.origin.as_vec3().to_array(), ray.direction.as_vec3().to_array());
-                (RayInput { origin, direction, depths, target: image.get_f32(col, row), mask: None }, !empty)
+                (RayInput { origin, direction, depths, target: image.get_f32(col, row), mask: None, weight: 1.0 }, !empty)
             })
             .unzip();
         // Up-sampling and the trim for the rays that cross occupied space.
@@ -639,6 +661,7 @@ impl Trainer {
                     depths: (0..=16).map(|i| i as f32 * 0.1 / 16.0).collect(),
                     target: [0.0; 3],
                     mask: None,
+                    weight: 1.0,
                 }
             })
             .collect();

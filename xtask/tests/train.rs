@@ -60,20 +60,24 @@ fn resumed_run_ends_with_the_same_mesh_as_an_uninterrupted_run() {
     }
 }
 
-/// Adam's bf16 table moments go into the checkpoint and come back: a resumed run equals an
-/// uninterrupted one (the stochastic rounding depends on the step, not on the process).
+/// State beyond the parameters goes into the checkpoint and comes back: Adam's bf16 table moments
+/// (their stochastic rounding depends on the step, not on the process) and the loss-guided
+/// samplers' error map (soft mining's pixels and weights follow it). A resumed run equals an
+/// uninterrupted one.
 #[test]
-fn resumed_run_with_bf16_table_moments_equals_the_uninterrupted_run() {
-    let dir = tempfile::tempdir().unwrap();
-    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
-    let full = train(&a, &["optim.table_moments=bf16"]);
-    assert!(full.status.success(), "{}", String::from_utf8_lossy(&full.stderr));
-    let part = train(&b, &["--stop-at", "3", "optim.table_moments=bf16"]);
-    assert_eq!(part.status.code(), Some(130), "{}", String::from_utf8_lossy(&part.stderr));
-    let resumed = xtask(&["train", "--resume", b.to_str().unwrap()]);
-    assert!(resumed.status.success(), "{}", String::from_utf8_lossy(&resumed.stderr));
-    let (ma, mb) = (std::fs::read(a.join("mesh.ply")).unwrap(), std::fs::read(b.join("mesh.ply")).unwrap());
-    assert!(ma.len() > 200 && ma == mb, "resumed mesh differs from the uninterrupted one");
+fn resumed_run_with_bf16_moments_or_an_error_map_equals_the_uninterrupted_run() {
+    for setting in ["optim.table_moments=bf16", "sampler=soft-mining"] {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+        let full = train(&a, &[setting]);
+        assert!(full.status.success(), "{setting}: {}", String::from_utf8_lossy(&full.stderr));
+        let part = train(&b, &["--stop-at", "3", setting]);
+        assert_eq!(part.status.code(), Some(130), "{setting}: {}", String::from_utf8_lossy(&part.stderr));
+        let resumed = xtask(&["train", "--resume", b.to_str().unwrap()]);
+        assert!(resumed.status.success(), "{setting}: {}", String::from_utf8_lossy(&resumed.stderr));
+        let (ma, mb) = (std::fs::read(a.join("mesh.ply")).unwrap(), std::fs::read(b.join("mesh.ply")).unwrap());
+        assert!(ma.len() > 200 && ma == mb, "{setting}: resumed mesh differs from the uninterrupted one");
+    }
 }
 
 #[test]
@@ -87,6 +91,8 @@ fn bad_input_gives_a_clear_message_and_loses_nothing() {
         (vec!["train", "--out", out, "guide.scene.partitoin=2"], "partitoin"),
         (vec!["train", "--out", out, "guide.scene.partition=0"], "partition factor F"),
         (vec!["train", "--out", out, "guide.fixed_s=-1"], "guide.fixed_s"),
+        (vec!["train", "--out", out, "sampler=soft-mining", "mining.alpha=2"], "mining.alpha"),
+        (vec!["train", "--out", out, "sampler=hard-mining"], "expected one of `guided`, `uniform`, `error-map`, `soft-mining`"),
         (vec!["train", "--out", out, "--data", "/nonexistent/scan"], "/nonexistent/scan"),
     ] {
         let o = xtask(&args);

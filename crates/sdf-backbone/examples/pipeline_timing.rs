@@ -24,6 +24,7 @@ fn main() {
                 depths: (0..=n_samples).map(|i| 2.0 + 2.0 * i as f32 / n_samples as f32).collect(),
                 target: [0.5, 0.4, 0.3],
                 mask: Some(1.0),
+                weight: 1.0,
             }
         })
         .collect();

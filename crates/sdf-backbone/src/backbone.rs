@@ -595,6 +595,7 @@ mod tests {
                     depths: (0..=24).map(|i| 2.0 + 2.0 * i as f32 / 24.0).collect(),
                     target: [0.4, 0.5, 0.6],
                     mask: Some(if r % 4 == 0 { 0.0 } else { 1.0 }),
+                    weight: 1.0,
                 }
             })
             .collect();

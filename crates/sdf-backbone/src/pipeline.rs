@@ -131,6 +131,10 @@ pub struct RayInput<R> {
     pub target: [R; 3],
     /// Foreground mask (1 = object), if masks are used.
     pub mask: Option<R>,
+    /// Weight of the ray's pixel terms (colour, mask BCE, opacity entropy): 1 for plain
+    /// training; a loss-guided sampler's importance correction otherwise (soft mining).
+    /// The per-sample regularisers (eikonal, curvature, the caller's) are not weighted.
+    pub weight: R,
 }
 
 /// A work item's deferred gradient record: its SDF points and the record
@@ -533,13 +537,14 @@ impl<S, C> Pipeline<S, C> {
             // Colour loss: on the composited colour, or (masked) on the rendered colour of
             // foreground rays only, normalised by their count instead of the batch's.
             let masked = self.config.masked_color;
-            let color_weight = if !masked {
-                R::ONE
-            } else if ray.mask.is_none_or(|mk| mk >= R::of(0.5)) {
-                m / color_norm
-            } else {
-                R::ZERO
-            };
+            let color_weight = ray.weight
+                * if !masked {
+                    R::ONE
+                } else if ray.mask.is_none_or(|mk| mk >= R::of(0.5)) {
+                    m / color_norm
+                } else {
+                    R::ZERO
+                };
             let predicted = if masked { r_out.color } else { composited };
             let mut d_color = [R::ZERO; 3];
             let mut loss = R::ZERO;
@@ -603,7 +608,7 @@ impl<S, C> Pipeline<S, C> {
             if ray.mask.is_none() && self.config.opacity_entropy > 0.0 {
                 let eps = R::of(1e-3);
                 let o = r_out.opacity.max(eps).min(R::ONE - eps);
-                let w = R::of(self.config.opacity_entropy);
+                let w = R::of(self.config.opacity_entropy) * ray.weight;
                 loss += -w * (o * o.ln() + (R::ONE - o) * (R::ONE - o).ln());
                 if r_out.opacity > eps && r_out.opacity < R::ONE - eps {
                     d_opacity += w * ((R::ONE - o) / o).ln();
@@ -613,7 +618,7 @@ impl<S, C> Pipeline<S, C> {
                 // BCE with the opacity clamped away from 0 and 1 (NeuS clips to [1e-3, 1 − 1e-3]).
                 let eps = R::of(1e-3);
                 let o = r_out.opacity.max(eps).min(R::ONE - eps);
-                let w = R::of(self.config.mask_weight);
+                let w = R::of(self.config.mask_weight) * ray.weight;
                 loss += -w * (mask * o.ln() + (R::ONE - mask) * (R::ONE - o).ln());
                 if r_out.opacity > eps && r_out.opacity < R::ONE - eps {
                     d_opacity += -w * (mask / o - (R::ONE - mask) / (R::ONE - o));

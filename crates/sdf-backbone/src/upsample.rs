@@ -238,6 +238,7 @@ mod tests {
                     depths: (0..=32).map(|k| 1.5 + k as f32 * 2.0 / 32.0).collect(),
                     target: [0.0; 3],
                     mask: None,
+                    weight: 1.0,
                 }
             })
             .collect();

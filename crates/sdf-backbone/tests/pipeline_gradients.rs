@@ -187,6 +187,8 @@ fn whole_pipeline_gradients_match_finite_differences() {
                     target: [0.2, 0.5 + 0.1 * r as f64, 0.7],
                     // Ray 2 has no mask: the opacity entropy's gradient is checked on it.
                     mask: [Some(1.0), Some(0.0), None][r],
+                    // Unequal weights (soft mining's correction) are checked on every term.
+                    weight: [1.0, 0.7, 1.6][r],
                 }
             })
             .collect();
@@ -223,6 +225,7 @@ fn masked_colour_loss_ignores_backdrop_rays_and_the_hook_sees_the_pipelines_s() 
         depths: (0..=16).map(|i| 2.0 + 2.0 * i as f32 / 16.0).collect(),
         target,
         mask: Some(mask),
+        weight: 1.0,
     };
     let loss = |rays: &[RayInput<f32>]| backbone.loss(&params, rays, None, &NoSampleLoss).0;
     let base = loss(&[ray([0.1; 3], 1.0), ray([0.2; 3], 0.0)]);
@@ -287,7 +290,8 @@ fn both_normal_schemes_recover_a_known_gradient() {
         params[..3].copy_from_slice(&a); // weights of the single (linear) layer, then bias
         params[3] = -0.2;
         params[n - 1] = 0.5;
-        let ray = RayInput { origin: [0.0, 0.0, -1.0], direction: [0.0, 0.0, 1.0], depths: vec![0.5, 1.0, 1.5], target: [0.0; 3], mask: None };
+        let ray =
+            RayInput { origin: [0.0, 0.0, -1.0], direction: [0.0, 0.0, 1.0], depths: vec![0.5, 1.0, 1.5], target: [0.0; 3], mask: None, weight: 1.0 };
         let (_, out) = pipeline.loss(&params, &[ray], None, &NoSampleLoss);
         let o = &out[0];
         for k in 0..3 {
@@ -342,6 +346,7 @@ fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
             depths: (0..9).map(|i| 1.0 + 0.25 * i as f64).collect(),
             target: [0.5; 3],
             mask: None,
+            weight: 1.0,
         })
         .collect();
     let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
@@ -386,7 +391,14 @@ fn curvature_term_is_the_mean_absolute_laplacian() {
         hidden_activation: Activation::Identity,
         output_activation: Activation::Sigmoid,
     });
-    let ray = RayInput { origin: [-1.0, 0.2, 0.1], direction: [1.0, 0.0, 0.0], depths: vec![0.3, 0.7, 1.1, 1.6, 1.9], target: [0.1; 3], mask: None };
+    let ray = RayInput {
+        origin: [-1.0, 0.2, 0.1],
+        direction: [1.0, 0.0, 0.0],
+        depths: vec![0.3, 0.7, 1.1, 1.6, 1.9],
+        target: [0.1; 3],
+        mask: None,
+        weight: 1.0,
+    };
     let expected: f64 = (0..4).map(|i| (ray.origin[0] + ray.depths[i]).sin().abs()).sum::<f64>() / 4.0;
     for normals in [NormalScheme::Central, NormalScheme::Tetrahedral] {
         let mut pipeline = Pipeline {
@@ -430,6 +442,7 @@ fn pipeline_is_finite_at_the_extremes() {
         depths,
         target: [0.0; 3],
         mask: Some(mask),
+        weight: 1.0,
     };
     let line = |a: f32, b: f32, k: usize| (0..=k).map(|i| a + (b - a) * i as f32 / k as f32).collect::<Vec<f32>>();
     let cases: Vec<(&str, Vec<RayInput<f32>>)> = vec![
@@ -519,6 +532,7 @@ fn check_hash_grid_pipeline(normals: NormalScheme) {
                 depths: (0..6).map(|i| 0.5 + 0.3 * i as f64 + 0.01 * r as f64).collect(),
                 target: [0.3, 0.5, 0.1 * r as f64],
                 mask: Some(if r % 3 == 0 { 0.0 } else { 1.0 }),
+                weight: 1.0,
             }
         })
         .collect();

@@ -258,8 +258,9 @@ impl Estimator {
         self.rays_of(self.draw_mixed(n, uniform_fraction, seed, step), coarse, jitter)
     }
 
-    /// The rays of drawn pixels with their coarse samples and λ̃.
-    fn rays_of(&self, samples: Vec<RaySample>, coarse: usize, jitter: &(dyn Fn(usize) -> f64 + Sync)) -> Vec<DrawnRay> {
+    /// The rays of drawn pixels (from this estimator or any other pixel sampler, e.g. an
+    /// [`crate::ErrorMap`]) with their coarse samples ([`Self::march`] at `jitter(i)`) and λ̃.
+    pub fn rays_of(&self, samples: Vec<RaySample>, coarse: usize, jitter: &(dyn Fn(usize) -> f64 + Sync)) -> Vec<DrawnRay> {
         samples
             .into_par_iter()
             .enumerate()

@@ -8,6 +8,8 @@
 //! - [`ViewSampler`]: a batch of N rays over all cameras → (camera, pixel, λ̃, pdf), mixing
 //!   guided and uniform rays by a [`UniformSchedule`] (the paper: 20 % uniform, then 40, 60,
 //!   80 % in the later quarters of training).
+//! - [`ErrorMap`]: the loss-guided competitors, instant-ngp's error map and soft mining (pixels
+//!   drawn in proportion to the recent loss, with or without the importance correction).
 //!
 //! # Choices
 //! - Continuous (ũ, ṽ) is snapped to the nearest pixel centre for the colour target (docs/DECISIONS.md §4);
@@ -37,9 +39,11 @@
 #![deny(missing_docs)]
 
 mod distribution;
+mod error_map;
 mod estimator;
 
 pub use distribution::{CameraDistribution, ImageSpaceSample, Interpolation};
+pub use error_map::{ErrorMap, ErrorMapConfig, ErrorMapStateError};
 pub use estimator::{
     CARRIED_LIPSCHITZ_MARGIN, CoarseRay, DrawnRay, Estimator, EstimatorConfig, EstimatorState, INITIAL_LIPSCHITZ, SurfaceDistance, UpdateReport,
     march_through, near_far,

@@ -9,7 +9,7 @@ use std::collections::HashMap;
 const SOURCE: &str = include_str!("mod.rs");
 
 /// This module's structs and the TOML section each one is.
-const SECTIONS: [(&str, &str); 8] = [
+const SECTIONS: [(&str, &str); 9] = [
     ("TrainConfig", ""),
     ("DataConfig", "data"),
     ("BuiltinConfig", "data.builtin"),
@@ -17,6 +17,7 @@ const SECTIONS: [(&str, &str); 8] = [
     ("RenderConfig", "render"),
     ("OptimConfig", "optim"),
     ("GuideConfig", "guide"),
+    ("MiningConfig", "mining"),
     ("OutputConfig", "output"),
 ];
 

@@ -38,6 +38,33 @@ pub enum SamplerKind {
     Guided,
     /// Uniform pixels, the plain backbone (same rays and samples per ray).
     Uniform,
+    /// instant-ngp's error map: pixels drawn in proportion to their recent loss, no correction
+    /// (`[mining]`; the plain backbone otherwise, as `uniform`).
+    #[serde(rename = "error-map")]
+    #[value(name = "error-map")]
+    ErrorMap,
+    /// Soft mining (CVPR 2024): the error map's pixels with each pixel's loss weighted by
+    /// `(p_uniform / Q)^α` (`mining.alpha`).
+    #[serde(rename = "soft-mining")]
+    #[value(name = "soft-mining")]
+    SoftMining,
+}
+
+impl SamplerKind {
+    /// The name in configurations and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            SamplerKind::Guided => "guided",
+            SamplerKind::Uniform => "uniform",
+            SamplerKind::ErrorMap => "error-map",
+            SamplerKind::SoftMining => "soft-mining",
+        }
+    }
+
+    /// Whether the pixels come from the loss ([`view_sampler::ErrorMap`]).
+    pub fn mines(self) -> bool {
+        matches!(self, SamplerKind::ErrorMap | SamplerKind::SoftMining)
+    }
 }
 
 /// How Adam stores the hash tables' moments.
@@ -142,7 +169,7 @@ pub struct TrainConfig {
     /// and metrics. Default 120 s: the default run takes the same time on any machine, and a
     /// faster build trains more iterations in it.
     pub budget: Budget,
-    /// Guided or uniform.
+    /// Which pixels train: guided (the paper), uniform, error-map or soft-mining.
     pub sampler: SamplerKind,
     /// Data options.
     pub data: DataConfig,
@@ -154,6 +181,8 @@ pub struct TrainConfig {
     pub optim: OptimConfig,
     /// The probability-guided sampler.
     pub guide: GuideConfig,
+    /// The loss-guided samplers (`error-map`, `soft-mining`).
+    pub mining: MiningConfig,
     /// The surface losses (`surface-losses`' own configuration).
     pub surface: SurfaceLossConfig,
     /// Outputs.
@@ -329,6 +358,24 @@ pub struct GuideConfig {
     pub extra_bin_spread: bool,
 }
 
+/// The loss-guided samplers: the competitors of the guided one (view-sampler's `ErrorMap`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct MiningConfig {
+    /// Cells per side of each view's error map at most (torch-ngp: 128).
+    pub cells: u32,
+    /// Weight of a new loss in a cell's moving average (torch-ngp: 0.9).
+    pub new_weight: f64,
+    /// Share of uniform pixels mixed into the error distribution, so that a cell whose loss fell
+    /// to zero is still visited and updated.
+    pub uniform: f64,
+    /// Soft mining's α: each pixel's loss weighted by `(p_uniform / Q)^α` (0: the error map, 1:
+    /// unbiased importance sampling).
+    pub alpha: f64,
+    /// α rises linearly from 0 over this fraction of the run (the paper warms it up).
+    pub alpha_warmup: f64,
+}
+
 /// Outputs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -392,6 +439,7 @@ impl Default for TrainConfig {
             render: RenderConfig::default(),
             optim: OptimConfig::default(),
             guide: GuideConfig::default(),
+            mining: MiningConfig::default(),
             surface: SurfaceLossConfig::default(),
             output: OutputConfig::default(),
         }
@@ -485,6 +533,12 @@ impl Default for GuideConfig {
             extra: ExtraPoints::Gaussian,
             extra_bin_spread: true,
         }
+    }
+}
+
+impl Default for MiningConfig {
+    fn default() -> Self {
+        MiningConfig { cells: 128, new_weight: 0.9, uniform: 0.1, alpha: 0.6, alpha_warmup: 0.1 }
     }
 }
 

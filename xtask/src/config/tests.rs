@@ -158,3 +158,13 @@ fn durations_parse_with_units() {
     assert!(parse_duration("-3m").is_err() && parse_duration("3 weeks").is_err() && parse_duration("m").is_err());
     assert!(format!("{:#}", parse_duration("3d").unwrap_err()).contains("unknown unit"));
 }
+
+#[test]
+fn every_sampler_reads_back_by_the_name_it_prints() {
+    for kind in [SamplerKind::Guided, SamplerKind::Uniform, SamplerKind::ErrorMap, SamplerKind::SoftMining] {
+        let c = TrainConfig::load(None, &[format!("sampler={}", kind.name())]).unwrap();
+        assert_eq!(c.sampler, kind);
+        assert_eq!(TrainConfig::from_toml(&c.to_toml()).unwrap().sampler, kind);
+        assert_eq!(<SamplerKind as clap::ValueEnum>::from_str(kind.name(), false), Ok(kind));
+    }
+}

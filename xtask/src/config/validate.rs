@@ -109,6 +109,11 @@ impl TrainConfig {
             self.guide.extra_points,
             "≤ render.fine (the extra points replace up-sampled ones)",
         )?;
+        need(self.mining.cells >= 1, "mining.cells", self.mining.cells, "≥ 1")?;
+        need((0.0..=1.0).contains(&self.mining.new_weight), "mining.new_weight", self.mining.new_weight, "in [0, 1]")?;
+        need((0.0..=1.0).contains(&self.mining.uniform), "mining.uniform", self.mining.uniform, "in [0, 1]")?;
+        need((0.0..=1.0).contains(&self.mining.alpha), "mining.alpha", self.mining.alpha, "in [0, 1]")?;
+        need((0.0..=1.0).contains(&self.mining.alpha_warmup), "mining.alpha_warmup", self.mining.alpha_warmup, "in [0, 1]")?;
         self.surface.validate().map_err(|e| anyhow::anyhow!("surface.{e}"))?;
         need((0.0..=1.0).contains(&self.output.validate_share), "output.validate_share", self.output.validate_share, "in [0, 1]")?;
         need(self.output.validate_downscale >= 1, "output.validate_downscale", self.output.validate_downscale, "≥ 1")?;

@@ -140,7 +140,8 @@ def train(
     """Train (``cargo xtask train``); returns metrics.json's fields with ``mesh``, ``meshes``, ``out``.
 
     budget: "2m", "90s", "1.5h" or seconds (None: the configuration's, 2 minutes; ``steps=N``
-    trains N iterations). overrides: configuration keys (``**{"data.masks": False}`` or
+    trains N iterations). sampler: "guided" (default), "uniform", "error-map" or "soft-mining".
+    overrides: configuration keys (``**{"data.masks": False}`` or
     ``data__masks=False``). Ctrl-C writes a checkpoint and raises KeyboardInterrupt;
     ``train(resume=out)`` continues.
     """

@@ -64,7 +64,8 @@ impl Estimator {
     /// An estimator over `views` of `scene` (default: all), with the `guide.*` options of the
     /// configuration as keywords (`updates`, `scene={...}`, `camera={...}`, `interpolation`,
     /// `fixed_s`, `uniform_fractions`, ...; `scene__resolution=64` sets one key of a section),
-    /// `sampler` "guided" or "uniform", and the empty-space skipping of `render.skip_empty` /
+    /// `sampler` "guided" or "uniform" (the loss-guided ones are refused: they need the loss),
+    /// and the empty-space skipping of `render.skip_empty` /
     /// `render.occupancy_dilation`.
     #[new]
     #[pyo3(signature = (scene, views = None, sampler = "guided", skip_empty = None, occupancy_dilation = None, **guide))]
@@ -85,6 +86,13 @@ impl Estimator {
             values.push(("render.occupancy_dilation".into(), toml::Value::Integer(v.into())));
         }
         let config = config(None, &values)?;
+        if config.sampler.mines() {
+            // The estimator draws guided or uniform rays; mining the loss needs the loss.
+            return Err(PyValueError::new_err(format!(
+                "sampler {:?}: the Estimator draws \"guided\" or \"uniform\" rays; the loss-guided samplers train through psneus.train(sampler=...)",
+                config.sampler.name()
+            )));
+        }
         let views = views.unwrap_or_else(|| (0..scene.view_count()).collect());
         if let Some(&v) = views.iter().find(|&&v| v >= scene.view_count()) {
             return Err(PyValueError::new_err(format!("view {v} of a scene of {} views", scene.view_count())));

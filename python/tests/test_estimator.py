@@ -130,6 +130,9 @@ def test_bad_options_are_valueerrors_naming_the_key(sphere_scene):
         psneus.Estimator(scene, views=[99])
     with pytest.raises(ValueError, match="uniform_fraction"):
         psneus.Estimator(scene).draw(10, seed=0, uniform_fraction=1.5)
+    # The loss-guided samplers are not the estimator's: refused, not drawn uniformly in silence.
+    with pytest.raises(ValueError, match="error-map"):
+        psneus.Estimator(scene, sampler="error-map")
 
 
 def test_extract_mesh_of_an_analytic_sphere(sphere_scene, sphere_sdf):

@@ -18,8 +18,20 @@ fn load_options(config: &TrainConfig) -> LoadOptions {
     LoadOptions { downscale: config.data.downscale, background: config.model.background.map(|c| c as f32), bound_sphere, ..Default::default() }
 }
 
+/// The golden scene `config.data.builtin` describes.
+fn builtin_spec(config: &TrainConfig) -> GoldenSpec {
+    let b = &config.data.builtin;
+    let mut spec = GoldenSpec::builtin();
+    spec.geometry = GeometrySource::Shape(b.shape.clone());
+    spec.rig.width = b.width;
+    spec.rig.height = b.width * 3 / 4;
+    spec.rig.count = b.views;
+    spec.backdrop = b.backdrop;
+    spec
+}
+
 /// What the memory model needs of a scene.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SceneSize {
     /// Views.
     pub views: usize,
@@ -29,13 +41,17 @@ pub struct SceneSize {
     pub largest_view_pixels: usize,
     /// Whether every view has a mask.
     pub masks: bool,
+    /// The views' median pixel footprint at the region of interest ([`crate::sizing`]).
+    pub footprint: Option<f64>,
 }
 
 impl SceneSize {
-    /// `views` views of `pixels` pixels each (masked or not).
-    fn new(views: usize, pixels: usize, masks: bool) -> SceneSize {
+    /// The views of `cameras`, `pixels` pixels each (masked or not).
+    fn new(cameras: &[camera_geom::PinholeCamera], pixels: usize, masks: bool) -> SceneSize {
         let mask_bytes = if masks { pixels.div_ceil(8) } else { 0 };
-        SceneSize { views, pixel_bytes: views * (3 * pixels + mask_bytes), largest_view_pixels: pixels, masks }
+        let views = cameras.len();
+        let footprint = crate::sizing::median_footprint(cameras);
+        SceneSize { views, pixel_bytes: views * (3 * pixels + mask_bytes), largest_view_pixels: pixels, masks, footprint }
     }
 
     /// The sizes of a loaded scene.
@@ -45,6 +61,7 @@ impl SceneSize {
             pixel_bytes: scene.pixel_bytes(),
             largest_view_pixels: scene.views.iter().map(|v| v.image.width as usize * v.image.height as usize).max().unwrap_or(0),
             masks: scene.views.iter().all(|v| v.mask.is_some()),
+            footprint: crate::sizing::median_footprint(scene.views.iter().map(|v| &v.camera)),
         }
     }
 }
@@ -56,6 +73,8 @@ pub struct SceneData {
     pub scene: Scene,
     /// Surface points of the built-in scene (normalised frame), its ground truth.
     pub builtin_truth: Option<Vec<DVec3>>,
+    /// The built-in scene's analytic shape (normalised frame): the truth's exact SDF.
+    pub builtin_shape: Option<prob_grid::Shape>,
     /// The dataset folder (`None` for the built-in scene).
     pub path: Option<PathBuf>,
 }
@@ -66,15 +85,12 @@ impl SceneData {
         if !config.data.bound.is_empty() {
             bail!("data.bound applies to dataset folders (COLMAP, instant-ngp, NeRF-synthetic); the built-in scene's bound is the unit sphere");
         }
-        let b = &config.data.builtin;
-        let mut spec = GoldenSpec::builtin();
-        spec.geometry = GeometrySource::Shape(b.shape.clone());
-        spec.rig.width = b.width;
-        spec.rig.height = b.width * 3 / 4;
-        spec.rig.count = b.views;
-        spec.backdrop = b.backdrop;
-        let g = golden::generate(&spec).context("rendering the built-in scene")?;
-        Ok(SceneData { scene: g.scene, builtin_truth: Some(g.surface_points), path: None })
+        let g = golden::generate(&builtin_spec(config)).context("rendering the built-in scene")?;
+        let builtin_shape = match g.geometry {
+            golden::render::Geometry::Analytic(shape) => Some(shape),
+            golden::render::Geometry::Mesh { .. } => None,
+        };
+        Ok(SceneData { scene: g.scene, builtin_truth: Some(g.surface_points), builtin_shape, path: None })
     }
 
     /// A dataset folder (any layout `datasets` reads).
@@ -83,16 +99,16 @@ impl SceneData {
         if scene.views.is_empty() {
             bail!("the data folder {} has no views", dir.display());
         }
-        Ok(SceneData { scene, builtin_truth: None, path: Some(dir.to_path_buf()) })
+        Ok(SceneData { scene, builtin_truth: None, builtin_shape: None, path: Some(dir.to_path_buf()) })
     }
 
     /// The sizes of the scene `load` would make, from the configuration (the built-in scene) or
     /// the cameras and image headers (a folder): no pixel is decoded or rendered.
     pub fn size_before_loading(config: &TrainConfig, dir: Option<&Path>) -> Result<SceneSize> {
         let Some(dir) = dir else {
-            let b = &config.data.builtin;
-            let (w, h) = (b.width as usize, (b.width * 3 / 4) as usize);
-            return Ok(SceneSize::new(b.views, w * h, true));
+            let spec = builtin_spec(config);
+            let (w, h) = (spec.rig.width as usize, spec.rig.height as usize);
+            return Ok(SceneSize::new(&golden::rig::cameras(&spec.rig), w * h, true));
         };
         let cameras = datasets::read_cameras(dir, &load_options(config)).with_context(|| format!("cannot load the data folder {}", dir.display()))?;
         let pixels: Vec<usize> = cameras.records.iter().map(|r| r.camera.width as usize * r.camera.height as usize).collect();
@@ -103,6 +119,7 @@ impl SceneData {
             pixel_bytes: pixels.iter().map(|p| 3 * p + p.div_ceil(8)).sum(),
             largest_view_pixels: pixels.iter().copied().max().unwrap_or(0),
             masks,
+            footprint: crate::sizing::median_footprint(cameras.records.iter().map(|r| &r.camera)),
         })
     }
 

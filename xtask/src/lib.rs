@@ -6,6 +6,7 @@
 //! - [`data`]: the scene of a run (built-in golden scene or a dataset folder), its ground truth,
 //!   the training/held-out split.
 //! - [`trainer`]: [`trainer::Trainer`] — step, checkpoint/restore, renders, mesh.
+//! - [`sizing`]: the hash grid sized by the views' pixel footprint (`model.grid = "footprint"`).
 //! - [`rays`]: drawn pixels → the backbone's rays (coarse samples, up-sampling, extra points).
 //! - [`run`]: the `train` command — [`run::RunRequest`] → [`run::run`]: log, pictures,
 //!   checkpoints, resume, stop signal, final mesh and metrics; [`run::open_run`] reopens a run.
@@ -37,6 +38,7 @@ pub mod progress;
 pub mod rays;
 pub mod run;
 pub mod sample;
+pub mod sizing;
 pub mod snapshot;
 pub mod trade;
 pub mod trainer;

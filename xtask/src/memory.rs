@@ -12,6 +12,7 @@
 //! `xtask/tests/memory.rs` (within 25 %).
 
 use crate::config::TrainConfig;
+use crate::data::SceneSize;
 use sdf_backbone::module::deferred_block_ranges;
 use sdf_backbone::{Backbone, Module, NormalScheme};
 
@@ -74,8 +75,14 @@ impl MemoryEstimate {
             (
                 self.parameters,
                 format!(
-                    "model.preset (now {}; neuralangelo-cpu needs ~10 MB) or, for a hash-grid preset, optim.table_moments = \"bf16\" (now {})",
+                    "model.preset (now {}; neuralangelo-cpu needs ~10 MB){} or, for a hash-grid preset, optim.table_moments = \"bf16\" (now {})",
                     config.model.preset.name(),
+                    match config.model.grid {
+                        crate::config::GridSize::Footprint => {
+                            format!(", model.pixels_per_cell (now {}; more: a coarser grid sized by the footprint)", config.model.pixels_per_cell)
+                        }
+                        crate::config::GridSize::Preset => String::new(),
+                    },
                     format!("{:?}", config.optim.table_moments).to_lowercase()
                 ),
             ),
@@ -91,7 +98,7 @@ impl MemoryEstimate {
                     config.output.eval_downscale, config.render.render_fine
                 ),
             ),
-            (self.meshing, format!("output.mesh_resolution (now {})", config.output.mesh_resolution)),
+            (self.meshing, format!("output.mesh_resolution (now {}; 192: the default)", config.output.mesh_resolution)),
             (self.guide, format!("guide.camera.ru/rv/rl (now {}×{}×{})", config.guide.camera.ru, config.guide.camera.rv, config.guide.camera.rl)),
         ];
         parts.sort_by(|a, b| b.0.total_cmp(&a.0));
@@ -123,17 +130,17 @@ fn work_item_bytes(backbone: &Backbone, rays: usize, samples: usize, backward: b
     F32 * (forward + backward + tangents)
 }
 
-/// The memory model of `config` with `backbone` on a scene of `views` views and `pixel_bytes`
-/// of images, the largest view `view_pixels` pixels, with `threads` worker threads.
+/// The memory model of `config` with `backbone` (`n_params` parameters) on a scene of `size`,
+/// meshed at `mesh_resolution` cells per side, with `threads` worker threads.
 pub fn estimate(
     config: &TrainConfig,
     backbone: &Backbone,
     n_params: usize,
-    views: usize,
-    pixel_bytes: usize,
-    view_pixels: usize,
+    size: &SceneSize,
+    mesh_resolution: u32,
     threads: usize,
 ) -> MemoryEstimate {
+    let (views, pixel_bytes, view_pixels) = (size.views, size.pixel_bytes, size.largest_view_pixels);
     let t = threads.max(1) as f64;
     let n = n_params as f64;
     let tables = backbone.layout().encoding.len() as f64;
@@ -156,7 +163,7 @@ pub fn estimate(
         + render_rays * F32 * (30.0 + render_samples as f64);
     // Meshing: a block of 17³ corners per thread through the SDF network (chunks of 1024
     // rows), and the mesh (~ 12 triangles per surface cell of the resolution's shell).
-    let mesh_res = f64::from(config.output.mesh_resolution);
+    let mesh_res = f64::from(mesh_resolution);
     let sdf_ctx = Module::<f32>::ctx_per_row(&backbone.sdf) as f64;
     let meshing = t * F32 * 1024.0 * (sdf_ctx + 32.0) + mesh_res * mesh_res * 6.0 * 40.0;
     let cells = (config.guide.camera.ru * config.guide.camera.rv * config.guide.camera.rl) as f64;

@@ -62,6 +62,11 @@ pub struct RunMetrics {
     pub f_score_tau: f64,
     /// Length of one normalised unit in the dataset's units.
     pub world_scale: f64,
+    /// The mesh's marching-cubes resolution (cells per side of the bound's cube).
+    pub mesh_resolution: u32,
+    /// The Chamfer of the truth's own mesh at `mesh_resolution` by the same protocol: what no
+    /// mesh of that resolution can beat (`None` without an analytic truth; built-in scenes).
+    pub mesh_floor: Option<f64>,
     /// Vertices of the mesh written.
     pub mesh_vertices: usize,
     /// Triangles of the mesh written.

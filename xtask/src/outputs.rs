@@ -206,6 +206,19 @@ pub fn run_geometry(
     }
 }
 
+/// The Chamfer distance a mesh of `resolution` cells per side cannot beat on `data`: the truth's
+/// own marching-cubes mesh at that resolution, measured with the run's protocol (the same
+/// sampling of mesh and truth). `None` without an analytic truth (only the built-in scenes
+/// have one).
+pub fn mesh_floor(data: &crate::data::SceneData, output: &crate::config::OutputConfig, resolution: u32) -> Result<Option<f64>> {
+    let (Some(shape), Some(gt)) = (&data.builtin_shape, data.ground_truth(output.chamfer_spacing)?) else {
+        return Ok(None);
+    };
+    let config = prob_grid::MarchingCubesConfig { resolution, block: 16, ..Default::default() };
+    let (mesh, _) = prob_grid::marching_cubes(shape, &config)?;
+    Ok(Some(geometry_metrics(&mesh, &gt, output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau)?.chamfer))
+}
+
 /// The mesh (normalised frame) seen from `cameras`, shaded by its normals, side by side.
 pub fn mesh_picture(mesh: &IsoMesh, cameras: &[camera_geom::PinholeCamera]) -> RgbImage {
     use datasets::golden::{mesh_io::TexturedMesh, render::Geometry};

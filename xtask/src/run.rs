@@ -201,14 +201,14 @@ pub fn stop_message() -> &'static str {
 /// The memory model of `config` on `data`, printed beside the memory available; an error naming
 /// what to change when the peak exceeds `max_memory` (default: the memory available).
 pub fn check_memory(config: &TrainConfig, size: &SceneSize, max_memory: Option<f64>) -> Result<MemoryEstimate> {
-    let mut backbone = sdf_backbone::architecture(config.model.preset);
+    let mut backbone = crate::sizing::architecture(&config.model, size.footprint)?;
     backbone.config.normals = config.model.normal_scheme();
     if config.model.background_model.learned(config.data.masks && size.masks) {
         backbone.add_learned_background(&mut Vec::new(), crate::trainer::background_model(config), 0);
     }
     let n_params = backbone.n_params::<f32>();
-    let estimate =
-        memory::estimate(config, &backbone, n_params, size.views, size.pixel_bytes, size.largest_view_pixels, rayon::current_num_threads());
+    let mesh_resolution = crate::sizing::mesh_resolution(config.output.mesh_resolution, &config.model, size.footprint)?;
+    let estimate = memory::estimate(config, &backbone, n_params, size, mesh_resolution, rayon::current_num_threads());
     let available = memory::available_bytes();
     let limit = max_memory.or(available);
     eprintln!(
@@ -334,6 +334,9 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, options: &RunOptions, st
         config.budget,
         folder.dir().display()
     );
+    if let Some(choice) = trainer.grid_choice() {
+        eprintln!("model: {}", choice.describe());
+    }
     let progress = Progress::new(&config);
     progress.set(trainer.state().step, trainer.progress(), trainer.seconds_left(), "");
     let mut history = Vec::new();
@@ -597,6 +600,7 @@ fn finish(
         }
         _ => None,
     };
+    let mesh_floor = if geometry.is_some() { crate::outputs::mesh_floor(trainer.data(), &config.output, trainer.mesh_resolution())? } else { None };
     let geometry_seconds = t.elapsed().as_secs_f64();
     progress.finish_phase();
     let timing = trainer.timing();
@@ -622,6 +626,8 @@ fn finish(
         f_score: geometry.map(|g| g.f_score),
         f_score_tau: config.output.fscore_tau,
         world_scale,
+        mesh_resolution: trainer.mesh_resolution(),
+        mesh_floor,
         mesh_vertices: mesh.vertices.len(),
         mesh_triangles: mesh.triangles.len(),
         mesh_components: components,
@@ -661,7 +667,14 @@ fn finish(
         if held_out { "held-out" } else { "training (none held out)" },
         psnr_train.map_or(String::new(), |p| format!(", {p:.2} dB on {} training view(s)", fit_views.len())),
         match geometry {
-            Some(g) => format!("Chamfer {:.4} ({:.4} in world units), F-score {:.3} at τ = {}", g.chamfer, g.chamfer * world_scale, g.f_score, g.tau),
+            Some(g) => format!(
+                "Chamfer {:.4} ({:.4} in world units{}), F-score {:.3} at τ = {}",
+                g.chamfer,
+                g.chamfer * world_scale,
+                mesh_floor.map_or(String::new(), |f| format!("; the truth's own {}³ mesh: {f:.4}", trainer.mesh_resolution())),
+                g.f_score,
+                g.tau
+            ),
             None if gt.is_none() => "no ground truth for Chamfer".into(),
             None => "the mesh is empty: no Chamfer".into(),
         }

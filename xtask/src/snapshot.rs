@@ -6,10 +6,12 @@
 //! 1-minute run).
 
 use crate::folder::RunFolder;
-use crate::outputs::{mesh_files, run_geometry};
+use crate::metrics::RunMetrics;
+use crate::outputs::{mesh_files, mesh_floor, run_geometry};
 use crate::trainer::Trainer;
 use anyhow::{Context, Result};
-use serde_json::json;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
 
 /// The snapshot times still to take.
 #[derive(Debug, Clone, Default)]
@@ -38,9 +40,79 @@ pub fn snapshot_dir(at: f64) -> String {
     format!("snapshots/{at}s")
 }
 
+/// What a snapshot measured (`snapshots/<seconds>s/metrics.json`), typed like the run's
+/// [`RunMetrics`]: written and read by this one struct.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SnapshotMetrics {
+    /// The training time it was taken at (s).
+    pub snapshot: f64,
+    /// Iterations done.
+    pub step: u64,
+    /// Training time when it was taken (s; ≥ `snapshot`).
+    pub train_s: f64,
+    /// Chamfer (normalised units).
+    pub chamfer: Option<f64>,
+    /// Mesh → truth mean distance.
+    pub accuracy: Option<f64>,
+    /// Truth → mesh mean distance.
+    pub completeness: Option<f64>,
+    /// F-score at `f_score_tau`.
+    pub f_score: Option<f64>,
+    /// The F-score threshold τ.
+    pub f_score_tau: f64,
+    /// Mean whole-image PSNR of `psnr_views` (dB).
+    pub psnr: Option<f64>,
+    /// Mean PSNR inside their masks (dB).
+    pub psnr_masked: Option<f64>,
+    /// The views rendered.
+    pub psnr_views: Vec<usize>,
+    /// Triangles of the mesh.
+    pub mesh_triangles: usize,
+    /// The mesh's marching-cubes resolution.
+    pub mesh_resolution: u32,
+    /// The truth's own mesh at that resolution ([`RunMetrics::mesh_floor`]).
+    pub mesh_floor: Option<f64>,
+}
+
+impl SnapshotMetrics {
+    /// Reads the snapshot at `at` seconds of the run in `run_dir` (`None`: it was not taken).
+    pub fn read(run_dir: &Path, at: f64) -> Result<Option<SnapshotMetrics>> {
+        let path = run_dir.join(snapshot_dir(at)).join("metrics.json");
+        if !path.is_file() {
+            return Ok(None);
+        }
+        let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+        serde_json::from_str(&text).map(Some).with_context(|| format!("{} is not a snapshot's metrics", path.display()))
+    }
+
+    /// The figures a run's metrics share with a snapshot (the rest: defaults), for tables that
+    /// read both ([`crate::trade`]).
+    pub fn as_run_metrics(&self, sampler: crate::config::SamplerKind) -> RunMetrics {
+        RunMetrics {
+            sampler,
+            steps: self.step,
+            psnr: self.psnr,
+            psnr_masked: self.psnr_masked,
+            psnr_views: self.psnr_views.clone(),
+            chamfer: self.chamfer,
+            accuracy: self.accuracy,
+            completeness: self.completeness,
+            f_score: self.f_score,
+            f_score_tau: self.f_score_tau,
+            mesh_resolution: self.mesh_resolution,
+            mesh_floor: self.mesh_floor,
+            mesh_triangles: self.mesh_triangles,
+            train_s: self.train_s,
+            ..Default::default()
+        }
+    }
+}
+
 /// Writes the snapshot at `at` seconds of `trainer` into `folder`: the mesh (the run's mesh
-/// formats, world units) and `metrics.json` (Chamfer, accuracy, completeness, F-score when the
-/// data has ground truth; PSNR whole and masked over `views`). Returns the record it logged.
+/// formats, world units) and `metrics.json` ([`SnapshotMetrics`]: Chamfer, accuracy,
+/// completeness, F-score when the data has ground truth; PSNR whole and masked over `views`).
+/// Returns the record it logged.
 pub fn write_snapshot(trainer: &Trainer, folder: &RunFolder, at: f64, views: &[usize]) -> Result<serde_json::Value> {
     let config = trainer.config();
     let dir = snapshot_dir(at);
@@ -51,17 +123,27 @@ pub fn write_snapshot(trainer: &Trainer, folder: &RunFolder, at: f64, views: &[u
     }
     let o = &config.output;
     let geometry = run_geometry(trainer.data(), o, &mesh)?;
+    let floor = if geometry.is_some() { mesh_floor(trainer.data(), o, trainer.mesh_resolution())? } else { None };
     let psnr = views.iter().map(|&v| Ok(trainer.render_view(v, o.eval_downscale)?.psnr())).collect::<Result<Vec<_>>>()?;
     let mean = |values: Vec<f64>| (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
-    let record = json!({
-        "snapshot": at, "step": trainer.state().step, "train_s": trainer.state().train_seconds,
-        "chamfer": geometry.map(|g| g.chamfer), "accuracy": geometry.map(|g| g.accuracy), "completeness": geometry.map(|g| g.completeness),
-        "f_score": geometry.map(|g| g.f_score), "f_score_tau": o.fscore_tau,
-        "psnr": mean(psnr.iter().map(|p| p.0).collect()), "psnr_masked": mean(psnr.iter().filter_map(|p| p.1).collect()), "psnr_views": views,
-        "mesh_triangles": mesh.triangles.len(),
-    });
-    folder.write(&format!("{dir}/metrics.json"), serde_json::to_string_pretty(&record)?.as_bytes())?;
-    Ok(record)
+    let metrics = SnapshotMetrics {
+        snapshot: at,
+        step: trainer.state().step,
+        train_s: trainer.state().train_seconds,
+        chamfer: geometry.map(|g| g.chamfer),
+        accuracy: geometry.map(|g| g.accuracy),
+        completeness: geometry.map(|g| g.completeness),
+        f_score: geometry.map(|g| g.f_score),
+        f_score_tau: o.fscore_tau,
+        psnr: mean(psnr.iter().map(|p| p.0).collect()),
+        psnr_masked: mean(psnr.iter().filter_map(|p| p.1).collect()),
+        psnr_views: views.to_vec(),
+        mesh_triangles: mesh.triangles.len(),
+        mesh_resolution: trainer.mesh_resolution(),
+        mesh_floor: floor,
+    };
+    folder.write(&format!("{dir}/metrics.json"), serde_json::to_string_pretty(&metrics)?.as_bytes())?;
+    Ok(serde_json::to_value(&metrics)?)
 }
 
 #[cfg(test)]

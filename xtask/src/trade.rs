@@ -14,6 +14,7 @@ use crate::folder::checkpoint_path;
 use crate::metrics::RunMetrics;
 use crate::plot::{Panel, Point, Series, render};
 use crate::run::{AtomicFiles, Outcome, RunOptions, RunRequest};
+use crate::snapshot::SnapshotMetrics;
 use anyhow::{Context, Result, bail};
 use datasets::io::write_atomic;
 use serde_json::{Value, json};
@@ -49,6 +50,12 @@ pub struct TradeArgs {
     /// Only aggregate the runs already in the folder (no training).
     #[arg(long)]
     pub report_only: bool,
+    /// One run per scene, variant and seed, trained to the longest budget; the shorter budgets'
+    /// rows are its snapshots (`output.snapshots`) at those training times. A snapshot's schedules
+    /// (learning rate, s, coarse-to-fine levels) follow the longest budget, so its row is the
+    /// quality along one run, not that of a run given the shorter budget.
+    #[arg(long)]
+    pub snapshots: bool,
     /// Overrides `key=value` shared by every run.
     pub overrides: Vec<String>,
 }
@@ -79,13 +86,17 @@ fn budget_dir(budget: Duration) -> String {
 }
 
 /// What a run of the table was made with, kept beside its metrics: a folder is reused only for
-/// the same scene, variant, overrides, budget and seed.
-fn run_record(scene: &SceneSpec, variant: &Variant, overrides: &[String], budget: Duration, seed: u64) -> Value {
+/// the same scene, variant, overrides, budget, seed and snapshot times (`--snapshots`).
+fn run_record(scene: &SceneSpec, variant: &Variant, overrides: &[String], budget: Duration, seed: u64, snapshots: &[f64]) -> Value {
     let scene = match scene {
         SceneSpec::Folder(p) => p.display().to_string(),
         SceneSpec::Builtin(s) => format!("builtin:{s}"),
     };
-    json!({"scene": scene, "variant": variant.name, "overrides": overrides, "budget_s": budget.as_secs_f64(), "seed": seed})
+    let mut record = json!({"scene": scene, "variant": variant.name, "overrides": overrides, "budget_s": budget.as_secs_f64(), "seed": seed});
+    if !snapshots.is_empty() {
+        record["snapshots_s"] = json!(snapshots);
+    }
+    record
 }
 
 /// Fails when two entries have the same name (they would share run folders).
@@ -161,6 +172,11 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
         args.variant.iter().map(|v| parse_variant(v)).collect()
     };
     let budgets = &args.budget;
+    // The budgets trained: each, or only the longest when the others are its snapshots.
+    let longest = budgets.iter().copied().max().context("--budget: give at least one")?;
+    let trained: Vec<Duration> = if args.snapshots { vec![longest] } else { budgets.clone() };
+    let snapshot_times: Vec<f64> =
+        if args.snapshots { budgets.iter().filter(|b| **b < longest).map(Duration::as_secs_f64).collect() } else { Vec::new() };
     if args.seeds == 0 {
         bail!("--seeds must be ≥ 1");
     }
@@ -168,12 +184,12 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
     distinct_names("variants", variants.iter().map(|v| v.name.clone()))?;
     distinct_names("budgets", budgets.iter().map(|b| budget_dir(*b)))?;
     let sink = Arc::new(AtomicFiles);
-    let total = scenes.len() * variants.len() * budgets.len() * args.seeds as usize;
+    let total = scenes.len() * variants.len() * trained.len() * args.seeds as usize;
     let mut done = 0;
     // Seeds outermost, then budgets, scenes and variants: an interrupted table has every
     // variant at the same seeds.
     for seed in 0..args.seeds {
-        for &budget in budgets {
+        for &budget in &trained {
             for scene in &scenes {
                 for variant in &variants {
                     done += 1;
@@ -183,7 +199,7 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
                     if let SceneSpec::Builtin(shape) = scene {
                         overrides.push(format!("data.builtin.shape={shape}"));
                     }
-                    let record = run_record(scene, variant, &overrides, budget, seed);
+                    let record = run_record(scene, variant, &overrides, budget, seed, &snapshot_times);
                     if read_metrics(&dir)?.is_some() {
                         let kept = std::fs::read_to_string(dir.join("trade_run.json")).ok().and_then(|t| serde_json::from_str::<Value>(&t).ok());
                         if kept.as_ref() != Some(&record) {
@@ -206,6 +222,7 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
                         let mut config = TrainConfig::load(None, &overrides).with_context(|| format!("the variant {:?}", variant.name))?;
                         config.seed = seed;
                         config.budget = Budget::Time(budget);
+                        config.output.snapshots.extend(&snapshot_times);
                         RunRequest::Fresh {
                             config: Box::new(config),
                             data: match scene {
@@ -227,6 +244,26 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
         }
     }
     report(args, &scenes, &variants, budgets)
+}
+
+/// The runs of one row of the table (seeds 0 … n − 1 that have finished), and with
+/// `--snapshots` for a budget shorter than the longest, the longest budget whose runs' snapshots
+/// they are.
+fn read_row(args: &TradeArgs, scene: &SceneSpec, variant: &Variant, budget: Duration) -> Result<(Vec<RunMetrics>, Option<Duration>)> {
+    let longest = args.budget.iter().copied().max().unwrap_or(budget);
+    let snapshot_of = (args.snapshots && budget < longest).then_some(longest);
+    let base = args.out.join(scene.name()).join(&variant.name).join(budget_dir(snapshot_of.unwrap_or(budget)));
+    let mut runs = Vec::new();
+    for s in 0..args.seeds {
+        let dir = base.join(format!("s{s}"));
+        if snapshot_of.is_none() {
+            runs.extend(read_metrics(&dir)?);
+        } else if let Some(snapshot) = SnapshotMetrics::read(&dir, budget.as_secs_f64())? {
+            let (config, _) = crate::folder::read_run_config(&dir)?;
+            runs.push(snapshot.as_run_metrics(config.sampler));
+        }
+    }
+    Ok((runs, snapshot_of))
 }
 
 /// Aggregates the runs in the folder: trade.md, trade.json, trade.png.
@@ -255,11 +292,7 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
         let mut curves: BTreeMap<(usize, &str), Vec<Point>> = BTreeMap::new();
         for &budget in budgets {
             for (vi, variant) in variants.iter().enumerate() {
-                let base = args.out.join(scene.name()).join(&variant.name).join(budget_dir(budget));
-                let mut runs: Vec<RunMetrics> = Vec::new();
-                for s in 0..args.seeds {
-                    runs.extend(read_metrics(&base.join(format!("s{s}")))?);
-                }
+                let (runs, snapshot_of) = read_row(args, scene, variant, budget)?;
                 if runs.is_empty() {
                     continue;
                 }
@@ -283,10 +316,14 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
                 };
                 let iterations = mean_std(&get(|r| Some(r.steps as f64))).map_or("—".into(), |(m, s)| format!("{m:.0} ± {s:.0}"));
                 let per_iteration = mean_std(&get(RunMetrics::seconds_per_iteration)).map_or("—".into(), |(m, s)| format!("{m:.3} ± {s:.3}"));
-                let grid = mean_std(&get(|r| Some(r.grid_s))).map_or("—".into(), |(m, _)| format!("{m:.1}"));
+                let grid = match snapshot_of {
+                    Some(_) => "—".into(),
+                    None => mean_std(&get(|r| Some(r.grid_s))).map_or("—".into(), |(m, _)| format!("{m:.1}")),
+                };
                 let seconds = budget.as_secs_f64();
+                let label = snapshot_of.map_or(String::new(), |of| format!(" (snapshot of {:.0} s)", of.as_secs_f64()));
                 md += &format!(
-                    "| {seconds:.0} s | {} | {} | {iterations} | {per_iteration} | {grid} | {} |\n",
+                    "| {seconds:.0} s{label} | {} | {} | {iterations} | {per_iteration} | {grid} | {} |\n",
                     variant.name,
                     runs.len(),
                     METRICS.iter().map(fmt).collect::<Vec<_>>().join(" | ")

@@ -33,6 +33,7 @@ use crate::config::{Budget, MeshFilter, MomentStorage, SamplerKind, TrainConfig}
 use crate::data::{SceneData, ViewSplit, uses_masks};
 use crate::outputs::{ViewRender, filter_components, heat_map};
 use crate::rays::{Batch, PixelSource, Sampling, build_batch};
+use crate::sizing::GridChoice;
 use anyhow::{Context, Result, bail};
 use datasets::images::RgbImage;
 use prob_grid::{IsoMesh, MarchingCubesConfig, Occupancy, marching_cubes_with_progress};
@@ -107,6 +108,10 @@ pub struct Trainer {
     estimator: Estimator,
     /// The loss-guided samplers' error map (`None` for guided and uniform runs).
     miner: Option<ErrorMap>,
+    /// The hash grid sized by the views (`None`: the preset's).
+    grid: Option<GridChoice>,
+    /// The meshes' marching-cubes resolution (`output.mesh_resolution` resolved).
+    mesh_resolution: u32,
     state: TrainState,
     grads: Vec<f32>,
     timing: Timing,
@@ -126,8 +131,12 @@ impl SampleLoss for SurfaceHook<'_> {
 }
 
 /// The configured backbone with its initial parameters.
-fn configured_backbone(config: &TrainConfig, use_masks: bool) -> (Backbone, Vec<f32>) {
-    let (mut backbone, mut params) = build(config.model.preset, config.model.init_radius, config.seed);
+fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&GridChoice>) -> Result<(Backbone, Vec<f32>)> {
+    let (model, radius, seed) = (&config.model, config.model.init_radius, config.seed);
+    let (mut backbone, mut params) = match grid {
+        Some(choice) => sdf_backbone::build_with_grid(model.preset, choice.grid.clone(), radius, seed)?,
+        None => build(model.preset, radius, seed),
+    };
     if config.model.background_model.learned(use_masks) {
         backbone.add_learned_background(&mut params, background_model(config), config.seed + 4);
     }
@@ -137,7 +146,7 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool) -> (Backbone, Vec<
     backbone.config.masked_color = use_masks;
     backbone.config.background = config.model.background;
     backbone.config.normals = config.model.normal_scheme();
-    (backbone, params)
+    Ok((backbone, params))
 }
 
 /// The learned background of a run without masks ([`sdf_backbone::BackgroundModel::cpu`]).
@@ -175,7 +184,10 @@ impl Trainer {
         }
         let split = ViewSplit::new(&config, &data.scene);
         let use_masks = uses_masks(&config, &data.scene);
-        let (backbone, params) = configured_backbone(&config, use_masks);
+        let footprint = crate::sizing::median_footprint(data.scene.views.iter().map(|v| &v.camera));
+        let grid = crate::sizing::grid_choice(&config.model, footprint)?;
+        let mesh_resolution = crate::sizing::mesh_resolution(config.output.mesh_resolution, &config.model, footprint)?;
+        let (backbone, params) = configured_backbone(&config, use_masks, grid.as_ref())?;
         let cameras: Vec<_> = split.train.iter().map(|&i| data.scene.views[i].camera).collect();
         let miner = crate::mining::error_map(&config, &cameras);
         let estimator = Estimator::new(cameras, estimator_config(&config)).context("the guide's configuration")?;
@@ -193,6 +205,8 @@ impl Trainer {
             backbone,
             estimator,
             miner,
+            grid,
+            mesh_resolution,
             state,
             grads: Vec::new(),
             timing: Timing::default(),
@@ -203,6 +217,17 @@ impl Trainer {
     /// The configuration.
     pub fn config(&self) -> &TrainConfig {
         &self.config
+    }
+
+    /// The hash grid sized by the views (`model.grid = "footprint"`; `None`: the preset's).
+    pub fn grid_choice(&self) -> Option<&GridChoice> {
+        self.grid.as_ref()
+    }
+
+    /// The meshes' marching-cubes resolution: cells per side of the bound's cube
+    /// (`output.mesh_resolution`, `"model"` resolved).
+    pub fn mesh_resolution(&self) -> u32 {
+        self.mesh_resolution
     }
 
     /// The data.
@@ -609,7 +634,7 @@ impl Trainer {
         Some(heat_map(&distributions[i].pixel_marginal(), ru, rv, 4))
     }
 
-    /// The zero level set of the current SDF (normalised frame) at `output.mesh_resolution`,
+    /// The zero level set of the current SDF (normalised frame) at [`Self::mesh_resolution`],
     /// components filtered by `output.mesh_filter`; `progress(blocks done, blocks)`.
     pub fn extract_mesh(&self, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<IsoMesh> {
         Ok(self.extract_mesh_with_stats(progress)?.0)
@@ -634,7 +659,7 @@ impl Trainer {
 
     /// [`Self::extract_mesh`] with (components found, components kept).
     pub fn extract_mesh_with_stats(&self, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<(IsoMesh, usize, usize)> {
-        let mc = MarchingCubesConfig { resolution: self.config.output.mesh_resolution, block: 16, ..Default::default() };
+        let mc = MarchingCubesConfig { resolution: self.mesh_resolution, block: 16, ..Default::default() };
         let mut field = self.backbone.field(&self.state.params);
         field.lipschitz = self.estimator.lipschitz_bound();
         let (mesh, _) = marching_cubes_with_progress(&field, &mc, progress)?;

@@ -22,6 +22,33 @@ fn train(out: &Path, extra: &[&str]) -> Output {
     xtask(&args)
 }
 
+/// `output.mesh_resolution = "model"` meshes at the finest level of the run's grid (here sized
+/// by the footprint of 40 × 30 views) and the metrics say so, with the floor: the truth's own
+/// mesh at that resolution, which the trained mesh does not beat.
+#[test]
+fn a_mesh_as_fine_as_the_model_is_measured_against_the_truths_own_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    // After the tiny run's own mesh resolution, which it replaces.
+    let mut args = vec!["train", "--out", out.to_str().unwrap()];
+    args.extend_from_slice(common::TINY);
+    args.extend_from_slice(&["model.grid=footprint", "output.mesh_resolution=model"]);
+    let o = xtask(&args);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    let finest: u32 = stderr
+        .split("→ finest ")
+        .nth(1)
+        .and_then(|t| t.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .expect("the grid's choice is printed");
+    let m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    assert_eq!(m["mesh_resolution"].as_u64(), Some(u64::from(finest.max(64))), "{m}");
+    let (floor, chamfer) = (m["mesh_floor"].as_f64().expect("a built-in scene has a floor"), m["chamfer"].as_f64().unwrap());
+    assert!(floor > 0.0 && floor < chamfer, "floor {floor}, Chamfer {chamfer}");
+    assert!(stderr.contains("the truth's own"), "{stderr}");
+}
+
 #[test]
 fn resumed_run_ends_with_the_same_mesh_as_an_uninterrupted_run() {
     let dir = tempfile::tempdir().unwrap();
@@ -62,15 +89,17 @@ fn resumed_run_ends_with_the_same_mesh_as_an_uninterrupted_run() {
 
 /// State beyond the parameters goes into the checkpoint and comes back: Adam's bf16 table moments
 /// (their stochastic rounding depends on the step, not on the process) and the loss-guided
-/// samplers' error map (soft mining's pixels and weights follow it). A resumed run equals an
-/// uninterrupted one.
+/// samplers' error map (soft mining's pixels and weights follow it); a grid sized by the views'
+/// footprint is sized again alike from the same cameras. A resumed run equals an uninterrupted one.
 #[test]
-fn resumed_run_with_bf16_moments_or_an_error_map_equals_the_uninterrupted_run() {
-    for setting in ["optim.table_moments=bf16", "sampler=soft-mining"] {
+fn resumed_run_with_bf16_moments_an_error_map_or_a_sized_grid_equals_the_uninterrupted_run() {
+    for setting in ["optim.table_moments=bf16", "sampler=soft-mining", "model.grid=footprint"] {
         let dir = tempfile::tempdir().unwrap();
         let (a, b) = (dir.path().join("a"), dir.path().join("b"));
         let full = train(&a, &[setting]);
         assert!(full.status.success(), "{setting}: {}", String::from_utf8_lossy(&full.stderr));
+        let sized = String::from_utf8_lossy(&full.stderr).contains("model: hash grid sized by the footprint");
+        assert_eq!(sized, setting == "model.grid=footprint", "{setting}: the grid's choice is printed exactly when it is made");
         let part = train(&b, &["--stop-at", "3", setting]);
         assert_eq!(part.status.code(), Some(130), "{setting}: {}", String::from_utf8_lossy(&part.stderr));
         let resumed = xtask(&["train", "--resume", b.to_str().unwrap()]);
@@ -92,6 +121,8 @@ fn bad_input_gives_a_clear_message_and_loses_nothing() {
         (vec!["train", "--out", out, "guide.scene.partition=0"], "partition factor F"),
         (vec!["train", "--out", out, "guide.fixed_s=-1"], "guide.fixed_s"),
         (vec!["train", "--out", out, "sampler=soft-mining", "mining.alpha=2"], "mining.alpha"),
+        (vec!["train", "--out", out, "model.grid=footprint", "model.preset=neus-cpu"], "model.grid = \"footprint\""),
+        (vec!["train", "--out", out, "model.grid=footprint", "model.pixels_per_cell=0"], "model.pixels_per_cell"),
         (vec!["train", "--out", out, "sampler=hard-mining"], "expected one of `guided`, `uniform`, `error-map`, `soft-mining`"),
         (vec!["train", "--out", out, "--data", "/nonexistent/scan"], "/nonexistent/scan"),
     ] {

@@ -295,6 +295,15 @@ impl PinholeCamera {
         depth * depth / (self.intrinsics.fx * self.intrinsics.fy)
     }
 
+    /// The side of one pixel at `point_in_world`, in world units: `depth/√(fx·fy)`, the side of
+    /// the square with the area of the pixel's footprint on a plane facing the camera at that
+    /// depth. `None` for a point at or
+    /// behind the camera centre, where no pixel sees it.
+    pub fn pixel_footprint_at(&self, point_in_world: DVec3) -> Option<f64> {
+        let depth = self.point_in_camera(point_in_world).z;
+        (depth > 0.0).then(|| depth / (self.intrinsics.fx * self.intrinsics.fy).sqrt())
+    }
+
     /// Continuous pixel coordinates of the centre of pixel (column, row).
     pub fn pixel_center(&self, column: u32, row: u32) -> DVec2 {
         let o = self.pixel_centers.offset();

@@ -114,6 +114,22 @@ fn look_at_centres_the_target() {
     assert!(up.y < p.y);
 }
 
+/// The footprint's square has the area spanned by the rays of neighbouring pixels at the
+/// point's depth, and no pixel sees a point behind the camera.
+#[test]
+fn pixel_footprint_is_the_spacing_of_neighbouring_rays() {
+    let eye = DVec3::new(0.3, -2.8, 0.9);
+    let cam = dtu_like_camera(eye);
+    let footprint = cam.pixel_footprint_at(DVec3::ZERO).unwrap();
+    let depth = eye.length();
+    let (a, b) = (cam.world_from_pixel_space(DVec3::new(823.2, 619.1, depth)), cam.world_from_pixel_space(DVec3::new(824.2, 619.1, depth)));
+    let (c, d) = (cam.world_from_pixel_space(DVec3::new(823.2, 619.1, depth)), cam.world_from_pixel_space(DVec3::new(823.2, 620.1, depth)));
+    let area_side = ((b - a).length() * (d - c).length()).sqrt();
+    assert!((footprint - area_side).abs() < 1e-12, "{footprint} vs {area_side}");
+    assert_eq!(cam.pixel_footprint_at(eye * 2.0), None);
+    assert_eq!(cam.pixel_footprint_at(eye * 1.001), None);
+}
+
 #[test]
 fn pixel_centre_conventions() {
     let mut cam = dtu_like_camera(DVec3::new(0.0, -3.0, 0.0));

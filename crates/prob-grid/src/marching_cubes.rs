@@ -140,24 +140,7 @@ fn extract(
         .map(|((&b, &c), &v)| (b, c, v))
         .collect();
     // Slopes between neighbouring block centres.
-    let n = blocks_per_axis as usize;
-    let at = |i: usize, j: usize, k: usize| (k * n + j) * n + i;
-    let mut measured = 0.0f32;
-    for k in 0..n {
-        for j in 0..n {
-            for i in 0..n {
-                for (di, dj, dk) in [(1, 0, 0), (0, 1, 0), (0, 0, 1)] {
-                    if i + di < n && j + dj < n && k + dk < n {
-                        let (a, b) = (at(i, j, k), at(i + di, j + dj, k + dk));
-                        let slope = (centre_values[a] - centre_values[b]).abs() / centres[a].distance(centres[b]);
-                        if slope.is_finite() {
-                            measured = measured.max(slope);
-                        }
-                    }
-                }
-            }
-        }
-    }
+    let mut measured = crate::scene::neighbour_slope(&centre_values, blocks_per_axis as usize, |a, b| centres[a].distance(centres[b]));
     let done = std::sync::atomic::AtomicUsize::new(0);
     progress(0, near.len());
 

@@ -200,28 +200,30 @@ impl LipschitzCheck {
     }
 }
 
-/// The largest slope between axis neighbours of a dense `r³` grid of values (x fastest) with
-/// spacing `h`; NaN values are ignored.
-fn neighbour_slope(values: &[f32], r: usize, h: f32) -> f32 {
-    let at = |i: usize, j: usize, k: usize| values[(k * r + j) * r + i];
+/// The largest slope `|v_a − v_b| / distance(a, b)` between axis neighbours `a`, `b` (flat
+/// indices) of a dense `r³` grid of values (x fastest); non-finite slopes (a NaN value, two
+/// points at one place) are ignored. The one measurement behind every Lipschitz check: the
+/// scene grid's dense and sparse evaluations and the marching cubes' block culling.
+pub(crate) fn neighbour_slope(values: &[f32], r: usize, distance: impl Fn(usize, usize) -> f32 + Sync) -> f32 {
+    let at = |i: usize, j: usize, k: usize| (k * r + j) * r + i;
     (0..r)
         .into_par_iter()
         .map(|k| {
             let mut worst = 0.0f32;
             for j in 0..r {
                 for i in 0..r {
-                    let v = at(i, j, k);
                     for (di, dj, dk) in [(1, 0, 0), (0, 1, 0), (0, 0, 1)] {
                         if i + di < r && j + dj < r && k + dk < r {
-                            let d = (at(i + di, j + dj, k + dk) - v).abs();
-                            if d > worst {
-                                worst = d;
+                            let (a, b) = (at(i, j, k), at(i + di, j + dj, k + dk));
+                            let slope = (values[a] - values[b]).abs() / distance(a, b);
+                            if slope.is_finite() && slope > worst {
+                                worst = slope;
                             }
                         }
                     }
                 }
             }
-            worst / h
+            worst
         })
         .reduce(|| 0.0, f32::max)
 }
@@ -274,23 +276,7 @@ fn sparse_descent(
         if first {
             // Top-level blocks are full-size except at the far edge: their centres are about a
             // block apart; the exact distance is used.
-            let n = top as usize;
-            let at = |i: usize, j: usize, k: usize| (k * n + j) * n + i;
-            for k in 0..n {
-                for j in 0..n {
-                    for i in 0..n {
-                        for (di, dj, dk) in [(1, 0, 0), (0, 1, 0), (0, 0, 1)] {
-                            if i + di < n && j + dj < n && k + dk < n {
-                                let (a, b) = (at(i, j, k), at(i + di, j + dj, k + dk));
-                                let slope = (values[a] - values[b]).abs() / centers[a].distance(centers[b]);
-                                if slope.is_finite() {
-                                    measured = measured.max(slope);
-                                }
-                            }
-                        }
-                    }
-                }
-            }
+            measured = measured.max(neighbour_slope(&values, top as usize, |a, b| centers[a].distance(centers[b])));
             first = false;
         }
         if size == 1 {
@@ -352,7 +338,7 @@ pub fn evaluate(field: &dyn SdfField, s: f32, config: &SceneGridConfig) -> Resul
             let centers: Vec<Vec3> = cells.par_iter().map(|c| config.cell_center(*c)).collect();
             let values = query(field, &centers);
             queries += cells.len();
-            let measured = neighbour_slope(&values, r as usize, cell);
+            let measured = neighbour_slope(&values, r as usize, |_, _| cell);
             (cells, values, LipschitzCheck { claimed: lipschitz_claimed, measured, used: lipschitz_claimed, retries: 0 })
         }
         Evaluation::Sparse => {

@@ -32,6 +32,9 @@ pub enum BackboneError {
         /// Values needed.
         expected: usize,
     },
+    /// A hash grid was asked of a preset that has none.
+    #[error("the preset {0} has no hash grid to size (a hash-grid preset: neuralangelo-cpu, neuralangelo)")]
+    NoHashGrid(&'static str),
 }
 
 /// The SDF network's input encoding.
@@ -189,7 +192,16 @@ impl Preset {
     /// Whether the SDF network starts with a hash grid (the Neuralangelo presets): the ones with
     /// input tangents (analytic normals) and hash tables (bf16 table moments).
     pub fn has_hash_grid(self) -> bool {
-        matches!(self, Preset::NeuralangeloCpu | Preset::Neuralangelo)
+        self.hash_grid().is_some()
+    }
+
+    /// The preset's hash grid (`None` for the positional-encoding presets).
+    pub fn hash_grid(self) -> Option<HashGridConfig> {
+        match self {
+            Preset::NeuralangeloCpu => Some(HashGridConfig::neuralangelo_cpu()),
+            Preset::Neuralangelo => Some(HashGridConfig { levels: 16, features: 8, log2_table: 22, base_resolution: 32, finest_resolution: 2048 }),
+            Preset::NeusCpu | Preset::Neus => None,
+        }
     }
 }
 
@@ -213,7 +225,16 @@ pub struct ParamLayout {
 /// v = 0.3 (NeuS: s = e³ ≈ 20). Coarse-to-fine starts with all levels active (see
 /// [`Backbone::set_active_levels`]).
 pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
-    let backbone = architecture(preset);
+    build_from(assemble(preset, preset.hash_grid()), preset, radius, seed)
+}
+
+/// [`build`] with another hash grid than the preset's (a model sized by the data): the preset's
+/// networks and initialisation on `grid`. An error for a preset without a hash grid.
+pub fn build_with_grid(preset: Preset, grid: HashGridConfig, radius: f64, seed: u64) -> Result<(Backbone, Vec<f32>), BackboneError> {
+    Ok(build_from(architecture_with_grid(preset, grid)?, preset, radius, seed))
+}
+
+fn build_from(backbone: Backbone, preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
     let width = backbone.sdf.b.config().width;
     let n_enc = Module::<f32>::n_outputs(&backbone.sdf.a);
     init_parameters(backbone, preset, radius, seed, width, n_enc)
@@ -222,22 +243,28 @@ pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
 /// A preset's networks without parameters (sizes, layouts, memory estimates); [`build`] adds
 /// initialised parameters.
 pub fn architecture(preset: Preset) -> Backbone {
-    let (encoding, width, layers, features, color_width, color_layers) = match preset {
-        Preset::NeuralangeloCpu => {
-            (InputEncoding::HashGrid(WithInput { encoding: HashGrid::new(HashGridConfig::neuralangelo_cpu()) }), 64, 2, 15, 64, 2)
-        }
-        Preset::NeusCpu => (InputEncoding::Positional(PositionalEncoding { frequencies: 6 }), 64, 4, 15, 64, 2),
-        Preset::Neuralangelo => (
-            InputEncoding::HashGrid(WithInput {
-                encoding: HashGrid::new(HashGridConfig { levels: 16, features: 8, log2_table: 22, base_resolution: 32, finest_resolution: 2048 }),
-            }),
-            256,
-            1,
-            255,
-            256,
-            4,
-        ),
-        Preset::Neus => (InputEncoding::Positional(PositionalEncoding { frequencies: 6 }), 256, 8, 256, 256, 4),
+    assemble(preset, preset.hash_grid())
+}
+
+/// [`architecture`] on another hash grid than the preset's (see [`build_with_grid`]).
+pub fn architecture_with_grid(preset: Preset, grid: HashGridConfig) -> Result<Backbone, BackboneError> {
+    if !preset.has_hash_grid() {
+        return Err(BackboneError::NoHashGrid(preset.name()));
+    }
+    Ok(assemble(preset, Some(grid)))
+}
+
+/// The preset's networks on `grid` (the encoding: a hash grid, else the positional encoding).
+fn assemble(preset: Preset, grid: Option<HashGridConfig>) -> Backbone {
+    let (width, layers, features, color_width, color_layers) = match preset {
+        Preset::NeuralangeloCpu => (64, 2, 15, 64, 2),
+        Preset::NeusCpu => (64, 4, 15, 64, 2),
+        Preset::Neuralangelo => (256, 1, 255, 256, 4),
+        Preset::Neus => (256, 8, 256, 256, 4),
+    };
+    let encoding = match grid {
+        Some(grid) => InputEncoding::HashGrid(WithInput { encoding: HashGrid::new(grid) }),
+        None => InputEncoding::Positional(PositionalEncoding { frequencies: 6 }),
     };
     let n_enc = Module::<f32>::n_outputs(&encoding);
     let sdf_mlp = Mlp::new(MlpConfig {
@@ -628,5 +655,24 @@ mod tests {
         assert!((backbone.config.normal_step - 1.0 / 256.0).abs() < 1e-12);
         assert_eq!(Preset::from_name("neus").unwrap(), Preset::Neus);
         assert!(Preset::from_name("nerf").is_err());
+    }
+
+    /// A grid sized by the data keeps the preset's level spacing, ends at the asked resolution,
+    /// starts as a sphere like the preset, and is refused by the presets without a hash grid.
+    #[test]
+    fn a_grid_reaching_another_resolution_keeps_the_presets_spacing() {
+        let cpu = HashGridConfig::neuralangelo_cpu();
+        assert_eq!(cpu.reaching(256, 16), cpu);
+        let finer = cpu.reaching(512, 18);
+        assert_eq!((finer.levels, finer.finest_resolution, finer.log2_table, finer.base_resolution), (10, 512, 18, 16));
+        let grid = HashGrid::new(finer.clone());
+        let r = grid.resolutions();
+        assert_eq!((r[0], r[r.len() - 1]), (16, 512));
+        let coarse = cpu.reaching(8, 14);
+        assert_eq!((coarse.levels, coarse.finest_resolution), (1, 16));
+        let (backbone, params) = build_with_grid(Preset::NeuralangeloCpu, finer, 0.5, 7).unwrap();
+        assert_eq!(backbone.n_params::<f32>(), params.len());
+        assert!(params.len() > build(Preset::NeuralangeloCpu, 0.5, 7).1.len());
+        assert!(matches!(build_with_grid(Preset::NeusCpu, cpu, 0.5, 7), Err(BackboneError::NoHashGrid("neus-cpu"))));
     }
 }

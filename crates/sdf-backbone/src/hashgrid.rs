@@ -34,6 +34,18 @@ impl HashGridConfig {
     pub fn neuralangelo_cpu() -> HashGridConfig {
         HashGridConfig { levels: 8, features: 2, log2_table: 16, base_resolution: 16, finest_resolution: 256 }
     }
+
+    /// This grid's coarsest resolution, features and growth per level, with as many levels as
+    /// reach `finest` (the last level is `finest`; one level when `finest` ≤ the coarsest) and
+    /// tables of 2^`log2_table` entries: a grid sized for finer or coarser detail that keeps the
+    /// spacing of its levels.
+    pub fn reaching(&self, finest: u32, log2_table: u32) -> HashGridConfig {
+        let (lo, hi) = (f64::from(self.base_resolution.max(1)), f64::from(self.finest_resolution.max(1)));
+        let growth = if self.levels > 1 { ((hi.ln() - lo.ln()) / (self.levels - 1) as f64).exp() } else { 2.0 };
+        let finest = finest.max(self.base_resolution.max(1));
+        let steps = if growth > 1.0 { ((f64::from(finest).ln() - lo.ln()) / growth.ln()).round() as usize } else { 0 };
+        HashGridConfig { levels: steps + 1, log2_table, finest_resolution: finest, ..self.clone() }
+    }
 }
 
 /// The encoding. Parameters: L tables of `min(T, (N_l + 1)³)` × F features, level after level.

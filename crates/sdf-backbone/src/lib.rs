@@ -38,7 +38,10 @@ pub mod render;
 pub mod scratch;
 pub mod upsample;
 
-pub use backbone::{Backbone, BackboneError, BackboneField, InputEncoding, ParamLayout, Preset, SdfNet, StepRates, adam_step, architecture, build};
+pub use backbone::{
+    Backbone, BackboneError, BackboneField, InputEncoding, ParamLayout, Preset, SdfNet, StepRates, adam_step, architecture, architecture_with_grid,
+    build, build_with_grid,
+};
 pub use background::BackgroundModel;
 pub use checkpoint::{CheckpointReader, CheckpointWriter};
 pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};

@@ -24,138 +24,12 @@ use view_sampler::Interpolation;
 
 mod annotated;
 mod budget;
+mod choices;
 mod validate;
 pub use annotated::annotated_default;
 use budget::budget_from_short_keys;
 pub use budget::{Budget, parse_duration};
-
-/// Which rays the trainer draws.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum SamplerKind {
-    /// The probability-guided sampler with the surface losses and the extra ray points.
-    #[default]
-    Guided,
-    /// Uniform pixels, the plain backbone (same rays and samples per ray).
-    Uniform,
-    /// instant-ngp's error map: pixels drawn in proportion to their recent loss, no correction
-    /// (`[mining]`; the plain backbone otherwise, as `uniform`).
-    #[serde(rename = "error-map")]
-    #[value(name = "error-map")]
-    ErrorMap,
-    /// Soft mining (CVPR 2024): the error map's pixels with each pixel's loss weighted by
-    /// `(p_uniform / Q)^α` (`mining.alpha`).
-    #[serde(rename = "soft-mining")]
-    #[value(name = "soft-mining")]
-    SoftMining,
-}
-
-impl SamplerKind {
-    /// The name in configurations and on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            SamplerKind::Guided => "guided",
-            SamplerKind::Uniform => "uniform",
-            SamplerKind::ErrorMap => "error-map",
-            SamplerKind::SoftMining => "soft-mining",
-        }
-    }
-
-    /// Whether the pixels come from the loss ([`view_sampler::ErrorMap`]).
-    pub fn mines(self) -> bool {
-        matches!(self, SamplerKind::ErrorMap | SamplerKind::SoftMining)
-    }
-}
-
-/// How Adam stores the hash tables' moments.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum MomentStorage {
-    /// f32, like every other parameter's.
-    #[default]
-    F32,
-    /// bf16 with stochastic rounding: half the memory of the moments (sdf-backbone `optim`).
-    Bf16,
-}
-
-/// How the run takes its normals (`model.normals`): a scheme of `sdf-backbone`, or `auto`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Normals {
-    /// Analytic where the model allows it (a hash-grid preset, no curvature loss), else
-    /// tetrahedral: the analytic step is the faster one at level mesh quality
-    /// (docs/DECISIONS.md §24).
-    Auto,
-    /// Central differences: 6 probes per sample.
-    Central,
-    /// Tetrahedral differences: 4 probes per sample.
-    Tetrahedral,
-    /// The exact gradient by forward-mode derivatives (hash-grid presets, no curvature loss).
-    Analytic,
-}
-
-/// Which connected components of the extracted mesh are kept.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum MeshFilter {
-    /// Every component.
-    All,
-    /// Only the largest (by triangle count).
-    Largest,
-    /// The largest component and every other the views support: with masks, a component whose
-    /// vertices lie inside the visual hull (in the foreground of ≥ 90 % of the training views that see them in frame);
-    /// without masks, a component of at least `output.min_component_area` of the mesh's area.
-    Supported,
-}
-
-/// What is behind the object. In a file also `learned_background = true | false` (the key
-/// of earlier versions: learned | fixed).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase", try_from = "BackgroundModelText")]
-pub enum BackgroundModel {
-    /// Learned when the run does not use masks (a capture's real surroundings must be
-    /// explained by something other than the object), fixed when it does.
-    Auto,
-    /// NeRF++'s inverted-sphere model beyond the bound, learned with the object.
-    Learned,
-    /// The fixed colour `model.background`.
-    Fixed,
-}
-
-/// How a background model may be written: its name, or the earlier boolean.
-#[derive(Deserialize)]
-#[serde(untagged)]
-enum BackgroundModelText {
-    Name(String),
-    Learned(bool),
-}
-
-impl TryFrom<BackgroundModelText> for BackgroundModel {
-    type Error = String;
-    fn try_from(text: BackgroundModelText) -> std::result::Result<Self, String> {
-        match text {
-            BackgroundModelText::Learned(true) => Ok(BackgroundModel::Learned),
-            BackgroundModelText::Learned(false) => Ok(BackgroundModel::Fixed),
-            BackgroundModelText::Name(n) => match n.as_str() {
-                "auto" => Ok(BackgroundModel::Auto),
-                "learned" => Ok(BackgroundModel::Learned),
-                "fixed" => Ok(BackgroundModel::Fixed),
-                other => Err(format!("unknown background model {other:?}: expected auto, learned or fixed")),
-            },
-        }
-    }
-}
-
-impl BackgroundModel {
-    /// Whether the background is learned in a run that uses masks (`use_masks`) or not.
-    pub fn learned(self, use_masks: bool) -> bool {
-        match self {
-            BackgroundModel::Auto => !use_masks,
-            BackgroundModel::Learned => true,
-            BackgroundModel::Fixed => false,
-        }
-    }
-}
+pub use choices::{BackgroundModel, GridSize, MeshFilter, MeshResolution, MomentStorage, Normals, SamplerKind};
 
 /// Everything a run needs. Defaults: the built-in scene on a 2-core CPU in ≤ 5 minutes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -229,6 +103,13 @@ pub struct BuiltinConfig {
 pub struct ModelConfig {
     /// neuralangelo-cpu, neus-cpu, neuralangelo (paper scale), neus (paper scale).
     pub preset: Preset,
+    /// The hash grid: `preset` (the preset's own) or `footprint` (sized by the data: the finest
+    /// resolution from the training views' pixel footprint at the region of interest, printed
+    /// before training with why; hash-grid presets).
+    pub grid: GridSize,
+    /// Training-view pixels per finest cell of a grid sized by the footprint (1: a cell per
+    /// pixel at the region of interest's centre; 2: half as fine).
+    pub pixels_per_cell: f64,
     /// Radius of the initial sphere.
     pub init_radius: f64,
     /// Hash-grid levels active at the start (coarse-to-fine; Neuralangelo: 4).
@@ -409,8 +290,10 @@ pub struct OutputConfig {
     pub checkpoint_every: u64,
     /// Log scalars every n iterations.
     pub log_every: u64,
-    /// Marching-cubes resolution of the final mesh.
-    pub mesh_resolution: u32,
+    /// Marching-cubes resolution of the meshes (final and snapshots): cells per side of the
+    /// bound's cube (8 … 2048), or `"model"`: as fine as the model's finest level
+    /// ([`MeshResolution::Model`]).
+    pub mesh_resolution: MeshResolution,
     /// Which connected components of the mesh are kept.
     pub mesh_filter: MeshFilter,
     /// `supported` without masks: the smallest component kept, as a fraction of the mesh's area
@@ -462,6 +345,8 @@ impl Default for ModelConfig {
     fn default() -> Self {
         ModelConfig {
             preset: Preset::NeuralangeloCpu,
+            grid: GridSize::Preset,
+            pixels_per_cell: 1.0,
             init_radius: 0.5,
             initial_levels: 4,
             all_levels_at: 0.25,
@@ -555,7 +440,7 @@ impl Default for OutputConfig {
             snapshots: Vec::new(),
             checkpoint_every: 100,
             log_every: 10,
-            mesh_resolution: 192,
+            mesh_resolution: MeshResolution::Cells(192),
             mesh_filter: MeshFilter::Supported,
             min_component_area: 0.01,
             mesh_formats: vec![MeshFormat::Ply],

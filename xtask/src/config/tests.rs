@@ -168,3 +168,22 @@ fn every_sampler_reads_back_by_the_name_it_prints() {
         assert_eq!(<SamplerKind as clap::ValueEnum>::from_str(kind.name(), false), Ok(kind));
     }
 }
+
+/// A mesh resolution is a number of cells or `"model"`, and either reads back from the run
+/// folder's `config.toml` as written; another name or a number out of range is refused naming
+/// the key.
+#[test]
+fn mesh_resolution_reads_a_number_or_model_and_round_trips() {
+    let resolution = |o: &str| TrainConfig::load(None, &[o.to_string()]).map(|c| c.output.mesh_resolution);
+    assert_eq!(resolution("output.mesh_resolution=256").unwrap(), MeshResolution::Cells(256));
+    assert_eq!(resolution("output.mesh_resolution=model").unwrap(), MeshResolution::Model);
+    for setting in [MeshResolution::Model, MeshResolution::Cells(300)] {
+        let mut config = TrainConfig::default();
+        config.output.mesh_resolution = setting;
+        assert_eq!(TrainConfig::from_toml(&config.to_toml()).unwrap(), config);
+    }
+    for (bad, says) in [("output.mesh_resolution=fine", "\"model\""), ("output.mesh_resolution=4", "output.mesh_resolution")] {
+        let err = format!("{:#}", resolution(bad).unwrap_err());
+        assert!(err.contains(says), "{bad}: {err}");
+    }
+}

@@ -1,7 +1,7 @@
 //! The range checks of a [`TrainConfig`]: every key's allowed values, and the combinations
 //! that cannot run, each error naming the key and what it expects.
 
-use super::{Budget, MomentStorage, Normals, TrainConfig};
+use super::{Budget, GridSize, MeshResolution, MomentStorage, Normals, TrainConfig};
 use anyhow::{Result, bail};
 use std::time::Duration;
 
@@ -37,6 +37,13 @@ impl TrainConfig {
             &prob_grid::Shape::NAMES.join(", "),
         )?;
         need(self.model.init_radius > 0.0 && self.model.init_radius < 1.0, "model.init_radius", self.model.init_radius, "in (0, 1)")?;
+        need(self.model.pixels_per_cell.is_finite() && self.model.pixels_per_cell > 0.0, "model.pixels_per_cell", self.model.pixels_per_cell, "> 0")?;
+        need(
+            self.model.grid == GridSize::Preset || self.model.preset.has_hash_grid(),
+            "model.preset",
+            self.model.preset.name(),
+            "a hash-grid preset (neuralangelo-cpu, neuralangelo) with model.grid = \"footprint\"",
+        )?;
         need(self.model.initial_levels >= 1, "model.initial_levels", self.model.initial_levels, "≥ 1")?;
         need((0.0..=1.0).contains(&self.model.all_levels_at), "model.all_levels_at", self.model.all_levels_at, "in [0, 1]")?;
         need(non_neg(self.model.eikonal), "model.eikonal", self.model.eikonal, "≥ 0")?;
@@ -119,7 +126,9 @@ impl TrainConfig {
         need(self.output.validate_downscale >= 1, "output.validate_downscale", self.output.validate_downscale, "≥ 1")?;
         need(self.output.eval_downscale >= 1, "output.eval_downscale", self.output.eval_downscale, "≥ 1")?;
         need(self.output.log_every >= 1, "output.log_every", self.output.log_every, "≥ 1")?;
-        need((8..=2048).contains(&self.output.mesh_resolution), "output.mesh_resolution", self.output.mesh_resolution, "in 8..=2048")?;
+        if let MeshResolution::Cells(n) = self.output.mesh_resolution {
+            need((8..=crate::sizing::MAX_MESH_RESOLUTION).contains(&n), "output.mesh_resolution", n, "in 8..=2048 or \"model\"")?;
+        }
         need((0.0..1.0).contains(&self.output.min_component_area), "output.min_component_area", self.output.min_component_area, "in [0, 1)")?;
         need(finite_pos(self.output.chamfer_spacing), "output.chamfer_spacing", self.output.chamfer_spacing, "> 0")?;
         need(finite_pos(self.output.chamfer_max_dist), "output.chamfer_max_dist", self.output.chamfer_max_dist, "> 0")?;

@@ -35,6 +35,12 @@ use crate::real::Real;
 use crate::render::{render_ray, render_ray_backward};
 use crate::scratch::Buf;
 
+mod deferred;
+mod normals;
+use deferred::Deferred;
+pub use deferred::DeferredGradient;
+pub use normals::NormalScheme;
+
 /// Colour loss.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ColorLoss {
@@ -42,46 +48,6 @@ pub enum ColorLoss {
     L1,
     /// (c − ĉ)² summed over channels.
     L2,
-}
-
-/// How normals are taken from the SDF network.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum NormalScheme {
-    /// Central differences: 6 probes per sample.
-    Central,
-    /// Tetrahedral differences: 4 probes per sample.
-    Tetrahedral,
-    /// The exact gradient ∇ₓS by forward-mode derivatives through the network
-    /// ([`Module::forward_tangents`]), and the reverse pass through them: no probes. Needs a
-    /// network with tangents (the hash-grid presets) and no curvature loss (its Laplacian comes
-    /// from the probes).
-    Analytic,
-}
-
-impl NormalScheme {
-    /// Extra SDF evaluations (probe rows) per sample: 6 central, 4 tetrahedral, 0 analytic.
-    pub fn probe_count(self) -> usize {
-        self.probes().len()
-    }
-
-    /// Probe offsets (in units of the step h) and the weight of each probe in `nᵢ` per unit h.
-    fn probes(self) -> &'static [([f64; 3], f64)] {
-        const C: [([f64; 3], f64); 6] = [
-            ([1.0, 0.0, 0.0], 0.5),
-            ([-1.0, 0.0, 0.0], 0.5),
-            ([0.0, 1.0, 0.0], 0.5),
-            ([0.0, -1.0, 0.0], 0.5),
-            ([0.0, 0.0, 1.0], 0.5),
-            ([0.0, 0.0, -1.0], 0.5),
-        ];
-        const T: [([f64; 3], f64); 4] = [([1.0, -1.0, -1.0], 0.25), ([-1.0, -1.0, 1.0], 0.25), ([-1.0, 1.0, -1.0], 0.25), ([1.0, 1.0, 1.0], 0.25)];
-        match self {
-            NormalScheme::Central => &C,
-            NormalScheme::Tetrahedral => &T,
-            NormalScheme::Analytic => &[],
-        }
-    }
 }
 
 /// A per-ray loss on the samples, added to the pipeline's loss (the surface losses of
@@ -135,46 +101,6 @@ pub struct RayInput<R> {
     /// training; a loss-guided sampler's importance correction otherwise (soft mining).
     /// The per-sample regularisers (eikonal, curvature, the caller's) are not weighted.
     pub weight: R,
-}
-
-/// A work item's deferred gradient record: its SDF points and the record
-/// ([`Module::apply_deferred`]).
-type Deferred<R> = Option<(Buf<R>, Buf<R>)>;
-
-/// The deferred gradient of a batch: each work item's SDF points and record, in order.
-pub struct DeferredGradient<R: Real> {
-    records: Vec<(Buf<R>, Buf<R>)>,
-    /// Records of analytic normals ([`Module::backward_tangent_deferring`]): points and
-    /// tangents, output and tangent adjoints.
-    tangent: bool,
-}
-
-impl<R: Real> DeferredGradient<R> {
-    /// (points, record) per work item, in order.
-    pub fn parts(&self) -> Vec<(&[R], &[R])> {
-        self.records.iter().map(|(p, r)| (&p[..], &r[..])).collect()
-    }
-
-    /// Adds block `block` of the deferred gradient of `net` to `d_block`
-    /// ([`Module::apply_deferred_block`]).
-    pub fn apply_block<M: Module<R>>(&self, net: &M, block: usize, d_block: &mut [R]) {
-        if self.tangent {
-            net.apply_deferred_tangent_block(&self.parts(), block, d_block);
-        } else {
-            net.apply_deferred_block(&self.parts(), block, d_block);
-        }
-    }
-
-    /// Every block of the deferred gradient of `net` into `d_deferred` (its first
-    /// [`Module::deferred_params`] parameters), in parallel over blocks.
-    pub fn apply<M: Module<R> + Sync>(&self, net: &M, d_deferred: &mut [R]) {
-        use rayon::prelude::*;
-        if !self.tangent {
-            return net.apply_deferred(&self.parts(), d_deferred);
-        }
-        let blocks = crate::module::split_blocks(d_deferred, crate::module::deferred_block_ranges::<R, _>(net));
-        blocks.into_par_iter().enumerate().for_each(|(block, d)| self.apply_block(net, block, d));
-    }
 }
 
 /// A chunk's loss, gradient (all but the deferred parameters), outputs and deferred record.

@@ -1,0 +1,45 @@
+//! How the pipeline takes normals from the SDF network: numerical differences on probes around
+//! each sample (central, tetrahedral) or the exact gradient by forward-mode derivatives.
+
+#[cfg(doc)]
+use crate::module::Module;
+
+/// How normals are taken from the SDF network.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NormalScheme {
+    /// Central differences: 6 probes per sample.
+    Central,
+    /// Tetrahedral differences: 4 probes per sample.
+    Tetrahedral,
+    /// The exact gradient ∇ₓS by forward-mode derivatives through the network
+    /// ([`Module::forward_tangents`]), and the reverse pass through them: no probes. Needs a
+    /// network with tangents (the hash-grid presets) and no curvature loss (its Laplacian comes
+    /// from the probes).
+    Analytic,
+}
+
+impl NormalScheme {
+    /// Extra SDF evaluations (probe rows) per sample: 6 central, 4 tetrahedral, 0 analytic.
+    pub fn probe_count(self) -> usize {
+        self.probes().len()
+    }
+
+    /// Probe offsets (in units of the step h) and the weight of each probe in `nᵢ` per unit h.
+    pub(crate) fn probes(self) -> &'static [([f64; 3], f64)] {
+        const C: [([f64; 3], f64); 6] = [
+            ([1.0, 0.0, 0.0], 0.5),
+            ([-1.0, 0.0, 0.0], 0.5),
+            ([0.0, 1.0, 0.0], 0.5),
+            ([0.0, -1.0, 0.0], 0.5),
+            ([0.0, 0.0, 1.0], 0.5),
+            ([0.0, 0.0, -1.0], 0.5),
+        ];
+        const T: [([f64; 3], f64); 4] = [([1.0, -1.0, -1.0], 0.25), ([-1.0, -1.0, 1.0], 0.25), ([-1.0, 1.0, -1.0], 0.25), ([1.0, 1.0, 1.0], 0.25)];
+        match self {
+            NormalScheme::Central => &C,
+            NormalScheme::Tetrahedral => &T,
+            NormalScheme::Analytic => &[],
+        }
+    }
+}

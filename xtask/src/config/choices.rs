@@ -1,0 +1,195 @@
+//! The configuration's named choices: the enums a key takes by name (`sampler = "guided"`,
+//! `model.normals = "auto"`, …), with what each name means and the rules that resolve `auto`.
+
+use serde::{Deserialize, Serialize};
+
+/// Which rays the trainer draws.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum SamplerKind {
+    /// The probability-guided sampler with the surface losses and the extra ray points.
+    #[default]
+    Guided,
+    /// Uniform pixels, the plain backbone (same rays and samples per ray).
+    Uniform,
+    /// instant-ngp's error map: pixels drawn in proportion to their recent loss, no correction
+    /// (`[mining]`; the plain backbone otherwise, as `uniform`).
+    #[serde(rename = "error-map")]
+    #[value(name = "error-map")]
+    ErrorMap,
+    /// Soft mining (CVPR 2024): the error map's pixels with each pixel's loss weighted by
+    /// `(p_uniform / Q)^α` (`mining.alpha`).
+    #[serde(rename = "soft-mining")]
+    #[value(name = "soft-mining")]
+    SoftMining,
+}
+
+impl SamplerKind {
+    /// The name in configurations and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            SamplerKind::Guided => "guided",
+            SamplerKind::Uniform => "uniform",
+            SamplerKind::ErrorMap => "error-map",
+            SamplerKind::SoftMining => "soft-mining",
+        }
+    }
+
+    /// Whether the pixels come from the loss ([`view_sampler::ErrorMap`]).
+    pub fn mines(self) -> bool {
+        matches!(self, SamplerKind::ErrorMap | SamplerKind::SoftMining)
+    }
+}
+
+/// How Adam stores the hash tables' moments.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MomentStorage {
+    /// f32, like every other parameter's.
+    #[default]
+    F32,
+    /// bf16 with stochastic rounding: half the memory of the moments (sdf-backbone `optim`).
+    Bf16,
+}
+
+/// How the run takes its normals (`model.normals`): a scheme of `sdf-backbone`, or `auto`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Normals {
+    /// Analytic where the model allows it (a hash-grid preset, no curvature loss), else
+    /// tetrahedral: the analytic step is the faster one at level mesh quality
+    /// (docs/DECISIONS.md §24).
+    Auto,
+    /// Central differences: 6 probes per sample.
+    Central,
+    /// Tetrahedral differences: 4 probes per sample.
+    Tetrahedral,
+    /// The exact gradient by forward-mode derivatives (hash-grid presets, no curvature loss).
+    Analytic,
+}
+
+/// Which connected components of the extracted mesh are kept.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MeshFilter {
+    /// Every component.
+    All,
+    /// Only the largest (by triangle count).
+    Largest,
+    /// The largest component and every other the views support: with masks, a component whose
+    /// vertices lie inside the visual hull (in the foreground of ≥ 90 % of the training views that see them in frame);
+    /// without masks, a component of at least `output.min_component_area` of the mesh's area.
+    Supported,
+}
+
+/// What is behind the object. In a file also `learned_background = true | false` (the key
+/// of earlier versions: learned | fixed).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase", try_from = "BackgroundModelText")]
+pub enum BackgroundModel {
+    /// Learned when the run does not use masks (a capture's real surroundings must be
+    /// explained by something other than the object), fixed when it does.
+    Auto,
+    /// NeRF++'s inverted-sphere model beyond the bound, learned with the object.
+    Learned,
+    /// The fixed colour `model.background`.
+    Fixed,
+}
+
+/// How a background model may be written: its name, or the earlier boolean.
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum BackgroundModelText {
+    Name(String),
+    Learned(bool),
+}
+
+impl TryFrom<BackgroundModelText> for BackgroundModel {
+    type Error = String;
+    fn try_from(text: BackgroundModelText) -> std::result::Result<Self, String> {
+        match text {
+            BackgroundModelText::Learned(true) => Ok(BackgroundModel::Learned),
+            BackgroundModelText::Learned(false) => Ok(BackgroundModel::Fixed),
+            BackgroundModelText::Name(n) => match n.as_str() {
+                "auto" => Ok(BackgroundModel::Auto),
+                "learned" => Ok(BackgroundModel::Learned),
+                "fixed" => Ok(BackgroundModel::Fixed),
+                other => Err(format!("unknown background model {other:?}: expected auto, learned or fixed")),
+            },
+        }
+    }
+}
+
+impl BackgroundModel {
+    /// Whether the background is learned in a run that uses masks (`use_masks`) or not.
+    pub fn learned(self, use_masks: bool) -> bool {
+        match self {
+            BackgroundModel::Auto => !use_masks,
+            BackgroundModel::Learned => true,
+            BackgroundModel::Fixed => false,
+        }
+    }
+}
+
+/// Which hash grid the run's model has (`model.grid`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GridSize {
+    /// The preset's (neuralangelo-cpu: 8 levels, 16 → 256, 2¹⁶ entries per level).
+    #[default]
+    Preset,
+    /// Sized by the data: the finest resolution from the training views' pixel footprint at the
+    /// region of interest (`model.pixels_per_cell` pixels per finest cell), the preset's level
+    /// spacing, the table grown with the finest level's surface (`crate::sizing`).
+    Footprint,
+}
+
+/// The marching-cubes resolution of the run's meshes (`output.mesh_resolution`): a number of
+/// cells per side of the bound's cube, or `"model"`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "MeshResolutionText", into = "MeshResolutionText")]
+pub enum MeshResolution {
+    /// This many cells per side of the bound's cube.
+    Cells(u32),
+    /// As fine as the model: one cell per cell of the hash grid's finest level (the preset's,
+    /// or the grid sized by the footprint); for a preset without a hash grid, one cell per
+    /// `model.pixels_per_cell` pixels of the views' footprint (`crate::sizing::mesh_resolution`).
+    Model,
+}
+
+/// How a mesh resolution is written: a number, or the name `model`.
+#[derive(Serialize, Deserialize)]
+#[serde(untagged)]
+enum MeshResolutionText {
+    Cells(u32),
+    Name(String),
+}
+
+impl TryFrom<MeshResolutionText> for MeshResolution {
+    type Error = String;
+    fn try_from(text: MeshResolutionText) -> std::result::Result<Self, String> {
+        match text {
+            MeshResolutionText::Cells(n) => Ok(MeshResolution::Cells(n)),
+            MeshResolutionText::Name(n) if n == "model" => Ok(MeshResolution::Model),
+            MeshResolutionText::Name(n) => Err(format!("mesh resolution {n:?}: expected a number of cells (8 … 2048) or \"model\"")),
+        }
+    }
+}
+
+impl From<MeshResolution> for MeshResolutionText {
+    fn from(resolution: MeshResolution) -> Self {
+        match resolution {
+            MeshResolution::Cells(n) => MeshResolutionText::Cells(n),
+            MeshResolution::Model => MeshResolutionText::Name("model".into()),
+        }
+    }
+}
+
+impl std::fmt::Display for MeshResolution {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            MeshResolution::Cells(n) => write!(f, "{n}"),
+            MeshResolution::Model => write!(f, "\"model\""),
+        }
+    }
+}

@@ -30,6 +30,12 @@ fn builtin_spec(config: &TrainConfig) -> GoldenSpec {
     spec
 }
 
+/// An analytic surface's truth points at a protocol's `spacing`: `1 / spacing²` points per unit
+/// of area, as a truth mesh is sampled (`eval_metrics::sample_mesh`); deterministic.
+pub fn analytic_truth(shape: &prob_grid::Shape, spacing: f64) -> Vec<[f32; 3]> {
+    shape.sample_surface(1.0 / (spacing * spacing), 7).iter().map(|p| p.as_vec3().to_array()).collect()
+}
+
 /// What the memory model needs of a scene.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SceneSize {
@@ -136,7 +142,12 @@ impl SceneData {
     /// units) in the data folder.
     pub fn ground_truth(&self, spacing: f64) -> Result<Option<Vec<[f32; 3]>>> {
         if let Some(points) = &self.builtin_truth {
-            return Ok(Some(points.iter().map(|p| p.as_vec3().to_array()).collect()));
+            // A protocol finer than the default samples the analytic surface at its own density,
+            // as a truth mesh is sampled; the default keeps the stored points (every table so far).
+            return Ok(Some(match &self.builtin_shape {
+                Some(shape) if spacing < crate::config::DEFAULT_CHAMFER_SPACING => analytic_truth(shape, spacing),
+                _ => points.iter().map(|p| p.as_vec3().to_array()).collect(),
+            }));
         }
         let Some(dir) = &self.path else { return Ok(None) };
         let normalized_from_world = self.scene.world_from_normalized.inverse();
@@ -196,4 +207,26 @@ impl ViewSplit {
 /// Whether the masks are used: asked for and present on every view.
 pub fn uses_masks(config: &TrainConfig, scene: &Scene) -> bool {
     config.data.masks && scene.views.iter().all(|v| v.mask.is_some())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The built-in truth keeps its stored points at the default protocol (every table so far)
+    /// and follows a finer protocol's density, as a truth mesh would: about four times the points
+    /// at half the spacing.
+    #[test]
+    fn a_finer_protocol_samples_the_built_in_truth_at_its_own_density() {
+        let config = TrainConfig::load(None, &["data.builtin.width=40".into(), "data.builtin.views=4".into()]).unwrap();
+        let data = SceneData::builtin(&config).unwrap();
+        let stored = data.builtin_truth.as_ref().unwrap().len();
+        let at = |spacing: f64| data.ground_truth(spacing).unwrap().unwrap().len() as f64;
+        assert_eq!(at(crate::config::DEFAULT_CHAMFER_SPACING) as usize, stored);
+        let (fine, finer) = (at(0.003), at(0.0015));
+        assert!((finer / fine - 4.0).abs() < 0.1, "{fine} → {finer}");
+        // The CSG area is an upper bound (the sum over the primitives, hidden parts included).
+        let area = data.builtin_shape.as_ref().unwrap().area();
+        assert!((0.5..=1.0).contains(&(fine * 0.003 * 0.003 / area)), "{fine} points on at most {area}");
+    }
 }

@@ -10,6 +10,11 @@ use glam::Vec3;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 
+/// A built-in analytic shape by name.
+fn shape_by_name(name: &str) -> Result<prob_grid::Shape> {
+    prob_grid::Shape::by_name(name).with_context(|| format!("unknown shape {name:?} (known: {})", prob_grid::Shape::NAMES.join(", ")))
+}
+
 /// A positive finite number (the evaluation's distances).
 fn positive(text: &str) -> Result<f64> {
     let v: f64 = text.trim().parse().with_context(|| format!("{text:?} is not a number"))?;
@@ -28,6 +33,15 @@ pub struct EvalArgs {
     /// Ground-truth points (.ply).
     #[arg(long, conflicts_with_all = ["gt_mesh", "run"])]
     pub gt_points: Option<PathBuf>,
+    /// An analytic ground truth, a built-in shape by name (composite, multipart, sphere, torus,
+    /// box; the built-in scenes' normalised frame), sampled at the protocol's spacing.
+    #[arg(long, value_parser = shape_by_name, conflicts_with_all = ["gt_points", "gt_mesh", "data", "run"])]
+    pub gt_shape: Option<prob_grid::Shape>,
+    /// With --gt-shape: also measure the shape's own marching-cubes mesh at this resolution
+    /// (cells per side of the bound's cube) by the same protocol — the floor a mesh of that
+    /// resolution cannot beat.
+    #[arg(long, requires = "gt_shape", value_parser = clap::value_parser!(u32).range(8..=2048))]
+    pub floor_resolution: Option<u32>,
     /// Ground-truth mesh (sampled at the same density as the prediction).
     #[arg(long, conflicts_with = "run")]
     pub gt_mesh: Option<PathBuf>,
@@ -96,6 +110,8 @@ pub enum GroundTruth {
     Points(Vec<[f32; 3]>),
     /// A mesh, sampled at the protocol's spacing like the prediction.
     Mesh(MeshArrays),
+    /// An analytic surface, sampled at the protocol's spacing like a mesh.
+    Shape(prob_grid::Shape),
 }
 
 /// The protocol's distances in the mesh's units; `None`: from the ground truth's bounding-box
@@ -131,9 +147,15 @@ impl GroundTruth {
                 bail!("{key} = {v}: expected a positive distance");
             }
         }
+        let coarse;
         let points = match self {
             GroundTruth::Points(p) => p,
             GroundTruth::Mesh((v, _)) => v,
+            GroundTruth::Shape(shape) => {
+                // The bounding box of a thousand-odd surface points.
+                coarse = crate::data::analytic_truth(shape, (shape.area() / 1000.0).sqrt());
+                &coarse
+            }
         };
         let (lo, hi) =
             points.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(a, b), p| (a.min(Vec3::from_array(*p)), b.max(Vec3::from_array(*p))));
@@ -154,6 +176,7 @@ impl GroundTruth {
         match self {
             GroundTruth::Points(p) => Ok(p),
             GroundTruth::Mesh((v, f)) => Ok(eval_metrics::sample_mesh(&v, &f, spacing, GT_SAMPLING_SEED).context("the ground-truth mesh")?),
+            GroundTruth::Shape(shape) => Ok(crate::data::analytic_truth(&shape, spacing)),
         }
     }
 }
@@ -249,17 +272,24 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     // Ground truth: points, or a mesh to sample.
     let gt_mesh = args.gt_mesh.clone().or_else(|| args.data.as_ref().map(|d| d.join("gt_mesh.ply")).filter(|p| p.exists()));
     let gt_points_path = args.gt_points.clone().or_else(|| args.data.as_ref().map(|d| d.join("gt_points.ply")).filter(|p| p.exists()));
-    let (gt, gt_name) = match (&gt_mesh, &gt_points_path) {
-        (Some(m), _) => (GroundTruth::Mesh(read_mesh(m).with_context(|| format!("reading the ground-truth mesh {}", m.display()))?), m),
-        (None, Some(p)) => {
-            let ply = PlyData::read(p).with_context(|| format!("reading the ground-truth points {}", p.display()))?;
-            (GroundTruth::Points(ply.positions.iter().map(|p| p.to_array()).collect()), p)
+    let (gt, gt_name) = match (&args.gt_shape, &gt_mesh, &gt_points_path) {
+        (Some(shape), _, _) => (GroundTruth::Shape(shape.clone()), "the analytic shape".to_string()),
+        (None, Some(m), _) => {
+            (GroundTruth::Mesh(read_mesh(m).with_context(|| format!("reading the ground-truth mesh {}", m.display()))?), m.display().to_string())
         }
-        (None, None) => bail!("no ground truth: give --gt-points, --gt-mesh, or --data with gt_mesh.ply / gt_points.ply"),
+        (None, None, Some(p)) => {
+            let ply = PlyData::read(p).with_context(|| format!("reading the ground-truth points {}", p.display()))?;
+            (GroundTruth::Points(ply.positions.iter().map(|p| p.to_array()).collect()), p.display().to_string())
+        }
+        (None, None, None) => bail!("no ground truth: give --gt-points, --gt-mesh, --gt-shape, or --data with gt_mesh.ply / gt_points.ply"),
     };
     let protocol = Protocol { spacing: args.spacing, max_dist: args.max_dist, tau: args.tau };
-    let Distances { spacing, max_dist, tau } = gt.distances(protocol, &gt_name.display().to_string())?;
+    let Distances { spacing, max_dist, tau } = gt.distances(protocol, &gt_name)?;
     let gt = gt.into_points(spacing)?;
+    let floor = match (&args.gt_shape, args.floor_resolution) {
+        (Some(shape), Some(resolution)) => Some(crate::outputs::shape_floor(shape, &gt, resolution, spacing, max_dist, tau)?.chamfer),
+        _ => None,
+    };
     let mut pred = eval_metrics::sample_mesh(&vertices, &triangles, spacing, PRED_SAMPLING_SEED)
         .with_context(|| format!("the mesh {}", args.mesh.as_ref().map_or(String::new(), |m| m.display().to_string())))?;
     let before = pred.len();
@@ -312,7 +342,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         "chamfer": m.chamfer, "accuracy": m.accuracy, "completeness": m.completeness,
         "precision": m.precision, "recall": m.recall, "f_score": m.f_score, "tau": tau,
         "spacing": spacing, "max_dist": max_dist, "pred_points": m.n_pred, "culled": before - pred.len(), "gt_points": m.n_gt,
-        "alignment": alignment, "icp": icp,
+        "alignment": alignment, "icp": icp, "floor": floor, "floor_resolution": args.floor_resolution,
     });
     if args.json {
         println!("{result}");
@@ -321,6 +351,9 @@ pub fn run(args: &EvalArgs) -> Result<()> {
             "Chamfer {:.5} (accuracy {:.5}, completeness {:.5}), F-score {:.4} at τ = {tau:.4} (P {:.3}, R {:.3}); {} / {} points, spacing {spacing:.4}, max distance {max_dist:.4}",
             m.chamfer, m.accuracy, m.completeness, m.f_score, m.precision, m.recall, m.n_pred, m.n_gt
         );
+        if let (Some(floor), Some(resolution)) = (floor, args.floor_resolution) {
+            println!("the shape's own {resolution}³ marching-cubes mesh by the same protocol: Chamfer {floor:.5}");
+        }
     }
     Ok(())
 }
@@ -379,6 +412,28 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An analytic truth measures the shape's own mesh exactly as the floor does, and a finer
+    /// mesh or a finer protocol lowers the floor.
+    #[test]
+    fn the_floor_is_the_shapes_own_mesh_measured_like_any_other() {
+        let shape = prob_grid::Shape::by_name("sphere").unwrap();
+        let protocol = |spacing| Protocol { spacing: Some(spacing), max_dist: Some(0.1), tau: Some(0.01) };
+        let floor = |resolution, spacing| {
+            crate::outputs::shape_floor(&shape, &crate::data::analytic_truth(&shape, spacing), resolution, spacing, 0.1, 0.01).unwrap().chamfer
+        };
+        let config = prob_grid::MarchingCubesConfig { resolution: 64, block: 16, ..Default::default() };
+        let (mesh, _) = prob_grid::marching_cubes(&shape, &config).unwrap();
+        let vertices: Vec<[f32; 3]> = mesh.vertices.iter().map(|v| v.to_array()).collect();
+        let (m, d) = evaluate_mesh(&vertices, &mesh.triangles, GroundTruth::Shape(shape.clone()), protocol(0.004)).unwrap();
+        assert_eq!(d.spacing, 0.004);
+        assert_eq!(m.chamfer, floor(64, 0.004));
+        assert!(floor(128, 0.004) < floor(64, 0.004));
+        assert!(floor(128, 0.002) < floor(128, 0.004));
+        // The sphere (radius 0.5) has its bounding box from the analytic surface.
+        let d = GroundTruth::Shape(shape).distances(Protocol::default(), "").unwrap();
+        assert!((d.spacing - 3f64.sqrt() / 1000.0).abs() < 2e-5, "{d:?}");
+    }
 
     #[test]
     fn dilation_grows_a_pixel_into_a_square() {

@@ -214,9 +214,22 @@ pub fn mesh_floor(data: &crate::data::SceneData, output: &crate::config::OutputC
     let (Some(shape), Some(gt)) = (&data.builtin_shape, data.ground_truth(output.chamfer_spacing)?) else {
         return Ok(None);
     };
+    Ok(Some(shape_floor(shape, &gt, resolution, output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau)?.chamfer))
+}
+
+/// The marching-cubes mesh of `shape` at `resolution` cells per side of the bound's cube,
+/// measured against `gt` (that shape's truth points) with the protocol's distances.
+pub fn shape_floor(
+    shape: &prob_grid::Shape,
+    gt: &[[f32; 3]],
+    resolution: u32,
+    spacing: f64,
+    max_dist: f64,
+    tau: f64,
+) -> Result<eval_metrics::GeometryMetrics> {
     let config = prob_grid::MarchingCubesConfig { resolution, block: 16, ..Default::default() };
     let (mesh, _) = prob_grid::marching_cubes(shape, &config)?;
-    Ok(Some(geometry_metrics(&mesh, &gt, output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau)?.chamfer))
+    geometry_metrics(&mesh, gt, spacing, max_dist, tau)
 }
 
 /// The mesh (normalised frame) seen from `cameras`, shaded by its normals, side by side.

@@ -335,6 +335,7 @@ impl Trainer {
         let warmup = self.config.optim.schedule.warmup;
         let ramp = if warmup > 0.0 { (progress / warmup).min(1.0) } else { 1.0 };
         self.backbone.config.curvature_weight = self.config.model.curvature * ramp;
+        self.backbone.config.normal_smoothness = self.config.model.normal_smoothness * ramp;
 
         // Grid update at the start of each part of the run (the estimator's schedule).
         let update = self.update_grids_due(progress)?;

@@ -170,6 +170,7 @@ fn whole_pipeline_gradients_match_finite_differences() {
                 background: [0.3, 0.5, 0.1],
                 masked_color,
                 opacity_entropy: 0.05,
+                normal_smoothness: 0.05,
             },
         };
         let n = pipeline.n_params::<f64>();
@@ -282,6 +283,7 @@ fn both_normal_schemes_recover_a_known_gradient() {
                 background: [0.0; 3],
                 masked_color: false,
                 opacity_entropy: 0.0,
+                normal_smoothness: 0.0,
             },
         };
         let n = pipeline.n_params::<f64>();
@@ -335,6 +337,7 @@ fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
             background: [0.2; 3],
             masked_color: false,
             opacity_entropy: 0.0,
+            normal_smoothness: 0.0,
         },
     };
     let n = pipeline.n_params::<f64>();
@@ -368,10 +371,12 @@ fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
     }
 }
 
-/// The curvature term is mean |ΔS|: for S(x) = sin(x₀) (positional encoding, one linear layer),
-/// ΔS = −sin(x₀), with both probe schemes.
-#[test]
-fn curvature_term_is_the_mean_absolute_laplacian() {
+/// A positional-encoding SDF network and a colour network.
+type SinePipeline = Pipeline<Chain<PositionalEncoding, Mlp>, Mlp>;
+
+/// S(x) = sin(x₀) (positional encoding, one linear layer) with `normals`, no loss term but the
+/// colour's, and a ray along the x axis through 5 samples: (pipeline, parameters, ray).
+fn sine_pipeline(normals: NormalScheme) -> (SinePipeline, Vec<f64>, RayInput<f64>) {
     let pe = PositionalEncoding { frequencies: 1 };
     let mlp = Mlp::new(MlpConfig {
         n_inputs: 9,
@@ -399,30 +404,53 @@ fn curvature_term_is_the_mean_absolute_laplacian() {
         mask: None,
         weight: 1.0,
     };
-    let expected: f64 = (0..4).map(|i| (ray.origin[0] + ray.depths[i]).sin().abs()).sum::<f64>() / 4.0;
+    let pipeline = Pipeline {
+        sdf: Chain { a: pe, b: mlp },
+        color,
+        background: None,
+        config: PipelineConfig {
+            color_loss: ColorLoss::L2,
+            eikonal_weight: 0.0,
+            mask_weight: 0.0,
+            normal_step: 1e-3,
+            normals,
+            curvature_weight: 0.0,
+            background: [0.0; 3],
+            masked_color: false,
+            opacity_entropy: 0.0,
+            normal_smoothness: 0.0,
+        },
+    };
+    let n = pipeline.n_params::<f64>();
+    let mut params = vec![0.0; n];
+    params[3] = 1.0; // weight of sin(x₀)
+    params[n - 1] = 0.3;
+    (pipeline, params, ray)
+}
+
+/// The curvature term is mean |ΔS|: for S(x) = sin(x₀), ΔS = −sin(x₀), with both probe schemes.
+#[test]
+fn curvature_term_is_the_mean_absolute_laplacian() {
     for normals in [NormalScheme::Central, NormalScheme::Tetrahedral] {
-        let mut pipeline = Pipeline {
-            sdf: Chain { a: pe, b: mlp.clone() },
-            color: color.clone(),
-            background: None,
-            config: PipelineConfig {
-                color_loss: ColorLoss::L2,
-                eikonal_weight: 0.0,
-                mask_weight: 0.0,
-                normal_step: 1e-3,
-                normals,
-                curvature_weight: 0.0,
-                background: [0.0; 3],
-                masked_color: false,
-                opacity_entropy: 0.0,
-            },
-        };
-        let n = pipeline.n_params::<f64>();
-        let mut params = vec![0.0; n];
-        params[3] = 1.0; // weight of sin(x₀)
-        params[n - 1] = 0.3;
+        let (mut pipeline, params, ray) = sine_pipeline(normals);
+        let expected: f64 = (0..4).map(|i| (ray.origin[0] + ray.depths[i]).sin().abs()).sum::<f64>() / 4.0;
         let base = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
         pipeline.config.curvature_weight = 1.0;
+        let with = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
+        assert!(((with - base) - expected).abs() < 1e-5, "{normals:?}: {} vs {expected}", with - base);
+    }
+}
+
+/// The normal smoothness term adds the mean squared change of the normals between neighbouring
+/// samples: for S(x) = sin(x₀) along the x axis, nᵢ = (cos(x₀ᵢ), 0, 0) at the first four samples.
+#[test]
+fn normal_smoothness_is_the_mean_squared_change_of_neighbouring_normals() {
+    for normals in [NormalScheme::Central, NormalScheme::Tetrahedral] {
+        let (mut pipeline, params, ray) = sine_pipeline(normals);
+        let normal = |i: usize| (ray.origin[0] + ray.depths[i]).cos();
+        let expected: f64 = (0..3).map(|i| (normal(i + 1) - normal(i)).powi(2)).sum::<f64>() / 3.0;
+        let base = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
+        pipeline.config.normal_smoothness = 1.0;
         let with = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
         assert!(((with - base) - expected).abs() < 1e-5, "{normals:?}: {} vs {expected}", with - base);
     }
@@ -516,6 +544,7 @@ fn check_hash_grid_pipeline(normals: NormalScheme) {
             background: [0.2; 3],
             masked_color: true,
             opacity_entropy: 0.0,
+            normal_smoothness: 0.05,
         },
     };
     assert!(Module::<f64>::deferred_params(&pipeline.sdf) > 0, "the tables are deferred");

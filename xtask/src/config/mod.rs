@@ -31,6 +31,11 @@ use budget::budget_from_short_keys;
 pub use budget::{Budget, parse_duration};
 pub use choices::{BackgroundModel, GridSize, MeshFilter, MeshResolution, MomentStorage, Normals, SamplerKind};
 
+/// The default spacing of the points sampled on meshes for Chamfer (`output.chamfer_spacing`,
+/// normalised units): every table in BENCHMARKS.md so far was measured with it, against the
+/// built-in scene's stored truth points.
+pub const DEFAULT_CHAMFER_SPACING: f64 = 0.004;
+
 /// Everything a run needs. Defaults: the built-in scene on a 2-core CPU in ≤ 5 minutes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -125,6 +130,11 @@ pub struct ModelConfig {
     /// Curvature loss weight, reached linearly over the learning-rate warm-up (Neuralangelo:
     /// 5e-4; default 0: not measured to help on short runs).
     pub curvature: f64,
+    /// Normal smoothness weight, `mean |nᵢ₊₁ − nᵢ|²` over neighbouring samples of each ray
+    /// (the Hessian of S along the rays: zero on planes, large on bumps), reached linearly over
+    /// the learning-rate warm-up like the curvature. It needs no probes, so it works with
+    /// analytic normals (default 0: see BENCHMARKS.md, "Detail against the budget").
+    pub normal_smoothness: f64,
     /// Normals (and curvature) by tetrahedral (4 probes) or central (6 probes) differences, or
     /// `analytic`: the exact ∇ₓS by forward-mode derivatives (hash-grid presets, no curvature);
     /// `auto`: analytic where that holds, else tetrahedral ([`ModelConfig::normal_scheme`]).
@@ -353,6 +363,7 @@ impl Default for ModelConfig {
             eikonal: 0.1,
             mask: 1.0,
             curvature: 0.0,
+            normal_smoothness: 0.0,
             normals: Normals::Auto,
             background: [0.0; 3],
             background_model: BackgroundModel::Auto,
@@ -445,7 +456,7 @@ impl Default for OutputConfig {
             min_component_area: 0.01,
             mesh_formats: vec![MeshFormat::Ply],
             vertex_colors: false,
-            chamfer_spacing: 0.004,
+            chamfer_spacing: DEFAULT_CHAMFER_SPACING,
             chamfer_max_dist: 0.1,
             fscore_tau: 0.01,
         }

@@ -51,6 +51,7 @@ impl TrainConfig {
         need(non_neg(self.model.opacity_entropy), "model.opacity_entropy", self.model.opacity_entropy, "≥ 0")?;
         need((1..=16).contains(&self.model.background_frequencies), "model.background_frequencies", self.model.background_frequencies, "in 1..=16")?;
         need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;
+        need(non_neg(self.model.normal_smoothness), "model.normal_smoothness", self.model.normal_smoothness, "≥ 0")?;
         if self.model.normals == Normals::Analytic {
             need(
                 self.model.curvature == 0.0,

@@ -17,7 +17,8 @@
 //! colour network maps `[xᵢ, nᵢ, SH₄(d), featuresᵢ]` to the colour of interval i; the ray is
 //! rendered with [`render_ray`] at scale `s = exp(10·v)` (NeuS's learnt variance v). The loss is
 //! the colour error (L1 as NeuS, or L2) of `colour + (1 − opacity)·background`, plus
-//! `λ_eik · mean (|nᵢ| − 1)²`, plus, with a mask, `λ_mask · BCE(opacity, mask)`, plus any
+//! `λ_eik · mean (|nᵢ| − 1)²`, plus `λ_smooth · mean |nᵢ₊₁ − nᵢ|²` (the normal smoothness),
+//! plus, with a mask, `λ_mask · BCE(opacity, mask)`, plus any
 //! per-ray loss on the samples supplied by the caller ([`SampleLoss`]: the surface losses).
 //!
 //! Gradients of a batch are deterministic: rays are cut into fixed chunks, each chunk's gradient
@@ -134,6 +135,12 @@ pub struct PipelineConfig {
     /// mask (o clamped to [10⁻³, 1 − 10⁻³]): each ray is pushed to hit the surface or miss it,
     /// so that without masks a thin part is a surface rather than a haze (0: off).
     pub opacity_entropy: f64,
+    /// Weight of the normal smoothness `mean |nᵢ₊₁ − nᵢ|²` over neighbouring samples of a ray
+    /// (0: off). Rays cross the surface from many directions, so over a batch it penalises
+    /// `|H d|²`, the Hessian of S along the rays: zero on a plane, large on bumps. It needs only
+    /// the normals the pipeline has, so it works with analytic normals, where the curvature
+    /// term's Laplacian (from probes) is not available.
+    pub normal_smoothness: f64,
 }
 
 /// SDF network + colour network + learnt variance (+ an optional learned background),
@@ -528,6 +535,20 @@ impl<S, C> Pipeline<S, C> {
                 if backward && len > R::ZERO {
                     for k in 0..3 {
                         d_normals_all[c0 + i][k] = eik_w * (e + e) * nv[k] / len * inv_m;
+                    }
+                }
+            }
+            if self.config.normal_smoothness > 0.0 && n > 1 {
+                let w = R::of(self.config.normal_smoothness) / R::of((n - 1) as f64);
+                for i in 0..n - 1 {
+                    let change = [0, 1, 2].map(|k| nrms[i + 1][k] - nrms[i][k]);
+                    loss += w * (change[0] * change[0] + change[1] * change[1] + change[2] * change[2]);
+                    if backward {
+                        for k in 0..3 {
+                            let d = w * (change[k] + change[k]) * inv_m;
+                            d_normals_all[c0 + i + 1][k] += d;
+                            d_normals_all[c0 + i][k] -= d;
+                        }
                     }
                 }
             }

@@ -192,29 +192,35 @@ pub fn geometry_metrics(mesh: &IsoMesh, gt: &[[f32; 3]], spacing: f64, max_dist:
 
 /// Chamfer and F-score of `mesh` against `data`'s ground truth with a run's protocol
 /// (`output.chamfer_spacing`, `chamfer_max_dist`, `fscore_tau`); `None` when the data has no
-/// ground truth or the mesh no triangles. What the periodic metrics and the snapshots measure.
+/// ground truth or the mesh no triangles. With `floor_at`, also [`mesh_floor`] at that
+/// resolution against the same truth points (fetched once). What the periodic metrics and the
+/// snapshots measure.
 pub fn run_geometry(
     data: &crate::data::SceneData,
     output: &crate::config::OutputConfig,
     mesh: &IsoMesh,
-) -> Result<Option<eval_metrics::GeometryMetrics>> {
+    floor_at: Option<u32>,
+) -> Result<Option<(eval_metrics::GeometryMetrics, Option<f64>)>> {
     match data.ground_truth(output.chamfer_spacing)? {
         Some(gt) if !mesh.triangles.is_empty() => {
-            Ok(Some(geometry_metrics(mesh, &gt, output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau)?))
+            let geometry = geometry_metrics(mesh, &gt, output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau)?;
+            let floor = match floor_at {
+                Some(resolution) => mesh_floor(data, &gt, output, resolution)?,
+                None => None,
+            };
+            Ok(Some((geometry, floor)))
         }
         _ => Ok(None),
     }
 }
 
 /// The Chamfer distance a mesh of `resolution` cells per side cannot beat on `data`: the truth's
-/// own marching-cubes mesh at that resolution, measured with the run's protocol (the same
-/// sampling of mesh and truth). `None` without an analytic truth (only the built-in scenes
-/// have one).
-pub fn mesh_floor(data: &crate::data::SceneData, output: &crate::config::OutputConfig, resolution: u32) -> Result<Option<f64>> {
-    let (Some(shape), Some(gt)) = (&data.builtin_shape, data.ground_truth(output.chamfer_spacing)?) else {
-        return Ok(None);
-    };
-    Ok(Some(shape_floor(shape, &gt, resolution, output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau)?.chamfer))
+/// own marching-cubes mesh at that resolution, measured against `gt` (`data`'s truth points at
+/// the run's protocol) with the run's protocol. `None` without an analytic truth (only the
+/// built-in scenes have one).
+pub fn mesh_floor(data: &crate::data::SceneData, gt: &[[f32; 3]], output: &crate::config::OutputConfig, resolution: u32) -> Result<Option<f64>> {
+    let Some(shape) = &data.builtin_shape else { return Ok(None) };
+    Ok(Some(shape_floor(shape, gt, resolution, output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau)?.chamfer))
 }
 
 /// The marching-cubes mesh of `shape` at `resolution` cells per side of the bound's cube,

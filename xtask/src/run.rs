@@ -501,7 +501,7 @@ fn interim_metrics(trainer: &Trainer) -> Result<serde_json::Value> {
     let view = trainer.split().evaluation_views()[0];
     let (psnr, masked) = trainer.render_view(view, config.output.eval_downscale)?.psnr();
     let mesh = trainer.extract_mesh(&|_, _| {})?;
-    let geometry = run_geometry(trainer.data(), &config.output, &mesh)?;
+    let geometry = run_geometry(trainer.data(), &config.output, &mesh, None)?.map(|(g, _)| g);
     let t = trainer.timing();
     Ok(json!({"eval": true, "step": trainer.state().step, "psnr": psnr, "psnr_masked": masked, "chamfer": geometry.map(|g| g.chamfer),
         "f_score": geometry.map(|g| g.f_score), "time_s": t.step_seconds + t.grid_seconds}))
@@ -600,7 +600,10 @@ fn finish(
         }
         _ => None,
     };
-    let mesh_floor = if geometry.is_some() { crate::outputs::mesh_floor(trainer.data(), &config.output, trainer.mesh_resolution())? } else { None };
+    let mesh_floor = match (&gt, geometry) {
+        (Some(gt), Some(_)) => crate::outputs::mesh_floor(trainer.data(), gt, &config.output, trainer.mesh_resolution())?,
+        _ => None,
+    };
     let geometry_seconds = t.elapsed().as_secs_f64();
     progress.finish_phase();
     let timing = trainer.timing();

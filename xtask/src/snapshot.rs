@@ -7,7 +7,7 @@
 
 use crate::folder::RunFolder;
 use crate::metrics::RunMetrics;
-use crate::outputs::{mesh_files, mesh_floor, run_geometry};
+use crate::outputs::{mesh_files, run_geometry};
 use crate::trainer::Trainer;
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
@@ -122,8 +122,10 @@ pub fn write_snapshot(trainer: &Trainer, folder: &RunFolder, at: f64, views: &[u
         folder.write(&format!("{dir}/mesh.{}", format.extension()), &bytes)?;
     }
     let o = &config.output;
-    let geometry = run_geometry(trainer.data(), o, &mesh)?;
-    let floor = if geometry.is_some() { mesh_floor(trainer.data(), o, trainer.mesh_resolution())? } else { None };
+    let (geometry, floor) = match run_geometry(trainer.data(), o, &mesh, Some(trainer.mesh_resolution()))? {
+        Some((g, floor)) => (Some(g), floor),
+        None => (None, None),
+    };
     let psnr = views.iter().map(|&v| Ok(trainer.render_view(v, o.eval_downscale)?.psnr())).collect::<Result<Vec<_>>>()?;
     let mean = |values: Vec<f64>| (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
     let metrics = SnapshotMetrics {

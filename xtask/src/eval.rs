@@ -359,6 +359,8 @@ pub fn run(args: &EvalArgs) -> Result<()> {
 }
 
 fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
+    // It writes eval.json into the run folder: not while another process trains there.
+    let _lock = crate::folder::is_run_folder(dir).then(|| crate::folder::FolderLock::acquire(dir)).transpose()?;
     let mut trainer = open_run(dir, None)?;
     let r = &trainer.config().render;
     let (fine, rounds) = (args.render_fine.unwrap_or(r.render_fine), args.render_rounds.unwrap_or(r.render_upsample_rounds));

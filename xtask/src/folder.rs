@@ -15,6 +15,57 @@ use std::sync::Arc;
 /// The file that marks a folder as a run folder of this program.
 pub const MARKER: &str = ".psneus-run";
 
+/// The file a process locks while it writes into a run folder (it holds that process's id).
+pub const LOCK: &str = ".psneus-lock";
+
+/// A run folder held by this process: while it lives, no other process writes there (train,
+/// `--resume`, `--overwrite`, `eval --run`). An advisory lock of the operating system on
+/// [`LOCK`]: it ends with the process however the process ends, so the lock of a process that
+/// died is free again, and the next run takes it over.
+#[derive(Debug)]
+pub struct FolderLock {
+    _file: std::fs::File,
+}
+
+impl FolderLock {
+    /// Locks the run folder `dir` (which must exist) for this process, or an error naming the
+    /// process that holds it.
+    pub fn acquire(dir: &Path) -> Result<FolderLock> {
+        use std::io::{Read, Seek, Write};
+        let path = dir.join(LOCK);
+        let mut file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .with_context(|| format!("cannot open the lock {}", path.display()))?;
+        match file.try_lock() {
+            Ok(()) => {}
+            Err(std::fs::TryLockError::WouldBlock) => {
+                let mut holder = String::new();
+                let _ = file.read_to_string(&mut holder);
+                let holder = holder.trim();
+                bail!(
+                    "{} is in use by another run ({}): nothing was changed; wait for it to finish, stop it (Ctrl-C or SIGTERM \
+                     writes a checkpoint), or choose another --out",
+                    dir.display(),
+                    if holder.is_empty() { "a process that has not yet said which" } else { holder }
+                );
+            }
+            Err(std::fs::TryLockError::Error(e)) => {
+                return Err(e).with_context(|| format!("cannot lock {}", path.display()));
+            }
+        }
+        let who = format!("process {} on {}", std::process::id(), std::env::args().collect::<Vec<_>>().join(" "));
+        file.set_len(0)
+            .and_then(|()| file.rewind())
+            .and_then(|()| file.write_all(who.as_bytes()))
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        Ok(FolderLock { _file: file })
+    }
+}
+
 /// Where a run's files go. The default writes atomically (temporary file + rename); tests inject
 /// failures.
 pub trait Sink: Send + Sync {
@@ -56,12 +107,14 @@ pub fn is_run_folder(dir: &Path) -> bool {
 pub struct RunFolder {
     dir: PathBuf,
     sink: Arc<dyn Sink>,
+    _lock: FolderLock,
 }
 
 impl RunFolder {
-    /// Makes the folder of a fresh run. `dir` must not exist, or be empty, or (with `overwrite`)
-    /// be a run folder of this program, whose files are then removed; anything else is refused
-    /// and left as it is. Returns the folder and whether `dir` was created now.
+    /// Makes the folder of a fresh run and locks it ([`FolderLock`]). `dir` must not exist, or
+    /// be empty, or (with `overwrite`) be a run folder of this program that no other process
+    /// holds, whose files are then removed; anything else is refused and left as it is. Returns
+    /// the folder and whether `dir` was created now.
     pub fn create(dir: &Path, overwrite: bool, sink: Arc<dyn Sink>) -> Result<(RunFolder, bool)> {
         let existed = dir.exists();
         if existed {
@@ -69,8 +122,17 @@ impl RunFolder {
             if !meta.is_dir() {
                 bail!("--out {} exists and is not a folder: choose another --out", dir.display());
             }
-            let empty = std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?.next().is_none();
-            if !empty {
+        }
+        // A folder with a lock is (or is becoming) a run folder: its lock is taken before anything
+        // is read or removed, so that a run in progress there refuses this one.
+        let early_lock = (dir.join(LOCK).is_file() || is_run_folder(dir)).then(|| FolderLock::acquire(dir)).transpose()?;
+        if existed {
+            let others = |d: &Path| -> Result<Vec<PathBuf>> {
+                let entries = std::fs::read_dir(d).with_context(|| format!("cannot read {}", d.display()))?;
+                Ok(entries.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.file_name() != Some(LOCK.as_ref())).collect())
+            };
+            let contents = others(dir)?;
+            if !contents.is_empty() {
                 if !is_run_folder(dir) {
                     bail!(
                         "--out {} is a folder that holds other files (not a run folder of psneus): nothing was written; choose another --out",
@@ -83,26 +145,35 @@ impl RunFolder {
                         dir.display()
                     );
                 }
-                std::fs::remove_dir_all(dir).with_context(|| format!("cannot clear the earlier run in {}", dir.display()))?;
+                // Everything but the lock, which this process holds.
+                for path in contents {
+                    let removed = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+                    removed.with_context(|| format!("cannot clear the earlier run in {}: {}", dir.display(), path.display()))?;
+                }
             }
         }
         std::fs::create_dir_all(dir.join("pictures")).with_context(|| format!("cannot create the run folder {}", dir.display()))?;
-        let folder = RunFolder { dir: dir.to_path_buf(), sink };
+        let lock = match early_lock {
+            Some(lock) => lock,
+            None => FolderLock::acquire(dir)?,
+        };
+        let folder = RunFolder { dir: dir.to_path_buf(), sink, _lock: lock };
         folder.write(MARKER, b"psneus run folder: written by `cargo xtask train`; `--resume` continues it, `--overwrite` replaces it\n")?;
         Ok((folder, !existed))
     }
 
-    /// Opens the folder of a run to continue; stale temporary files of a killed writer are
-    /// removed.
+    /// Opens the folder of a run to continue and locks it ([`FolderLock`]); stale temporary
+    /// files of a killed writer are removed.
     pub fn open(dir: &Path, sink: Arc<dyn Sink>) -> Result<RunFolder> {
         if !is_run_folder(dir) {
             bail!("{} is not a run folder (no {MARKER}, config.toml or data.json)", dir.display());
         }
+        let lock = FolderLock::acquire(dir)?;
         std::fs::create_dir_all(dir.join("pictures")).with_context(|| format!("cannot open the run folder {}", dir.display()))?;
         for d in [dir.to_path_buf(), dir.join("pictures")] {
             datasets::io::remove_stale_temporaries(&d);
         }
-        Ok(RunFolder { dir: dir.to_path_buf(), sink })
+        Ok(RunFolder { dir: dir.to_path_buf(), sink, _lock: lock })
     }
 
     /// The folder.
@@ -284,4 +355,21 @@ pub fn read_run_config(dir: &Path) -> Result<(TrainConfig, DataRecord)> {
     let bytes = std::fs::read(&data_path).with_context(|| format!("{} is not a run folder (no data.json)", dir.display()))?;
     let record: DataRecord = serde_json::from_slice(&bytes).with_context(|| format!("{} is not a run's data record", data_path.display()))?;
     Ok((config, record))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two holders of one folder's lock (two open files: what two processes are) cannot both
+    /// have it; the second is told who has it, and the lock is free once the first lets go.
+    #[test]
+    fn a_folder_lock_is_held_by_one_holder_at_a_time_and_names_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let first = FolderLock::acquire(dir.path()).unwrap();
+        let refused = FolderLock::acquire(dir.path()).unwrap_err().to_string();
+        assert!(refused.contains("in use by another run") && refused.contains(&format!("process {}", std::process::id())), "{refused}");
+        drop(first);
+        FolderLock::acquire(dir.path()).unwrap();
+    }
 }

@@ -11,7 +11,7 @@ use glam::{DVec2, DVec3};
 use std::path::PathBuf;
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
 use xtask::{bench, bench_backbone, bench_memory, bench_overhead, eval, fuzz, run, sample, trade};
 
 /// The heap, counted (and capped by `cargo xtask fuzz`; no limit otherwise).
@@ -231,7 +231,52 @@ enum BenchKind {
     },
 }
 
+/// The signal that stopped the run (0: none; the exit code is 128 + it, as a shell reports a
+/// process that a signal ended).
+static STOP_SIGNAL: AtomicI32 = AtomicI32::new(0);
+
+/// The exit code of a run that stopped early: 128 + the signal (130 for Ctrl-C or `--stop-at`).
+fn stopped_exit_code() -> i32 {
+    match STOP_SIGNAL.load(Ordering::SeqCst) {
+        0 => 130,
+        signal => 128 + signal,
+    }
+}
+
+/// A flag that Ctrl-C, SIGTERM or SIGHUP sets — what a terminal, a batch scheduler, `timeout`,
+/// `docker stop` and systemd send: the first one stops the run with a checkpoint; a second one
+/// ends the process at once (exit 128 + the signal).
+#[cfg(unix)]
+fn stop_signal() -> Arc<AtomicBool> {
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    use std::io::Write;
+    let flag = Arc::new(AtomicBool::new(false));
+    let handler_flag = flag.clone();
+    match signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP]) {
+        Ok(mut signals) => {
+            std::thread::spawn(move || {
+                for signal in signals.forever() {
+                    if handler_flag.swap(true, Ordering::SeqCst) {
+                        std::process::exit(128 + signal);
+                    }
+                    STOP_SIGNAL.store(signal, Ordering::SeqCst);
+                    let name = match signal {
+                        SIGINT => run::StopSource::CtrlC,
+                        SIGTERM => run::StopSource::Terminate,
+                        _ => run::StopSource::HangUp,
+                    };
+                    // A hung-up terminal may refuse the message: the stop goes ahead all the same.
+                    let _ = writeln!(std::io::stderr(), "\n{}", run::stop_message(name));
+                }
+            });
+        }
+        Err(e) => eprintln!("warning: cannot catch Ctrl-C, SIGTERM or SIGHUP ({e}): a stop will not write a checkpoint"),
+    }
+    flag
+}
+
 /// A flag that Ctrl-C sets (the first press; a second one ends the process as usual).
+#[cfg(not(unix))]
 fn stop_signal() -> Arc<AtomicBool> {
     let flag = Arc::new(AtomicBool::new(false));
     let handler_flag = flag.clone();
@@ -239,7 +284,8 @@ fn stop_signal() -> Arc<AtomicBool> {
         if handler_flag.swap(true, Ordering::SeqCst) {
             std::process::exit(130);
         }
-        eprintln!("\n{}", run::stop_message());
+        STOP_SIGNAL.store(2, Ordering::SeqCst);
+        eprintln!("\n{}", run::stop_message(run::StopSource::CtrlC));
     });
     flag
 }
@@ -253,7 +299,7 @@ fn main() -> Result<()> {
         }
         Command::Train(args) => match run::train(&args, &stop_signal())? {
             run::Outcome::Finished(_) => Ok(()),
-            run::Outcome::Stopped { .. } => std::process::exit(130),
+            run::Outcome::Stopped { .. } => std::process::exit(stopped_exit_code()),
         },
         Command::Eval(args) => eval::run(&args),
         Command::Trade(args) => trade::run(&args, &stop_signal()),

@@ -188,14 +188,31 @@ static PHASE: AtomicU8 = AtomicU8::new(0);
 const PHASE_TRAINING: u8 = 0;
 const PHASE_FINISHING: u8 = 1;
 
-/// What a stop request does now, said when it comes (the first Ctrl-C).
-pub fn stop_message() -> &'static str {
-    match PHASE.load(Ordering::SeqCst) {
+/// What asked a run to stop (the stop signal's source, for the message).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StopSource {
+    /// Ctrl-C in the terminal (SIGINT).
+    CtrlC,
+    /// SIGTERM: a batch scheduler, `timeout`, `docker stop`, systemd, `kill`.
+    Terminate,
+    /// SIGHUP: the terminal went away.
+    HangUp,
+}
+
+/// What a stop request does now, said when it comes (the first signal).
+pub fn stop_message(source: StopSource) -> String {
+    let (what, again) = match source {
+        StopSource::CtrlC => ("Ctrl-C", "Ctrl-C again to quit now"),
+        StopSource::Terminate => ("SIGTERM", "a second SIGTERM quits now"),
+        StopSource::HangUp => ("SIGHUP", "a second SIGHUP quits now"),
+    };
+    let doing = match PHASE.load(Ordering::SeqCst) {
         PHASE_FINISHING => {
-            "stopping after this part of meshing and evaluation: the checkpoint is kept, no mesh or metrics are written;                             `--resume` finishes them; Ctrl-C again to quit now"
+            "stopping after this part of meshing and evaluation: the checkpoint is kept, no mesh or metrics are written; `--resume` finishes them"
         }
-        _ => "stopping after this iteration (a checkpoint will be written); Ctrl-C again to quit now",
-    }
+        _ => "stopping after this iteration (a checkpoint will be written)",
+    };
+    format!("{what}: {doing}; {again}")
 }
 
 /// The memory model of `config` on `data`, printed beside the memory available; an error naming

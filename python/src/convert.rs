@@ -4,7 +4,7 @@
 use pyo3::exceptions::{PyOSError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
-use xtask::config::TrainConfig;
+use trainer::config::TrainConfig;
 
 /// A library error as a Python exception: `OSError` when a missing or unreadable file is among
 /// its causes (an I/O error, a dataset file or image not found), else `ValueError`; the message

@@ -98,7 +98,7 @@ impl Estimator {
             return Err(PyValueError::new_err(format!("view {v} of a scene of {} views", scene.view_count())));
         }
         let cameras = views.iter().map(|&v| scene.data.scene.views[v].camera).collect();
-        let inner = view_sampler::Estimator::new(cameras, xtask::trainer::estimator_config(&config)).map_err(|e| to_py_err(e.into()))?;
+        let inner = view_sampler::Estimator::new(cameras, trainer::trainer::estimator_config(&config)).map_err(|e| to_py_err(e.into()))?;
         Ok(Estimator { inner, views })
     }
 

@@ -6,7 +6,7 @@ use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
 use std::path::PathBuf;
-use xtask::eval::{Distances, GroundTruth, MeshArrays, Protocol, evaluate_mesh as evaluate, read_mesh};
+use trainer::evaluation::{Distances, GroundTruth, MeshArrays, Protocol, evaluate_mesh as evaluate, read_mesh};
 
 /// An (N, 3) array as rows.
 fn rows<T: numpy::Element + Copy>(name: &str, array: &Bound<'_, PyAny>) -> PyResult<Vec<[T; 3]>> {

@@ -7,7 +7,7 @@ use pyo3::exceptions::PyIndexError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
-use xtask::data::SceneData;
+use trainer::data::SceneData;
 
 /// A calibrated multi-view scene in the normalised frame (region of interest = unit sphere).
 #[pyclass(module = "psneus", frozen)]

@@ -9,9 +9,9 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
-use xtask::config::parse_duration;
-use xtask::folder::AtomicFiles;
-use xtask::run::{Outcome, RunOptions, RunRequest, free_default_out, run};
+use trainer::config::parse_duration;
+use trainer::folder::AtomicFiles;
+use trainer::run::{Outcome, RunOptions, RunRequest, free_default_out, run};
 
 /// How often the waiting interpreter looks for Ctrl-C.
 const SIGNAL_POLL: Duration = Duration::from_millis(100);
@@ -153,5 +153,5 @@ pub fn train<'py>(
 /// `cargo xtask train --print-config` prints).
 #[pyfunction]
 pub fn default_config() -> String {
-    xtask::config::annotated_default()
+    trainer::config::annotated_default()
 }

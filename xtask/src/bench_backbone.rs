@@ -40,7 +40,7 @@ pub struct BackboneArgs {
     #[arg(long, requires = "preset")]
     pub profile: bool,
     /// With `--profile`: rays per work item (the trainer's `render.chunk`).
-    #[arg(long, requires = "profile", default_value_t = crate::config::RenderConfig::default().chunk)]
+    #[arg(long, requires = "profile", default_value_t = trainer::config::RenderConfig::default().chunk)]
     pub chunk: usize,
 }
 
@@ -143,7 +143,7 @@ fn rays(n_rays: usize, n_samples: usize) -> Vec<RayInput<f32>> {
 /// The trainer's default rates and clipping (`optim.lr_grid`, `optim.lr`, `optim.clip_norm`: 0
 /// is off; the peer does not clip either).
 fn trainer_rates() -> StepRates {
-    let optim = crate::config::OptimConfig::default();
+    let optim = trainer::config::OptimConfig::default();
     StepRates { tables: optim.lr_grid as f32, rest: optim.lr as f32, clip_norm: (optim.clip_norm > 0.0).then_some(optim.clip_norm as f32) }
 }
 
@@ -154,7 +154,7 @@ fn time_step(backbone: &Backbone, params: &mut [f32], rays: &[RayInput<f32>], re
     let mut adam = Adam::new(params.len());
     let rates = trainer_rates();
     let mut step = |params: &mut [f32]| {
-        let _ = backbone.train_step(params, &mut adam, rays, crate::config::RenderConfig::default().chunk, &NoSampleLoss, rates);
+        let _ = backbone.train_step(params, &mut adam, rays, trainer::config::RenderConfig::default().chunk, &NoSampleLoss, rates);
     };
     step(params);
     (0..reps.max(1))
@@ -315,8 +315,8 @@ fn preset_figures(preset: Preset, reps: usize, gemm_best: f64, only: Option<Norm
 }
 
 /// The trainer's default model configuration.
-fn default_model() -> crate::config::ModelConfig {
-    crate::config::ModelConfig::default()
+fn default_model() -> trainer::config::ModelConfig {
+    trainer::config::ModelConfig::default()
 }
 
 /// A normal scheme as the figures name it (`tetrahedral`, `central`, `analytic`).
@@ -390,7 +390,7 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
         if args.profile {
             profile_step(
                 preset,
-                only.unwrap_or(crate::config::ModelConfig { preset, ..default_model() }.normal_scheme()),
+                only.unwrap_or(trainer::config::ModelConfig { preset, ..default_model() }.normal_scheme()),
                 args.reps,
                 args.chunk,
                 gemm_best,

@@ -7,11 +7,11 @@
 //! figures come from the run's `metrics.json` and `log.jsonl` (`peak_rss_bytes` is the kernel's
 //! high-water mark `VmHWM`, `rss_bytes` the resident size when the line was logged).
 
-use crate::metrics::RunMetrics;
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
 use std::path::Path;
 use std::time::Instant;
+use trainer::metrics::RunMetrics;
 
 /// Runs `xtask train` in a child process with `overrides` into `out`; its wall time.
 fn train_child(out: &Path, overrides: &[String]) -> Result<f64> {

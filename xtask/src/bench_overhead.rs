@@ -2,13 +2,13 @@
 //! side by side with uniform sampling on the same trained model (iterations alternate between
 //! the two, so machine noise hits both alike).
 
-use crate::config::SamplerKind;
-use crate::run::open_run;
-use crate::trainer::Trainer;
 use anyhow::Result;
 use serde_json::json;
 use std::path::Path;
 use std::time::Instant;
+use trainer::config::SamplerKind;
+use trainer::run::open_run;
+use trainer::trainer::Trainer;
 
 /// Runs the benchmark on the model of `run` for `iterations` pairs.
 pub fn run(run_dir: &Path, iterations: u64, json_out: bool) -> Result<()> {

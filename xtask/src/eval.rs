@@ -1,14 +1,14 @@
 //! `cargo xtask eval`: a mesh against ground truth (DTU-protocol Chamfer, F-score), or a run's
 //! held-out views (PSNR whole and masked, SSIM).
 
-use crate::outputs::dilate;
-use crate::run::open_run;
 use anyhow::{Context, Result, bail};
 use datasets::io::{PlyData, write_atomic};
 use datasets::{LoadOptions, load_scene};
-use glam::Vec3;
 use serde_json::json;
 use std::path::{Path, PathBuf};
+use trainer::evaluation::{Distances, GroundTruth, PRED_SAMPLING_SEED, Protocol, read_mesh};
+use trainer::outputs::dilate;
+use trainer::run::open_run;
 
 /// A built-in analytic shape by name.
 fn shape_by_name(name: &str) -> Result<prob_grid::Shape> {
@@ -100,121 +100,6 @@ pub struct EvalArgs {
     pub json: bool,
 }
 
-/// Vertices and triangles.
-pub type MeshArrays = (Vec<[f32; 3]>, Vec<[u32; 3]>);
-
-/// The ground truth of a mesh evaluation.
-#[derive(Debug, Clone)]
-pub enum GroundTruth {
-    /// Points (e.g. DTU's `stl*_total.ply`).
-    Points(Vec<[f32; 3]>),
-    /// A mesh, sampled at the protocol's spacing like the prediction.
-    Mesh(MeshArrays),
-    /// An analytic surface, sampled at the protocol's spacing like a mesh.
-    Shape(prob_grid::Shape),
-}
-
-/// The protocol's distances in the mesh's units; `None`: from the ground truth's bounding-box
-/// diagonal (spacing / 1000, outlier distance / 20, F-score τ / 200).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct Protocol {
-    /// Sampling spacing on meshes (DTU: 0.2 mm).
-    pub spacing: Option<f64>,
-    /// Outlier distance (DTU: 20 mm).
-    pub max_dist: Option<f64>,
-    /// F-score threshold τ.
-    pub tau: Option<f64>,
-}
-
-/// The distances an evaluation used.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Distances {
-    /// Sampling spacing on meshes.
-    pub spacing: f64,
-    /// Outlier distance.
-    pub max_dist: f64,
-    /// F-score threshold τ.
-    pub tau: f64,
-}
-
-impl GroundTruth {
-    /// The protocol's distances for this ground truth (`name` says which in errors): a given
-    /// distance must be finite and positive; a missing one comes from the bounding box, which
-    /// must not be degenerate.
-    pub fn distances(&self, protocol: Protocol, name: &str) -> Result<Distances> {
-        for (key, v) in [("spacing", protocol.spacing), ("max_dist", protocol.max_dist), ("tau", protocol.tau)] {
-            if let Some(v) = v.filter(|v| !(v.is_finite() && *v > 0.0)) {
-                bail!("{key} = {v}: expected a positive distance");
-            }
-        }
-        let coarse;
-        let points = match self {
-            GroundTruth::Points(p) => p,
-            GroundTruth::Mesh((v, _)) => v,
-            GroundTruth::Shape(shape) => {
-                // The bounding box of a thousand-odd surface points.
-                coarse = crate::data::analytic_truth(shape, (shape.area() / 1000.0).sqrt());
-                &coarse
-            }
-        };
-        let (lo, hi) =
-            points.iter().fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(a, b), p| (a.min(Vec3::from_array(*p)), b.max(Vec3::from_array(*p))));
-        let diagonal = f64::from((hi - lo).length());
-        if !(diagonal.is_finite() && diagonal > 0.0) {
-            let what = if name.is_empty() { "the ground truth".to_string() } else { format!("the ground truth {name}") };
-            bail!("{what} is degenerate (its bounding box has diagonal {diagonal}): a single point or non-finite coordinates");
-        }
-        Ok(Distances {
-            spacing: protocol.spacing.unwrap_or(diagonal / 1000.0),
-            max_dist: protocol.max_dist.unwrap_or(diagonal / 20.0),
-            tau: protocol.tau.unwrap_or(diagonal / 200.0),
-        })
-    }
-
-    /// The ground-truth points: the points, or the mesh sampled every `spacing`.
-    pub fn into_points(self, spacing: f64) -> Result<Vec<[f32; 3]>> {
-        match self {
-            GroundTruth::Points(p) => Ok(p),
-            GroundTruth::Mesh((v, f)) => Ok(eval_metrics::sample_mesh(&v, &f, spacing, GT_SAMPLING_SEED).context("the ground-truth mesh")?),
-            GroundTruth::Shape(shape) => Ok(crate::data::analytic_truth(&shape, spacing)),
-        }
-    }
-}
-
-/// Seeds of the surface sampling of the ground-truth and predicted meshes.
-const GT_SAMPLING_SEED: u64 = 7;
-const PRED_SAMPLING_SEED: u64 = 11;
-
-/// A mesh (`vertices`, `triangles`) against `gt` under `protocol`: the DTU-protocol Chamfer and
-/// F-score in the mesh's units, and the distances used. What `cargo xtask eval --mesh` does
-/// without culling, alignment or ICP; the Python binding's `evaluate_mesh`.
-pub fn evaluate_mesh(
-    vertices: &[[f32; 3]],
-    triangles: &[[u32; 3]],
-    gt: GroundTruth,
-    protocol: Protocol,
-) -> Result<(eval_metrics::GeometryMetrics, Distances)> {
-    if triangles.is_empty() {
-        bail!("the mesh has no triangles");
-    }
-    let d = gt.distances(protocol, "")?;
-    let gt = gt.into_points(d.spacing)?;
-    let pred = eval_metrics::sample_mesh(vertices, triangles, d.spacing, PRED_SAMPLING_SEED).context("the mesh")?;
-    Ok((eval_metrics::chamfer(&pred, &gt, d.max_dist, d.tau)?, d))
-}
-
-/// Reads a mesh file (.ply, .obj, .gltf, .glb).
-pub fn read_mesh(path: &Path) -> Result<MeshArrays> {
-    let is_ply = path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("ply"));
-    if is_ply {
-        let ply = PlyData::read(path)?;
-        Ok((ply.positions.iter().map(|p| p.to_array()).collect(), ply.faces))
-    } else {
-        let m = datasets::golden::mesh_io::load_mesh(path)?;
-        Ok((m.mesh.positions.iter().map(|p| p.to_array()).collect(), m.mesh.triangles.clone()))
-    }
-}
-
 /// The camera centres of a dataset folder in its world units, in view order.
 fn centres_in_world(dir: &Path) -> Result<Vec<[f64; 3]>> {
     let cams = datasets::read_cameras(dir, &LoadOptions::default()).with_context(|| format!("reading the cameras of {}", dir.display()))?;
@@ -287,7 +172,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let Distances { spacing, max_dist, tau } = gt.distances(protocol, &gt_name)?;
     let gt = gt.into_points(spacing)?;
     let floor = match (&args.gt_shape, args.floor_resolution) {
-        (Some(shape), Some(resolution)) => Some(crate::outputs::shape_floor(shape, &gt, resolution, spacing, max_dist, tau)?.chamfer),
+        (Some(shape), Some(resolution)) => Some(trainer::outputs::shape_floor(shape, &gt, resolution, spacing, max_dist, tau)?.chamfer),
         _ => None,
     };
     let mut pred = eval_metrics::sample_mesh(&vertices, &triangles, spacing, PRED_SAMPLING_SEED)
@@ -360,7 +245,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
 
 fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     // It writes eval.json into the run folder: not while another process trains there.
-    let _lock = crate::folder::is_run_folder(dir).then(|| crate::folder::FolderLock::acquire(dir)).transpose()?;
+    let _lock = trainer::folder::is_run_folder(dir).then(|| trainer::folder::FolderLock::acquire(dir)).transpose()?;
     let mut trainer = open_run(dir, None)?;
     let r = &trainer.config().render;
     let (fine, rounds) = (args.render_fine.unwrap_or(r.render_fine), args.render_rounds.unwrap_or(r.render_upsample_rounds));
@@ -414,6 +299,7 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use trainer::evaluation::evaluate_mesh;
 
     /// An analytic truth measures the shape's own mesh exactly as the floor does, and a finer
     /// mesh or a finer protocol lowers the floor.
@@ -422,7 +308,7 @@ mod tests {
         let shape = prob_grid::Shape::by_name("sphere").unwrap();
         let protocol = |spacing| Protocol { spacing: Some(spacing), max_dist: Some(0.1), tau: Some(0.01) };
         let floor = |resolution, spacing| {
-            crate::outputs::shape_floor(&shape, &crate::data::analytic_truth(&shape, spacing), resolution, spacing, 0.1, 0.01).unwrap().chamfer
+            trainer::outputs::shape_floor(&shape, &trainer::data::analytic_truth(&shape, spacing), resolution, spacing, 0.1, 0.01).unwrap().chamfer
         };
         let config = prob_grid::MarchingCubesConfig { resolution: 64, block: 16, ..Default::default() };
         let (mesh, _) = prob_grid::marching_cubes(&shape, &config).unwrap();

@@ -12,7 +12,8 @@ use std::path::PathBuf;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicI32, Ordering};
-use xtask::{bench, bench_backbone, bench_memory, bench_overhead, eval, fuzz, run, sample, trade};
+use trainer::run;
+use xtask::{bench, bench_backbone, bench_memory, bench_overhead, eval, fuzz, sample, trade, train};
 
 /// The heap, counted (and capped by `cargo xtask fuzz`; no limit otherwise).
 #[global_allocator]
@@ -109,7 +110,7 @@ enum Command {
     },
     /// Train a backbone with the probability-guided (or uniform) sampler: progress, pictures,
     /// checkpoints, the mesh and its metrics. With no arguments: the built-in scene in ≤ 5 min.
-    Train(run::TrainArgs),
+    Train(train::TrainArgs),
     /// Evaluate a mesh against ground truth (DTU-protocol Chamfer, F-score), or a run's model on
     /// its held-out views (PSNR, SSIM).
     Eval(eval::EvalArgs),
@@ -294,10 +295,10 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Sample(args) => sample::run(&args),
         Command::Train(args) if args.print_config => {
-            print!("{}", xtask::config::annotated_default());
+            print!("{}", trainer::config::annotated_default());
             Ok(())
         }
-        Command::Train(args) => match run::train(&args, &stop_signal())? {
+        Command::Train(args) => match train::train(&args, &stop_signal())? {
             run::Outcome::Finished(_) => Ok(()),
             run::Outcome::Stopped { .. } => std::process::exit(stopped_exit_code()),
         },

@@ -1,8 +1,6 @@
 //! `cargo xtask sample`: the guided sampler on a dataset with an analytic or mesh field, as
 //! pictures (pixel-marginal heat maps with the drawn pixels, depth profiles) and a JSON summary.
 
-use crate::draw::{colormap, put};
-use crate::plot::{Panel, Series, render};
 use anyhow::{Context, Result, bail};
 use datasets::golden::mesh_io::load_mesh;
 use datasets::{LoadOptions, Scene, load_scene};
@@ -10,6 +8,8 @@ use glam::DVec2;
 use prob_grid::{CameraGridConfig, MeshSdf, SdfField, Shape, TriangleMesh};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
+use trainer::draw::{colormap, put};
+use trainer::plot::{Panel, Series, render};
 use view_sampler::{Estimator, EstimatorConfig, UniformSchedule};
 
 /// Options of `cargo xtask sample`.

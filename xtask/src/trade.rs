@@ -9,12 +9,6 @@
 //! run again, so an interrupted table resumes where it stopped. The paper's ablation is the same
 //! command with one budget and variants of the guided configuration (`--variant NAME:key=v,…`).
 
-use crate::config::{Budget, TrainConfig, parse_duration};
-use crate::folder::checkpoint_path;
-use crate::metrics::RunMetrics;
-use crate::plot::{Panel, Point, Series, render};
-use crate::run::{AtomicFiles, Outcome, RunOptions, RunRequest};
-use crate::snapshot::SnapshotMetrics;
 use anyhow::{Context, Result, bail};
 use datasets::io::write_atomic;
 use serde_json::{Value, json};
@@ -23,6 +17,12 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
+use trainer::config::{Budget, TrainConfig, parse_duration};
+use trainer::folder::checkpoint_path;
+use trainer::metrics::RunMetrics;
+use trainer::plot::{Panel, Point, Series, render};
+use trainer::run::{AtomicFiles, Outcome, RunOptions, RunRequest};
+use trainer::snapshot::SnapshotMetrics;
 
 /// Options of `cargo xtask trade`.
 #[derive(clap::Args, Debug)]
@@ -233,7 +233,7 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
                             overwrite: false,
                         }
                     };
-                    let outcome = crate::run::run(&request, &RunOptions::default(), stop, sink.clone())
+                    let outcome = trainer::run::run(&request, &RunOptions::default(), stop, sink.clone())
                         .with_context(|| format!("the run in {}", dir.display()))?;
                     if let Outcome::Stopped { .. } = outcome {
                         bail!("stopped; run the same command again to continue the table");
@@ -259,7 +259,7 @@ fn read_row(args: &TradeArgs, scene: &SceneSpec, variant: &Variant, budget: Dura
         if snapshot_of.is_none() {
             runs.extend(read_metrics(&dir)?);
         } else if let Some(snapshot) = SnapshotMetrics::read(&dir, budget.as_secs_f64())? {
-            let (config, _) = crate::folder::read_run_config(&dir)?;
+            let (config, _) = trainer::folder::read_run_config(&dir)?;
             runs.push(snapshot.as_run_metrics(config.sampler));
         }
     }

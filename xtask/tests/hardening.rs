@@ -4,9 +4,9 @@
 
 use std::path::Path;
 use std::process::{Command, Output};
-use xtask::config::{Budget, TrainConfig};
-use xtask::data::SceneData;
-use xtask::trainer::Trainer;
+use trainer::config::{Budget, TrainConfig};
+use trainer::data::SceneData;
+use trainer::trainer::Trainer;
 
 mod common;
 use common::TINY;
@@ -181,7 +181,7 @@ fn the_memory_check_knows_the_scene_before_decoding_it() {
     for data in [None, Some(dir.path().join("scene"))] {
         let before = SceneData::size_before_loading(&config, data.as_deref()).unwrap();
         let loaded = SceneData::load(&config, data.as_deref()).unwrap();
-        assert_eq!(before, xtask::data::SceneSize::of(&loaded.scene), "{data:?}");
+        assert_eq!(before, trainer::data::SceneSize::of(&loaded.scene), "{data:?}");
     }
     // A built-in scene too large to render is refused before it is rendered (40 000 × 30 000 ×
     // 49 views would take 176 GB of pixels alone), with the part that is too large named.

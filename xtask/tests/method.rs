@@ -2,9 +2,9 @@
 //! surface-loss hook reaches the gradient, masked training ignores the backdrop.
 
 use prob_grid::Shape;
-use xtask::config::TrainConfig;
-use xtask::data::SceneData;
-use xtask::trainer::Trainer;
+use trainer::config::TrainConfig;
+use trainer::data::SceneData;
+use trainer::trainer::Trainer;
 
 fn config(overrides: &[&str]) -> TrainConfig {
     let mut all: Vec<String> = ["data.builtin.width=96", "data.builtin.views=12", "render.rays=512", "guide.uniform_fractions=[0.0]"]
@@ -125,8 +125,8 @@ fn masked_backdrop_scene_trains_exactly_as_its_black_backdrop_twin() {
 #[test]
 fn the_default_mesh_filter_keeps_every_part_and_drops_floaters() {
     use prob_grid::{MarchingCubesConfig, marching_cubes};
-    use xtask::config::MeshFilter;
-    use xtask::data::ViewSplit;
+    use trainer::config::MeshFilter;
+    use trainer::data::ViewSplit;
     let config = config(&["data.builtin.shape=multipart", "data.builtin.width=160", "data.builtin.views=24"]);
     let data = SceneData::builtin(&config).unwrap();
     let split = ViewSplit::new(&config, &data.scene);
@@ -135,13 +135,13 @@ fn the_default_mesh_filter_keeps_every_part_and_drops_floaters() {
     let (mesh, _) = marching_cubes(&field, &MarchingCubesConfig { resolution: 160, block: 16, ..Default::default() }).unwrap();
     let (_, count) = mesh.component_labels();
     assert_eq!(count, 7, "six parts and a floater");
-    let filter = |f| xtask::outputs::filter_components(&mesh, f, &data.scene, &split.train, true, 0.01);
+    let filter = |f| trainer::outputs::filter_components(&mesh, f, &data.scene, &split.train, true, 0.01);
     let (_, found, kept) = filter(MeshFilter::Supported);
     assert_eq!((found, kept), (7, 6), "the supported filter keeps the six parts and drops the floater");
     let (_, _, kept) = filter(MeshFilter::Largest);
     assert_eq!(kept, 1);
     // Without masks the filter can only go by area, which cannot tell this floater (1.1 % of the
     // area) from the thin pole (0.7 %): at 0.5 % both stay (the default, 1 %, would drop the pole).
-    let (_, _, kept) = xtask::outputs::filter_components(&mesh, MeshFilter::Supported, &data.scene, &split.train, false, 0.005);
+    let (_, _, kept) = trainer::outputs::filter_components(&mesh, MeshFilter::Supported, &data.scene, &split.train, false, 0.005);
     assert_eq!(kept, 7);
 }

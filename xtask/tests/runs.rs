@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
-use xtask::run::{AtomicFiles, Outcome, Sink, TrainArgs, checkpoint_path, train_with};
+use trainer::run::{AtomicFiles, Outcome, Sink, checkpoint_path};
+use xtask::train::{TrainArgs, train_with};
 
 mod common;
 use common::TINY;

@@ -61,7 +61,7 @@ fn sigterm_during_training_writes_a_checkpoint_of_the_last_iteration_and_exits_1
     let step = stopped_step(&stderr);
     assert!(step >= 1);
     // The only checkpoint is the stop's (periodic ones are off): it holds that very iteration.
-    let trainer = xtask::run::open_run(&out, None).unwrap();
+    let trainer = trainer::run::open_run(&out, None).unwrap();
     assert_eq!(trainer.state().step, step);
 }
 

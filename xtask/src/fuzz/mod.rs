@@ -134,7 +134,7 @@ pub fn run(args: &FuzzArgs, hooks: &ProcessHooks) -> Result<bool> {
         if targets.iter().any(|t| t.name == "checkpoint") {
             prepare_checkpoint_runs(1)?;
         }
-        if !(hooks.memory_cap)(crate::memory::parse_size(&args.max_memory)? as usize) {
+        if !(hooks.memory_cap)(trainer::memory::parse_size(&args.max_memory)? as usize) {
             bail!("--max-memory {}: below the heap already in use", args.max_memory);
         }
         return replay(args, &targets, hooks);
@@ -198,14 +198,14 @@ fn replay(args: &FuzzArgs, targets: &[Target], hooks: &ProcessHooks) -> Result<b
 fn worker(args: &FuzzArgs, targets: &[Target], hooks: &ProcessHooks) -> Result<bool> {
     let inflight = args.out.join("inflight");
     std::fs::create_dir_all(&inflight).with_context(|| format!("creating {}", inflight.display()))?;
-    let deadline = args.time.as_deref().map(crate::config::parse_duration).transpose()?.map(|d| Instant::now() + d);
+    let deadline = args.time.as_deref().map(trainer::config::parse_duration).transpose()?.map(|d| Instant::now() + d);
     // Seeds and the checkpoint target's runs are built before the cap (they train a tiny run).
     let seeds = seeds_of(targets);
     let threads = rayon::current_num_threads();
     if targets.iter().any(|t| t.name == "checkpoint") {
         prepare_checkpoint_runs(threads)?;
     }
-    let cap = crate::memory::parse_size(&args.max_memory)? as usize;
+    let cap = trainer::memory::parse_size(&args.max_memory)? as usize;
     if !(hooks.memory_cap)(cap) {
         bail!("--max-memory {}: below the heap already in use after building the seeds", args.max_memory);
     }

@@ -189,7 +189,7 @@ pub(super) fn seeds_image() -> Vec<Vec<u8>> {
 }
 
 pub(super) fn seeds_config() -> Vec<Vec<u8>> {
-    vec![crate::config::TrainConfig::default().to_toml().into_bytes()]
+    vec![trainer::config::TrainConfig::default().to_toml().into_bytes()]
 }
 
 pub(super) fn seeds_overrides() -> Vec<Vec<u8>> {
@@ -200,7 +200,7 @@ pub(super) fn seeds_overrides() -> Vec<Vec<u8>> {
 }
 
 /// The tiny run the checkpoint target restores into (a 40 × 30 built-in scene, neus-cpu).
-pub(super) fn tiny_trainer() -> Result<crate::trainer::Trainer> {
+pub(super) fn tiny_trainer() -> Result<trainer::trainer::Trainer> {
     let overrides: Vec<String> = [
         "steps=4",
         "model.preset=neus-cpu",
@@ -216,15 +216,15 @@ pub(super) fn tiny_trainer() -> Result<crate::trainer::Trainer> {
     .iter()
     .map(|s| s.to_string())
     .collect();
-    let config = crate::config::TrainConfig::load(None, &overrides)?;
-    let data = crate::data::SceneData::load(&config, None)?;
-    let mut trainer = crate::trainer::Trainer::new(config, data)?;
+    let config = trainer::config::TrainConfig::load(None, &overrides)?;
+    let data = trainer::data::SceneData::load(&config, None)?;
+    let mut trainer = trainer::trainer::Trainer::new(config, data)?;
     trainer.step()?;
     Ok(trainer)
 }
 
 /// Tiny runs the checkpoint target restores into, one per worker (taken and put back per case).
-pub(super) static TRAINERS: Mutex<Vec<crate::trainer::Trainer>> = Mutex::new(Vec::new());
+pub(super) static TRAINERS: Mutex<Vec<trainer::trainer::Trainer>> = Mutex::new(Vec::new());
 
 /// Builds `n` tiny runs for the checkpoint target (before the allocation cap is set).
 pub fn prepare_checkpoint_runs(n: usize) -> Result<()> {
@@ -342,12 +342,12 @@ pub(super) fn run_image(b: &[u8]) -> Verdict {
 
 pub(super) fn run_config(b: &[u8]) -> Verdict {
     let text = std::str::from_utf8(b).map_err(|e| e.to_string())?;
-    verdict(crate::config::TrainConfig::from_toml(text))
+    verdict(trainer::config::TrainConfig::from_toml(text))
 }
 
 pub(super) fn run_overrides(b: &[u8]) -> Verdict {
     let lines: Vec<String> = String::from_utf8_lossy(b).lines().map(String::from).collect();
-    verdict(crate::config::TrainConfig::load(None, &lines))
+    verdict(trainer::config::TrainConfig::load(None, &lines))
 }
 
 pub(super) fn run_checkpoint(b: &[u8]) -> Verdict {

@@ -4,9 +4,9 @@
 //! the run folder, the progress bar and the stop signal around it.
 //!
 //! ```no_run
-//! use xtask::config::{Budget, TrainConfig};
-//! use xtask::data::SceneData;
-//! use xtask::trainer::Trainer;
+//! use trainer::config::{Budget, TrainConfig};
+//! use trainer::data::SceneData;
+//! use trainer::trainer::Trainer;
 //! # fn main() -> anyhow::Result<()> {
 //! let mut config = TrainConfig { budget: Budget::Steps(5), ..TrainConfig::default() };
 //! config.data.builtin.width = 64;

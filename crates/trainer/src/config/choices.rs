@@ -4,7 +4,8 @@
 use serde::{Deserialize, Serialize};
 
 /// Which rays the trainer draws.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum SamplerKind {
     /// The probability-guided sampler with the surface losses and the extra ray points.
@@ -15,12 +16,12 @@ pub enum SamplerKind {
     /// instant-ngp's error map: pixels drawn in proportion to their recent loss, no correction
     /// (`[mining]`; the plain backbone otherwise, as `uniform`).
     #[serde(rename = "error-map")]
-    #[value(name = "error-map")]
+    #[cfg_attr(feature = "clap", value(name = "error-map"))]
     ErrorMap,
     /// Soft mining (CVPR 2024): the error map's pixels with each pixel's loss weighted by
     /// `(p_uniform / Q)^α` (`mining.alpha`).
     #[serde(rename = "soft-mining")]
-    #[value(name = "soft-mining")]
+    #[cfg_attr(feature = "clap", value(name = "soft-mining"))]
     SoftMining,
 }
 

@@ -87,7 +87,7 @@ impl SnapshotMetrics {
     }
 
     /// The figures a run's metrics share with a snapshot (the rest: defaults), for tables that
-    /// read both ([`crate::trade`]).
+    /// read both (`cargo xtask trade`).
     pub fn as_run_metrics(&self, sampler: crate::config::SamplerKind) -> RunMetrics {
         RunMetrics {
             sampler,

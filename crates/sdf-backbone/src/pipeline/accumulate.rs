@@ -1,0 +1,599 @@
+//! One work item of the pipeline: the loss of some rays and its gradient, in named stages —
+//! [`Rows`] (the row layout), [`Pipeline::sdf_pass`] (SDF and normals), [`Pipeline::color_pass`]
+//! (colour inputs, colour network, background), [`Pipeline::ray_terms`] (each ray's render and
+//! loss terms and its render backward), [`Pipeline::network_adjoints`] (background and colour
+//! network backward, the SDF outputs' adjoints), then [`Pipeline::sdf_backward`] or
+//! [`Pipeline::sdf_tangent_backward`]. All rays of the item go through each network together
+//! (one matrix product per layer), the per-ray work in between.
+
+use super::deferred::Deferred;
+use super::{ColorLoss, NormalScheme, Pipeline, RayInput, RayOutput, SampleLoss, scale_derivative, scale_from_variance};
+use crate::background::BackgroundPass;
+use crate::encoding::SphericalHarmonics;
+use crate::module::Module;
+use crate::real::Real;
+use crate::render::{RayRender, render_ray, render_ray_backward};
+use crate::scratch::Buf;
+
+/// Colour-network inputs per row before the features: x (3), n (3), SH₄(d) (16).
+const COLOR_IN_FIXED: usize = 22;
+
+/// The row layout of a work item: ray r owns SDF rows `[sdf_at[r], sdf_at[r] + (np + 1) n_r + 1)`
+/// (its n_r + 1 samples, then np probes per sample i < n_r) and colour rows
+/// `[col_at[r], col_at[r] + n_r)` (one per interval).
+struct Rows {
+    sdf_at: Vec<usize>,
+    col_at: Vec<usize>,
+    sdf: usize,
+    col: usize,
+}
+
+impl Rows {
+    fn of<R>(rays: &[RayInput<R>], np: usize) -> Rows {
+        let mut sdf_at = Vec::with_capacity(rays.len() + 1);
+        let mut col_at = Vec::with_capacity(rays.len() + 1);
+        let (mut sdf, mut col) = (0, 0);
+        for ray in rays {
+            let n = ray.depths.len() - 1;
+            sdf_at.push(sdf);
+            col_at.push(col);
+            sdf += (np + 1) * n + 1;
+            col += n;
+        }
+        Rows { sdf_at, col_at, sdf, col }
+    }
+}
+
+/// The SDF network's shape and the normals' numerics of one call.
+struct Dims {
+    /// SDF outputs per row (1 + features).
+    n_out: usize,
+    /// Geometry features per row.
+    f: usize,
+    /// Colour-network inputs per row.
+    c_in: usize,
+    /// Probe offsets and weights (none for analytic normals).
+    probes: &'static [([f64; 3], f64)],
+    /// The probes' step h.
+    h: f64,
+}
+
+/// What the forward pass of a work item leaves for the loss and the backward pass.
+struct Forward<R: Real> {
+    points: Buf<R>,
+    sdf_out: Buf<R>,
+    sdf_ctx: Buf<R>,
+    normals: Vec<[R; 3]>,
+    color_in: Buf<R>,
+    colors: Buf<R>,
+    color_ctx: Buf<R>,
+    background: Option<BackgroundPass<R>>,
+}
+
+/// The adjoints the per-ray loop gathers for one backward pass per network.
+struct Adjoints<R: Real> {
+    colors: Buf<R>,
+    sdf_direct: Buf<R>,
+    normals: Vec<[R; 3]>,
+    laplacian: Buf<R>,
+    background: Vec<[R; 3]>,
+    variance: R,
+}
+
+impl<R: Real> Adjoints<R> {
+    /// Zeros, or nothing at all without a backward pass.
+    fn new(backward: bool, rows: &Rows, rays: usize) -> Adjoints<R> {
+        let size = |n: usize| if backward { n } else { 0 };
+        Adjoints {
+            colors: Buf::zeroed(size(rows.col * 3)),
+            sdf_direct: Buf::zeroed(size(rows.sdf)),
+            normals: vec![[R::ZERO; 3]; size(rows.col)],
+            laplacian: Buf::zeroed(size(rows.col)),
+            background: vec![[R::ZERO; 3]; size(rays)],
+            variance: R::ZERO,
+        }
+    }
+}
+
+/// The batch-wide scalars of a work item's loss.
+#[derive(Clone, Copy)]
+struct Scale<R> {
+    /// The logistic scale s.
+    s: R,
+    /// The whole batch's ray count.
+    m: R,
+    /// The colour loss's normaliser.
+    color_norm: R,
+    /// Whether gradients are wanted.
+    backward: bool,
+}
+
+impl<S, C> Pipeline<S, C> {
+    /// The loss of `rays` (the batch's rays from index `first`) divided by `m` (the whole batch's
+    /// ray count; the colour loss by `color_norm`), gradients added to `d_params`, which covers
+    /// every parameter after the SDF network's deferred ones ([`Module::deferred_params`]); their
+    /// gradient is returned as (points, record) for [`Module::apply_deferred`].
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn accumulate<R: Real>(
+        &self,
+        params: &[R],
+        rays: &[RayInput<R>],
+        first: usize,
+        d_params: Option<&mut [R]>,
+        m: R,
+        color_norm: R,
+        extra: &dyn SampleLoss,
+    ) -> (R, Vec<RayOutput<R>>, Deferred<R>)
+    where
+        S: Module<R>,
+        C: Module<R>,
+    {
+        let _span = crate::profile::span(crate::profile::Stage::LossPass);
+        let (n_sdf, n_col) = (self.sdf.n_params(), self.color.n_params());
+        let (p_sdf, rest) = params.split_at(n_sdf);
+        let (p_col, p_var) = rest.split_at(n_col);
+        let f = self.sdf.n_outputs() - 1;
+        let probes = self.config.normals.probes();
+        let dims = Dims { n_out: 1 + f, f, c_in: COLOR_IN_FIXED + f, probes, h: self.config.normal_step };
+        let rows = Rows::of(rays, probes.len());
+        let (points, sdf_out, sdf_ctx, gradients) = self.sdf_pass(p_sdf, rays, &rows, &dims);
+        let fwd = self.color_pass(p_col, &p_var[1..], rays, &rows, &dims, points, sdf_out, sdf_ctx, gradients.as_deref());
+        let scale = Scale { s: scale_from_variance(p_var[0]), m, color_norm, backward: d_params.is_some() };
+        let mut adj = Adjoints::new(scale.backward, &rows, rays.len());
+        let mut total = R::ZERO;
+        let mut outputs = Vec::with_capacity(rays.len());
+        for (r, ray) in rays.iter().enumerate() {
+            let (loss, output) = self.ray_terms(r, ray, first, &rows, &dims, &fwd, scale, extra, &mut adj);
+            total += loss / m;
+            outputs.push(output);
+        }
+        let Some(d_params) = d_params else { return (total, outputs, None) };
+        let (d_sdf_params, rest) = d_params.split_at_mut(n_sdf - self.sdf.deferred_params());
+        let (d_col_params, d_rest) = rest.split_at_mut(n_col);
+        d_rest[0] += adj.variance;
+        let (d_color_in, d_sdf_out) = self.network_adjoints(p_col, &p_var[1..], &mut d_rest[1..], d_col_params, rays, &rows, &dims, &fwd, &adj);
+        let deferred = if self.config.normals == NormalScheme::Analytic {
+            self.sdf_tangent_backward(p_sdf, rays, &rows, &dims, &fwd, &adj, &d_color_in, &d_sdf_out, d_sdf_params)
+        } else {
+            self.sdf_backward(p_sdf, fwd.points, &fwd.sdf_ctx, &d_sdf_out, d_sdf_params)
+        };
+        (total, outputs, deferred)
+    }
+
+    /// The sample points and probes of every ray through the SDF network: its outputs and
+    /// context, and with analytic normals the outputs' derivatives along x, y, z at every point
+    /// (rows × 3 × n_out; the SDF's are ∇ₓS).
+    fn sdf_pass<R: Real>(&self, p_sdf: &[R], rays: &[RayInput<R>], rows: &Rows, dims: &Dims) -> (Buf<R>, Buf<R>, Buf<R>, Option<Buf<R>>)
+    where
+        S: Module<R>,
+    {
+        let h = R::of(dims.h);
+        let mut points = Buf::<R>::zeroed(3 * rows.sdf);
+        let mut at = 0;
+        for ray in rays {
+            let n = ray.depths.len() - 1;
+            let base = at;
+            for &t in &ray.depths {
+                for k in 0..3 {
+                    points[at + k] = ray.origin[k] + t * ray.direction[k];
+                }
+                at += 3;
+            }
+            for i in 0..n {
+                for (offset, _) in dims.probes {
+                    for k in 0..3 {
+                        points[at + k] = points[base + 3 * i + k] + R::of(offset[k]) * h;
+                    }
+                    at += 3;
+                }
+            }
+        }
+        let mut sdf_out = Buf::<R>::zeroed(rows.sdf * dims.n_out);
+        let mut sdf_ctx = Buf::<R>::zeroed(rows.sdf * self.sdf.ctx_per_row());
+        self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
+        let analytic = self.config.normals == NormalScheme::Analytic;
+        debug_assert!(!analytic || self.sdf.has_tangents(), "analytic normals need an SDF network with tangents");
+        let gradients = analytic.then(|| {
+            let mut axes = Buf::<R>::zeroed(rows.sdf * 9);
+            for row in axes.chunks_exact_mut(9) {
+                row[0] = R::ONE;
+                row[4] = R::ONE;
+                row[8] = R::ONE;
+            }
+            let mut out = Buf::<R>::zeroed(rows.sdf * 3 * dims.n_out);
+            self.sdf.forward_tangents(p_sdf, &points, &sdf_ctx, 3, &axes, &mut out);
+            out
+        });
+        (points, sdf_out, sdf_ctx, gradients)
+    }
+
+    /// The normal of every interval (analytic, or from the probes), the colour network's inputs
+    /// `[x, n, SH(d), features]` and its colours, and the learned background of every ray.
+    #[allow(clippy::too_many_arguments)]
+    fn color_pass<R: Real>(
+        &self,
+        p_col: &[R],
+        p_bg: &[R],
+        rays: &[RayInput<R>],
+        rows: &Rows,
+        dims: &Dims,
+        points: Buf<R>,
+        sdf_out: Buf<R>,
+        sdf_ctx: Buf<R>,
+        gradients: Option<&[R]>,
+    ) -> Forward<R>
+    where
+        C: Module<R>,
+    {
+        let (n_out, c_in, np, h) = (dims.n_out, dims.c_in, dims.probes.len(), R::of(dims.h));
+        let mut normals: Vec<[R; 3]> = Vec::with_capacity(rows.col);
+        let mut sh: Vec<[R; 16]> = Vec::with_capacity(rays.len());
+        let mut color_in = Buf::<R>::zeroed(rows.col * c_in);
+        for (r, ray) in rays.iter().enumerate() {
+            let n = ray.depths.len() - 1;
+            let (b, c0) = (rows.sdf_at[r], rows.col_at[r]);
+            let mut sh_d = [R::ZERO; 16];
+            SphericalHarmonics.forward(&[], &ray.direction, &mut sh_d, &mut []);
+            sh.push(sh_d);
+            for i in 0..n {
+                let nrm = match gradients {
+                    Some(grad) => [0, 1, 2].map(|k| grad[((b + i) * 3 + k) * n_out]),
+                    None => {
+                        let mut g = [R::ZERO; 3];
+                        for (j, (offset, w)) in dims.probes.iter().enumerate() {
+                            let v = sdf_out[(b + n + 1 + np * i + j) * n_out];
+                            for k in 0..3 {
+                                g[k] += R::of(offset[k] * w) * v;
+                            }
+                        }
+                        g.map(|v| v / h)
+                    }
+                };
+                normals.push(nrm);
+                let row = &mut color_in[(c0 + i) * c_in..(c0 + i + 1) * c_in];
+                row[..3].copy_from_slice(&points[3 * (b + i)..3 * (b + i) + 3]);
+                row[3..6].copy_from_slice(&nrm);
+                row[6..COLOR_IN_FIXED].copy_from_slice(&sh_d);
+                row[COLOR_IN_FIXED..].copy_from_slice(&sdf_out[(b + i) * n_out + 1..(b + i + 1) * n_out]);
+            }
+        }
+        let mut colors = Buf::<R>::zeroed(rows.col * 3);
+        let mut color_ctx = Buf::<R>::zeroed(rows.col * self.color.ctx_per_row());
+        self.color.forward(p_col, &color_in, &mut colors, &mut color_ctx);
+        let background = self.background.as_ref().map(|model| {
+            let origins: Vec<[R; 3]> = rays.iter().map(|r| r.origin).collect();
+            let directions: Vec<[R; 3]> = rays.iter().map(|r| r.direction).collect();
+            model.forward(p_bg, &origins, &directions, &sh)
+        });
+        Forward { points, sdf_out, sdf_ctx, normals, color_in, colors, color_ctx, background }
+    }
+
+    /// Ray `r`: its render, every loss term (colour, curvature, eikonal, normal smoothness,
+    /// opacity entropy, mask, the caller's), and with a backward pass the render's backward into
+    /// `adj`. Returns the ray's loss (not yet divided by the batch) and its outputs.
+    #[allow(clippy::too_many_arguments)]
+    fn ray_terms<R: Real>(
+        &self,
+        r: usize,
+        ray: &RayInput<R>,
+        first: usize,
+        rows: &Rows,
+        dims: &Dims,
+        fwd: &Forward<R>,
+        scale: Scale<R>,
+        extra: &dyn SampleLoss,
+        adj: &mut Adjoints<R>,
+    ) -> (R, RayOutput<R>) {
+        let (n_out, np) = (dims.n_out, dims.probes.len());
+        let n = ray.depths.len() - 1;
+        let (b, c0) = (rows.sdf_at[r], rows.col_at[r]);
+        let sdf_values: Vec<R> = (0..=n).map(|i| fwd.sdf_out[(b + i) * n_out]).collect();
+        let colors: Vec<[R; 3]> = fwd.colors[3 * c0..3 * (c0 + n)].chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        let nrms = &fwd.normals[c0..c0 + n];
+        let r_out = render_ray(&sdf_values, &ray.depths, &colors, scale.s);
+        let background = match &fwd.background {
+            Some(pass) => pass.colors[r],
+            None => self.config.background.map(R::of),
+        };
+        let composited: [R; 3] = [0, 1, 2].map(|k| r_out.color[k] + (R::ONE - r_out.opacity) * background[k]);
+        let (mut loss, d_color, mut d_opacity) = self.color_term(ray, &r_out, composited, background, scale);
+        let inv_m = R::ONE / scale.m;
+        let probe = |i: usize, j: usize| fwd.sdf_out[(b + n + 1 + np * i + j) * n_out];
+        self.curvature_term(&sdf_values, &probe, dims, scale.backward.then(|| &mut adj.laplacian[c0..c0 + n]), inv_m, &mut loss);
+        let d_normals = scale.backward.then(|| &mut adj.normals[c0..c0 + n]);
+        self.normal_terms(nrms, d_normals, inv_m, &mut loss);
+        self.opacity_terms(ray, r_out.opacity, &mut loss, &mut d_opacity);
+        // The caller's loss on the samples (f64).
+        let t64: Vec<f64> = ray.depths.iter().map(|v| v.to_f64()).collect();
+        let sdf64: Vec<f64> = sdf_values.iter().map(|v| v.to_f64()).collect();
+        let w64: Vec<f64> = r_out.weights.iter().map(|v| v.to_f64()).collect();
+        let mut d_sdf_extra = vec![0.0f64; n + 1];
+        let mut d_w_extra = vec![0.0f64; n];
+        loss += R::of(extra.ray_loss(first + r, scale.s.to_f64(), &t64, &sdf64, &w64, &mut d_sdf_extra, &mut d_w_extra));
+        let mut normal = [R::ZERO; 3];
+        for i in 0..n {
+            for k in 0..3 {
+                normal[k] += r_out.weights[i] * nrms[i][k];
+            }
+        }
+        let output = RayOutput { color: composited, opacity: r_out.opacity, depth: r_out.depth, normal };
+        if scale.backward {
+            let d_w: Vec<R> = d_w_extra.iter().map(|&v| R::of(v) * inv_m).collect();
+            let g = render_ray_backward(
+                &sdf_values,
+                &ray.depths,
+                &colors,
+                scale.s,
+                &r_out,
+                d_color.map(|d| d * inv_m),
+                R::ZERO,
+                d_opacity * inv_m,
+                Some(&d_w),
+            );
+            adj.variance += g.s * scale_derivative(scale.s);
+            if !self.config.masked_color {
+                for k in 0..3 {
+                    adj.background[r][k] = d_color[k] * (R::ONE - r_out.opacity) * inv_m;
+                }
+            }
+            for (i, c) in g.colors.iter().enumerate() {
+                adj.colors[3 * (c0 + i)..3 * (c0 + i) + 3].copy_from_slice(c);
+            }
+            for i in 0..=n {
+                adj.sdf_direct[b + i] = g.sdf[i] + R::of(d_sdf_extra[i]) * inv_m;
+            }
+        }
+        (loss, output)
+    }
+
+    /// The colour loss of a ray: on the composited colour, or (masked) on the rendered colour of
+    /// foreground rays only, normalised by their count instead of the batch's. Returns the loss,
+    /// its adjoint of the compared colour and of the opacity (through the background).
+    fn color_term<R: Real>(
+        &self,
+        ray: &RayInput<R>,
+        r_out: &RayRender<R>,
+        composited: [R; 3],
+        background: [R; 3],
+        scale: Scale<R>,
+    ) -> (R, [R; 3], R) {
+        let masked = self.config.masked_color;
+        let color_weight = ray.weight
+            * if !masked {
+                R::ONE
+            } else if ray.mask.is_none_or(|mk| mk >= R::of(0.5)) {
+                scale.m / scale.color_norm
+            } else {
+                R::ZERO
+            };
+        let predicted = if masked { r_out.color } else { composited };
+        let mut d_color = [R::ZERO; 3];
+        let mut loss = R::ZERO;
+        for k in 0..3 {
+            let e = predicted[k] - ray.target[k];
+            match self.config.color_loss {
+                ColorLoss::L1 => {
+                    loss += color_weight * e.abs();
+                    d_color[k] = color_weight * sign(e);
+                }
+                ColorLoss::L2 => {
+                    loss += color_weight * e * e;
+                    d_color[k] = color_weight * (e + e);
+                }
+            }
+        }
+        let d_opacity = if masked { R::ZERO } else { -(d_color[0] * background[0] + d_color[1] * background[1] + d_color[2] * background[2]) };
+        (loss, d_color, d_opacity)
+    }
+
+    /// Curvature: mean |ΔS| over a ray's samples, the Laplacian from the probes; its adjoint per
+    /// sample into `d_laplacian` (already divided by the batch).
+    fn curvature_term<R: Real>(
+        &self,
+        sdf: &[R],
+        probe: &dyn Fn(usize, usize) -> R,
+        dims: &Dims,
+        d_laplacian: Option<&mut [R]>,
+        inv_m: R,
+        loss: &mut R,
+    ) {
+        let (n, np, h) = (sdf.len() - 1, dims.probes.len(), R::of(dims.h));
+        if !(self.config.curvature_weight > 0.0 && np > 0) {
+            return;
+        }
+        let curv_w = R::of(self.config.curvature_weight) / R::of(n as f64);
+        let c_probe: f64 = dims.probes.iter().map(|(o, _)| o[0] * o[0]).sum();
+        let lap_den = h * h * R::of(c_probe * 0.5);
+        let mut d_laplacian = d_laplacian;
+        for i in 0..n {
+            let mut lap = -R::of(np as f64) * sdf[i];
+            for j in 0..np {
+                lap += probe(i, j);
+            }
+            lap = lap / lap_den;
+            *loss += curv_w * lap.abs();
+            if let Some(d) = d_laplacian.as_deref_mut() {
+                d[i] = sign(lap) * curv_w / lap_den * inv_m;
+            }
+        }
+    }
+
+    /// The eikonal term `mean (|nᵢ| − 1)²` and the normal smoothness `mean |nᵢ₊₁ − nᵢ|²` of a ray;
+    /// their adjoints of the normals into `d_normals` (already divided by the batch).
+    fn normal_terms<R: Real>(&self, nrms: &[[R; 3]], d_normals: Option<&mut [[R; 3]]>, inv_m: R, loss: &mut R) {
+        let n = nrms.len();
+        let mut d_normals = d_normals;
+        let eik_w = R::of(self.config.eikonal_weight) / R::of(n as f64);
+        for i in 0..n {
+            let nv = nrms[i];
+            let len = (nv[0] * nv[0] + nv[1] * nv[1] + nv[2] * nv[2]).sqrt();
+            let e = len - R::ONE;
+            *loss += eik_w * e * e;
+            if let Some(d) = d_normals.as_deref_mut().filter(|_| len > R::ZERO) {
+                for k in 0..3 {
+                    d[i][k] = eik_w * (e + e) * nv[k] / len * inv_m;
+                }
+            }
+        }
+        if self.config.normal_smoothness > 0.0 && n > 1 {
+            let w = R::of(self.config.normal_smoothness) / R::of((n - 1) as f64);
+            for i in 0..n - 1 {
+                let change = [0, 1, 2].map(|k| nrms[i + 1][k] - nrms[i][k]);
+                *loss += w * (change[0] * change[0] + change[1] * change[1] + change[2] * change[2]);
+                if let Some(d_normals) = d_normals.as_deref_mut() {
+                    for k in 0..3 {
+                        let d = w * (change[k] + change[k]) * inv_m;
+                        d_normals[i + 1][k] += d;
+                        d_normals[i][k] -= d;
+                    }
+                }
+            }
+        }
+    }
+
+    /// The terms on a ray's opacity: the entropy of rays without a mask, the mask's BCE (both
+    /// with the opacity clamped away from 0 and 1, as NeuS clips to [1e-3, 1 − 1e-3]).
+    fn opacity_terms<R: Real>(&self, ray: &RayInput<R>, opacity: R, loss: &mut R, d_opacity: &mut R) {
+        let eps = R::of(1e-3);
+        let o = opacity.max(eps).min(R::ONE - eps);
+        let inside = opacity > eps && opacity < R::ONE - eps;
+        if ray.mask.is_none() && self.config.opacity_entropy > 0.0 {
+            let w = R::of(self.config.opacity_entropy) * ray.weight;
+            *loss += -w * (o * o.ln() + (R::ONE - o) * (R::ONE - o).ln());
+            if inside {
+                *d_opacity += w * ((R::ONE - o) / o).ln();
+            }
+        }
+        if let Some(mask) = ray.mask {
+            let w = R::of(self.config.mask_weight) * ray.weight;
+            *loss += -w * (mask * o.ln() + (R::ONE - mask) * (R::ONE - o).ln());
+            if inside {
+                *d_opacity += -w * (mask / o - (R::ONE - mask) / (R::ONE - o));
+            }
+        }
+    }
+
+    /// The background's and the colour network's backward passes, and the adjoints of the SDF
+    /// network's outputs at every point: the render's, the features' (through the colour
+    /// network), and the probes' (through the normals and the curvature). Returns the colour
+    /// network's input adjoints and the SDF outputs' adjoints.
+    #[allow(clippy::too_many_arguments)]
+    fn network_adjoints<R: Real>(
+        &self,
+        p_col: &[R],
+        p_bg: &[R],
+        d_bg_params: &mut [R],
+        d_col_params: &mut [R],
+        rays: &[RayInput<R>],
+        rows: &Rows,
+        dims: &Dims,
+        fwd: &Forward<R>,
+        adj: &Adjoints<R>,
+    ) -> (Buf<R>, Buf<R>)
+    where
+        C: Module<R>,
+    {
+        if let (Some(model), Some(pass)) = (&self.background, &fwd.background) {
+            model.backward(p_bg, pass, &adj.background, d_bg_params);
+        }
+        let (n_out, c_in, np, h) = (dims.n_out, dims.c_in, dims.probes.len(), R::of(dims.h));
+        let mut d_color_in = Buf::<R>::zeroed(rows.col * c_in);
+        self.color.backward(p_col, &fwd.color_in, &fwd.color_ctx, &adj.colors, d_col_params, Some(&mut d_color_in));
+        let mut d_sdf_out = Buf::<R>::zeroed(rows.sdf * n_out);
+        for (r, ray) in rays.iter().enumerate() {
+            let n = ray.depths.len() - 1;
+            let (b, c0) = (rows.sdf_at[r], rows.col_at[r]);
+            for i in 0..=n {
+                d_sdf_out[(b + i) * n_out] = adj.sdf_direct[b + i];
+            }
+            for i in 0..n {
+                let row = &d_color_in[(c0 + i) * c_in..(c0 + i + 1) * c_in];
+                for j in 0..dims.f {
+                    d_sdf_out[(b + i) * n_out + 1 + j] += row[COLOR_IN_FIXED + j];
+                }
+                let d_lap = adj.laplacian[c0 + i];
+                for (j, (offset, w)) in dims.probes.iter().enumerate() {
+                    let mut d = R::ZERO;
+                    for k in 0..3 {
+                        d += (row[3 + k] + adj.normals[c0 + i][k]) * R::of(offset[k] * w);
+                    }
+                    d_sdf_out[(b + n + 1 + np * i + j) * n_out] += d / h + d_lap;
+                }
+                d_sdf_out[(b + i) * n_out] -= R::of(np as f64) * d_lap;
+            }
+        }
+        (d_color_in, d_sdf_out)
+    }
+
+    /// The SDF network's backward pass (numerical normals: the probes are rows like the
+    /// samples); a deferring network's record of its deferred gradient.
+    fn sdf_backward<R: Real>(&self, p_sdf: &[R], points: Buf<R>, sdf_ctx: &[R], d_sdf_out: &[R], d_sdf_params: &mut [R]) -> Deferred<R>
+    where
+        S: Module<R>,
+    {
+        if self.sdf.deferred_params() == 0 {
+            self.sdf.backward(p_sdf, &points, sdf_ctx, d_sdf_out, d_sdf_params, None);
+            return None;
+        }
+        let mut record = Buf::<R>::zeroed(points.len() / 3 * self.sdf.deferred_width());
+        self.sdf.backward_deferring(p_sdf, &points, sdf_ctx, d_sdf_out, d_sdf_params, &mut record);
+        Some((points, record))
+    }
+
+    /// The SDF network's backward pass with analytic normals. L depends on nᵢ = ∇ₓS(xᵢ) through
+    /// vᵢ = ∂L/∂nᵢ, and vᵢ·δnᵢ = δ(∂S/∂x · vᵢ): the derivative of S along vᵢ, with adjoint 1,
+    /// whatever vᵢ's length — one tangent per point, reversed with the values.
+    #[allow(clippy::too_many_arguments)]
+    fn sdf_tangent_backward<R: Real>(
+        &self,
+        p_sdf: &[R],
+        rays: &[RayInput<R>],
+        rows: &Rows,
+        dims: &Dims,
+        fwd: &Forward<R>,
+        adj: &Adjoints<R>,
+        d_color_in: &[R],
+        d_sdf_out: &[R],
+        d_sdf_params: &mut [R],
+    ) -> Deferred<R>
+    where
+        S: Module<R>,
+    {
+        let (n_out, c_in) = (dims.n_out, dims.c_in);
+        let mut v = Buf::<R>::zeroed(3 * rows.sdf);
+        let mut d_tangent_out = Buf::<R>::zeroed(rows.sdf * n_out);
+        for (r, ray) in rays.iter().enumerate() {
+            let n = ray.depths.len() - 1;
+            let (b, c0) = (rows.sdf_at[r], rows.col_at[r]);
+            for i in 0..n {
+                let row = &d_color_in[(c0 + i) * c_in..(c0 + i + 1) * c_in];
+                for k in 0..3 {
+                    v[3 * (b + i) + k] = row[3 + k] + adj.normals[c0 + i][k];
+                }
+                d_tangent_out[(b + i) * n_out] = R::ONE;
+            }
+        }
+        if self.sdf.deferred_params() == 0 {
+            self.sdf.backward_tangent(p_sdf, &fwd.points, &fwd.sdf_ctx, &v, d_sdf_out, &d_tangent_out, d_sdf_params, None);
+            return None;
+        }
+        let mut record = Buf::<R>::zeroed(2 * rows.sdf * self.sdf.deferred_width());
+        self.sdf.backward_tangent_deferring(p_sdf, &fwd.points, &fwd.sdf_ctx, &v, d_sdf_out, &d_tangent_out, d_sdf_params, &mut record);
+        // The record's input: the points, then their tangents.
+        let mut points_and_tangents = Buf::<R>::zeroed(6 * rows.sdf);
+        points_and_tangents[..3 * rows.sdf].copy_from_slice(&fwd.points);
+        points_and_tangents[3 * rows.sdf..].copy_from_slice(&v);
+        Some((points_and_tangents, record))
+    }
+}
+
+/// −1, 0 or 1 by the sign of `x`.
+fn sign<R: Real>(x: R) -> R {
+    if x > R::ZERO {
+        R::ONE
+    } else if x < R::ZERO {
+        -R::ONE
+    } else {
+        R::ZERO
+    }
+}

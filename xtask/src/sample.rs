@@ -128,65 +128,11 @@ pub fn run(args: &SampleArgs) -> Result<()> {
     let mut written = Vec::new();
     for (c, view) in scene.views.iter().enumerate().take(args.views) {
         let dist = &sampler.cameras()[c];
-        let (ru, rv, _) = dist.resolution();
-        let marginal = dist.pixel_marginal();
-        let peak = marginal.iter().cloned().fold(0.0, f64::max).max(1e-300);
-        let b = *dist.bounds();
-        let mut img = view.image.clone();
-        for row in 0..img.height {
-            for col in 0..img.width {
-                let p = view.camera.pixel_center(col, row);
-                let iu = (((p.x - b.u[0]) / (b.u[1] - b.u[0]) * ru as f64) as usize).min(ru - 1);
-                let iv = (((p.y - b.v[0]) / (b.v[1] - b.v[0]) * rv as f64) as usize).min(rv - 1);
-                let t = (marginal[iv * ru + iu] / peak).sqrt() as f32;
-                let base = img.get_f32(col, row).map(|x| 0.45 * x);
-                let heat = colormap(t);
-                let a = 0.75 * t.min(1.0);
-                img.set_f32(col, row, [0, 1, 2].map(|k| base[k] * (1.0 - a) + heat[k] * a));
-            }
-        }
-        // At most 1500 drawn pixels per picture, so the heat map stays visible.
-        let dot = (img.width / 800) as i64;
-        for r in rays.iter().filter(|r| r.camera as usize == c).take(1500) {
-            for dy in -dot..=dot {
-                for dx in -dot..=dot {
-                    put(&mut img, r.pixel[0] as i64 + dx, r.pixel[1] as i64 + dy, [0.2, 1.0, 0.3]);
-                }
-            }
-        }
+        let drawn: Vec<&view_sampler::RaySample> = rays.iter().filter(|r| r.camera as usize == c).collect();
         let heat_path = args.out.join(format!("heatmap_{}.png", view.name));
-        img.save_png(&heat_path)?;
-
-        // Depth profiles p̃(λ | u, v) at the first three drawn rays of this view that land in the
-        // mask (any three if there is no mask), and at the principal point.
-        let in_mask = |r: &&view_sampler::RaySample| view.mask.as_ref().is_none_or(|m| m.get(r.pixel[0], r.pixel[1]));
-        let mut pixels: Vec<DVec2> = rays.iter().filter(|r| r.camera as usize == c).filter(in_mask).take(3).map(|r| r.pixel_coords).collect();
-        pixels.push(DVec2::new(view.camera.intrinsics.cx, view.camera.intrinsics.cy));
-        let colours = [[0.85, 0.2, 0.2], [0.2, 0.45, 0.85], [0.15, 0.6, 0.25], [0.5, 0.5, 0.5]];
-        let mut panel = Panel {
-            title: format!("p̃(λ | u, v), view {}", view.name),
-            x_label: "depth λ along the optical axis (normalised units)".into(),
-            y_label: "p̃(λ | u, v) (per unit depth)".into(),
-            ..Default::default()
-        };
-        for (i, (p, rgb)) in pixels.iter().zip(colours).enumerate() {
-            let points: Vec<(f64, f64, Option<f64>)> = (0..512)
-                .map(|k| {
-                    let depth = b.depth[0] + (k as f64 + 0.5) / 512.0 * (b.depth[1] - b.depth[0]);
-                    (depth, dist.pdf_depth(*p, depth), None)
-                })
-                .collect();
-            let what = if i + 1 == pixels.len() { "principal point" } else { "drawn pixel" };
-            panel.series.push(Series { label: format!("{what} ({:.0}, {:.0})", p.x, p.y), color: rgb, points });
-            if let (Some(depth), Some((col, row))) = (&depths[c], view.camera.nearest_pixel(*p)) {
-                let d = depth[(row * view.camera.width + col) as usize];
-                if d > 0.0 {
-                    panel.markers.push((d as f64, rgb, format!("true depth ({:.0}, {:.0})", p.x, p.y)));
-                }
-            }
-        }
+        heat_map_picture(view, dist, &drawn).save_png(&heat_path)?;
         let profile_path = args.out.join(format!("profile_{}.png", view.name));
-        render(&[panel], 1, (720, 360))?.save_png(&profile_path)?;
+        render(&[depth_profiles(view, dist, &drawn, depths[c].as_deref())], 1, (720, 360))?.save_png(&profile_path)?;
         written.push(serde_json::json!({"view": view.name, "heatmap": heat_path, "depth_profile": profile_path}));
     }
 
@@ -229,4 +175,74 @@ pub fn run(args: &SampleArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The view darkened under its pixel marginal as a heat map, with at most 1500 of the pixels
+/// drawn in it (so that the heat map stays visible).
+fn heat_map_picture(view: &datasets::View, dist: &view_sampler::CameraDistribution, drawn: &[&view_sampler::RaySample]) -> datasets::RgbImage {
+    let (ru, rv, _) = dist.resolution();
+    let marginal = dist.pixel_marginal();
+    let peak = marginal.iter().cloned().fold(0.0, f64::max).max(1e-300);
+    let b = *dist.bounds();
+    let mut img = view.image.clone();
+    for row in 0..img.height {
+        for col in 0..img.width {
+            let p = view.camera.pixel_center(col, row);
+            let iu = (((p.x - b.u[0]) / (b.u[1] - b.u[0]) * ru as f64) as usize).min(ru - 1);
+            let iv = (((p.y - b.v[0]) / (b.v[1] - b.v[0]) * rv as f64) as usize).min(rv - 1);
+            let t = (marginal[iv * ru + iu] / peak).sqrt() as f32;
+            let base = img.get_f32(col, row).map(|x| 0.45 * x);
+            let heat = colormap(t);
+            let a = 0.75 * t.min(1.0);
+            img.set_f32(col, row, [0, 1, 2].map(|k| base[k] * (1.0 - a) + heat[k] * a));
+        }
+    }
+    let dot = (img.width / 800) as i64;
+    for r in drawn.iter().take(1500) {
+        for dy in -dot..=dot {
+            for dx in -dot..=dot {
+                put(&mut img, r.pixel[0] as i64 + dx, r.pixel[1] as i64 + dy, [0.2, 1.0, 0.3]);
+            }
+        }
+    }
+    img
+}
+
+/// Depth profiles p̃(λ | u, v) at the first three drawn rays of the view that land in its mask
+/// (any three if there is no mask) and at the principal point, with the true depths where the
+/// scene has a depth map.
+fn depth_profiles(
+    view: &datasets::View,
+    dist: &view_sampler::CameraDistribution,
+    drawn: &[&view_sampler::RaySample],
+    depth: Option<&[f32]>,
+) -> Panel {
+    let b = *dist.bounds();
+    let in_mask = |r: &&&view_sampler::RaySample| view.mask.as_ref().is_none_or(|m| m.get(r.pixel[0], r.pixel[1]));
+    let mut pixels: Vec<DVec2> = drawn.iter().filter(in_mask).take(3).map(|r| r.pixel_coords).collect();
+    pixels.push(DVec2::new(view.camera.intrinsics.cx, view.camera.intrinsics.cy));
+    let colours = [[0.85, 0.2, 0.2], [0.2, 0.45, 0.85], [0.15, 0.6, 0.25], [0.5, 0.5, 0.5]];
+    let mut panel = Panel {
+        title: format!("p̃(λ | u, v), view {}", view.name),
+        x_label: "depth λ along the optical axis (normalised units)".into(),
+        y_label: "p̃(λ | u, v) (per unit depth)".into(),
+        ..Default::default()
+    };
+    for (i, (p, rgb)) in pixels.iter().zip(colours).enumerate() {
+        let points: Vec<(f64, f64, Option<f64>)> = (0..512)
+            .map(|k| {
+                let depth = b.depth[0] + (k as f64 + 0.5) / 512.0 * (b.depth[1] - b.depth[0]);
+                (depth, dist.pdf_depth(*p, depth), None)
+            })
+            .collect();
+        let what = if i + 1 == pixels.len() { "principal point" } else { "drawn pixel" };
+        panel.series.push(Series { label: format!("{what} ({:.0}, {:.0})", p.x, p.y), color: rgb, points });
+        if let (Some(depth), Some((col, row))) = (depth, view.camera.nearest_pixel(*p)) {
+            let d = depth[(row * view.camera.width + col) as usize];
+            if d > 0.0 {
+                panel.markers.push((d as f64, rgb, format!("true depth ({:.0}, {:.0})", p.x, p.y)));
+            }
+        }
+    }
+    panel
 }

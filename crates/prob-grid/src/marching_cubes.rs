@@ -90,6 +90,40 @@ pub fn marching_cubes_with_progress(
     Ok((mesh, stats))
 }
 
+/// The lattice of an extraction: `resolution` cells per axis from `min`, cut into cubic blocks
+/// of `block` cells.
+struct Lattice {
+    min: Vec3,
+    cell: Vec3,
+    res: u32,
+    block: u32,
+    iso: f32,
+}
+
+impl Lattice {
+    /// The position of lattice vertex `v`.
+    fn point(&self, v: UVec3) -> Vec3 {
+        self.min + v.as_vec3() * self.cell
+    }
+
+    /// The first and one-past-last cell of block `b` (the last block may be smaller).
+    fn block_range(&self, b: UVec3) -> (UVec3, UVec3) {
+        let lo = b * self.block;
+        let hi = (lo + UVec3::splat(self.block)).min(UVec3::splat(self.res));
+        (lo, hi)
+    }
+}
+
+/// One block's share of the mesh: its vertices by global edge key, its triangles (indices into
+/// its own vertices), the field queries it made and the largest slope it measured.
+struct BlockMesh {
+    keys: Vec<u64>,
+    positions: Vec<Vec3>,
+    triangles: Vec<[u32; 3]>,
+    queries: usize,
+    slope: f32,
+}
+
 /// One extraction with Lipschitz bound `lipschitz`; also returns the largest slope measured.
 fn extract(
     field: &dyn SdfField,
@@ -105,24 +139,17 @@ fn extract(
         return Err(invalid(format!("bounds {:?}..{:?} must be finite with min < max", config.min, config.max)));
     }
     let res = config.resolution;
-    let cell = (config.max - config.min) / res as f32;
+    let lattice = Lattice { min: config.min, cell: (config.max - config.min) / res as f32, res, block: config.block, iso: config.iso };
     let blocks_per_axis = res.div_ceil(config.block);
-    let n_vertices_axis = u64::from(res) + 1;
-    let point = |v: UVec3| config.min + v.as_vec3() * cell;
 
     // Block centres → which blocks can hold the surface.
     let blocks: Vec<UVec3> =
         (0..blocks_per_axis).flat_map(|z| (0..blocks_per_axis).flat_map(move |y| (0..blocks_per_axis).map(move |x| UVec3::new(x, y, z)))).collect();
-    let block_range = |b: UVec3| {
-        let lo = b * config.block;
-        let hi = (lo + UVec3::splat(config.block)).min(UVec3::splat(res));
-        (lo, hi)
-    };
     let centres: Vec<Vec3> = blocks
         .iter()
         .map(|&b| {
-            let (lo, hi) = block_range(b);
-            0.5 * (point(lo) + point(hi))
+            let (lo, hi) = lattice.block_range(b);
+            0.5 * (lattice.point(lo) + lattice.point(hi))
         })
         .collect();
     let mut centre_values = vec![0.0f32; centres.len()];
@@ -132,108 +159,115 @@ fn extract(
         .zip(&centres)
         .zip(&centre_values)
         .filter(|&((&b, _), &v)| {
-            let (lo, hi) = block_range(b);
-            let half_diagonal = 0.5 * (point(hi) - point(lo)).length();
+            let (lo, hi) = lattice.block_range(b);
+            let half_diagonal = 0.5 * (lattice.point(hi) - lattice.point(lo)).length();
             // NaN counts as "maybe": evaluate.
             !((v - config.iso).abs() > lipschitz * half_diagonal * 1.01 + 1e-6)
         })
         .map(|((&b, &c), &v)| (b, c, v))
         .collect();
     // Slopes between neighbouring block centres.
-    let mut measured = crate::scene::neighbour_slope(&centre_values, blocks_per_axis as usize, |a, b| centres[a].distance(centres[b]));
+    let measured = crate::scene::neighbour_slope(&centre_values, blocks_per_axis as usize, |a, b| centres[a].distance(centres[b]));
     let done = std::sync::atomic::AtomicUsize::new(0);
     progress(0, near.len());
-
-    struct BlockMesh {
-        keys: Vec<u64>,
-        positions: Vec<Vec3>,
-        triangles: Vec<[u32; 3]>,
-        queries: usize,
-        slope: f32,
-    }
     let parts: Vec<BlockMesh> = near
         .par_iter()
         .map(|&(b, centre, centre_value)| {
-            let (lo, hi) = block_range(b);
-            let dim = hi - lo + UVec3::ONE; // corners per axis
-            let idx = |v: UVec3| ((v.z * dim.y + v.y) * dim.x + v.x) as usize;
-            let mut points = Vec::with_capacity((dim.x * dim.y * dim.z) as usize);
-            for z in 0..dim.z {
-                for y in 0..dim.y {
-                    for x in 0..dim.x {
-                        points.push(point(lo + UVec3::new(x, y, z)));
-                    }
-                }
-            }
-            let mut values = vec![0.0f32; points.len()];
-            field.sdf_batch(&points, &mut values);
-            // The block's corners against its centre: slopes the claim must cover.
-            let slope = points
-                .iter()
-                .zip(&values)
-                .map(|(p, v)| {
-                    let d = p.distance(centre);
-                    if d > 0.0 { (v - centre_value).abs() / d } else { 0.0 }
-                })
-                .filter(|x| x.is_finite())
-                .fold(0.0f32, f32::max);
-            let mut local: HashMap<u64, u32> = HashMap::new();
-            let mut out = BlockMesh { keys: Vec::new(), positions: Vec::new(), triangles: Vec::new(), queries: points.len(), slope };
-            for z in 0..dim.z - 1 {
-                for y in 0..dim.y - 1 {
-                    for x in 0..dim.x - 1 {
-                        let c = UVec3::new(x, y, z);
-                        let vals: [f32; 8] = CORNERS.map(|o| values[idx(c + UVec3::from_array(o))]);
-                        if vals.iter().any(|v| !v.is_finite()) {
-                            continue; // no surface where the field is undefined
-                        }
-                        let case = vals.iter().enumerate().fold(0usize, |acc, (i, &v)| acc | (usize::from(v < config.iso) << i));
-                        if EDGE_TABLE[case] == 0 {
-                            continue;
-                        }
-                        let mut edge_vertex = [u32::MAX; 12];
-                        for e in 0..12 {
-                            if EDGE_TABLE[case] & (1 << e) == 0 {
-                                continue;
-                            }
-                            let [a, b2] = EDGE_CORNERS[e];
-                            // The edge's lower corner and axis, in global vertex coordinates.
-                            let (ca, cb) = (UVec3::from_array(CORNERS[a]), UVec3::from_array(CORNERS[b2]));
-                            let base = lo + c + ca.min(cb);
-                            let axis = (ca.max(cb) - ca.min(cb)).to_array().iter().position(|&d| d == 1).expect("unit edge");
-                            let key = edge_key(base, axis, n_vertices_axis);
-                            let id = *local.entry(key).or_insert_with(|| {
-                                // Interpolate from the lower corner so both blocks compute the same bits.
-                                let (v0, v1) = if ca.min(cb) == ca { (vals[a], vals[b2]) } else { (vals[b2], vals[a]) };
-                                let f = ((config.iso - v0) / (v1 - v0)).clamp(0.0, 1.0);
-                                let p0 = point(base);
-                                let mut p = p0;
-                                p[axis] += f * cell[axis];
-                                out.keys.push(key);
-                                out.positions.push(p);
-                                (out.positions.len() - 1) as u32
-                            });
-                            edge_vertex[e] = id;
-                        }
-                        for tri in TRI_TABLE[case].chunks(3) {
-                            if tri[0] < 0 {
-                                break;
-                            }
-                            let t = [edge_vertex[tri[0] as usize], edge_vertex[tri[2] as usize], edge_vertex[tri[1] as usize]];
-                            if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
-                                out.triangles.push(t);
-                            }
-                        }
-                    }
-                }
-            }
+            let part = mesh_block(&lattice, field, b, centre, centre_value);
             progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1, near.len());
-            out
+            part
         })
         .collect();
+    let stats = ExtractionStats { blocks: blocks.len(), blocks_evaluated: near.len(), field_queries: centres.len(), ..Default::default() };
+    Ok(merge(parts, stats, measured))
+}
 
-    // Merge: vertices on block faces appear in both blocks; the first one wins.
-    let mut stats = ExtractionStats { blocks: blocks.len(), blocks_evaluated: near.len(), field_queries: centres.len(), ..Default::default() };
+/// Block `b`'s corners through the field (its slopes against its centre's value, which the
+/// Lipschitz claim must cover) and its cells' triangles.
+fn mesh_block(lattice: &Lattice, field: &dyn SdfField, b: UVec3, centre: Vec3, centre_value: f32) -> BlockMesh {
+    let (lo, hi) = lattice.block_range(b);
+    let dim = hi - lo + UVec3::ONE; // corners per axis
+    let idx = |v: UVec3| ((v.z * dim.y + v.y) * dim.x + v.x) as usize;
+    let mut points = Vec::with_capacity((dim.x * dim.y * dim.z) as usize);
+    for z in 0..dim.z {
+        for y in 0..dim.y {
+            for x in 0..dim.x {
+                points.push(lattice.point(lo + UVec3::new(x, y, z)));
+            }
+        }
+    }
+    let mut values = vec![0.0f32; points.len()];
+    field.sdf_batch(&points, &mut values);
+    let slope = points
+        .iter()
+        .zip(&values)
+        .map(|(p, v)| {
+            let d = p.distance(centre);
+            if d > 0.0 { (v - centre_value).abs() / d } else { 0.0 }
+        })
+        .filter(|x| x.is_finite())
+        .fold(0.0f32, f32::max);
+    let mut local: HashMap<u64, u32> = HashMap::new();
+    let mut out = BlockMesh { keys: Vec::new(), positions: Vec::new(), triangles: Vec::new(), queries: points.len(), slope };
+    for z in 0..dim.z - 1 {
+        for y in 0..dim.y - 1 {
+            for x in 0..dim.x - 1 {
+                let c = UVec3::new(x, y, z);
+                let vals: [f32; 8] = CORNERS.map(|o| values[idx(c + UVec3::from_array(o))]);
+                mesh_cell(lattice, lo + c, &vals, &mut local, &mut out);
+            }
+        }
+    }
+    out
+}
+
+/// The triangles of the cell whose lowest corner is lattice vertex `corner`, with corner values
+/// `vals`; new edge vertices go to `out` (found again through `local`).
+fn mesh_cell(lattice: &Lattice, corner: UVec3, vals: &[f32; 8], local: &mut HashMap<u64, u32>, out: &mut BlockMesh) {
+    if vals.iter().any(|v| !v.is_finite()) {
+        return; // no surface where the field is undefined
+    }
+    let case = vals.iter().enumerate().fold(0usize, |acc, (i, &v)| acc | (usize::from(v < lattice.iso) << i));
+    if EDGE_TABLE[case] == 0 {
+        return;
+    }
+    let n_vertices_axis = u64::from(lattice.res) + 1;
+    let mut edge_vertex = [u32::MAX; 12];
+    for e in 0..12 {
+        if EDGE_TABLE[case] & (1 << e) == 0 {
+            continue;
+        }
+        let [a, b2] = EDGE_CORNERS[e];
+        // The edge's lower corner and axis, in global vertex coordinates.
+        let (ca, cb) = (UVec3::from_array(CORNERS[a]), UVec3::from_array(CORNERS[b2]));
+        let base = corner + ca.min(cb);
+        let axis = (ca.max(cb) - ca.min(cb)).to_array().iter().position(|&d| d == 1).expect("unit edge");
+        let key = edge_key(base, axis, n_vertices_axis);
+        let id = *local.entry(key).or_insert_with(|| {
+            // Interpolate from the lower corner so both blocks compute the same bits.
+            let (v0, v1) = if ca.min(cb) == ca { (vals[a], vals[b2]) } else { (vals[b2], vals[a]) };
+            let f = ((lattice.iso - v0) / (v1 - v0)).clamp(0.0, 1.0);
+            let mut p = lattice.point(base);
+            p[axis] += f * lattice.cell[axis];
+            out.keys.push(key);
+            out.positions.push(p);
+            (out.positions.len() - 1) as u32
+        });
+        edge_vertex[e] = id;
+    }
+    for tri in TRI_TABLE[case].chunks(3) {
+        if tri[0] < 0 {
+            break;
+        }
+        let t = [edge_vertex[tri[0] as usize], edge_vertex[tri[2] as usize], edge_vertex[tri[1] as usize]];
+        if t[0] != t[1] && t[1] != t[2] && t[0] != t[2] {
+            out.triangles.push(t);
+        }
+    }
+}
+
+/// The blocks' meshes as one: vertices on block faces appear in both blocks; the first one wins.
+fn merge(parts: Vec<BlockMesh>, mut stats: ExtractionStats, mut measured: f32) -> (IsoMesh, ExtractionStats, f32) {
     let mut mesh = IsoMesh::default();
     let mut global: HashMap<u64, u32> = HashMap::new();
     for part in parts {
@@ -252,7 +286,7 @@ fn extract(
             .collect();
         mesh.triangles.extend(part.triangles.iter().map(|t| t.map(|i| remap[i as usize])));
     }
-    Ok((mesh, stats, measured))
+    (mesh, stats, measured)
 }
 
 impl IsoMesh {

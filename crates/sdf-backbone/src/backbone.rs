@@ -4,11 +4,12 @@
 //! level, parameter groups for separate learning rates, and checkpoints (safetensors).
 
 use crate::encoding::{PositionalEncoding, WithInput};
-use crate::hashgrid::{HashGrid, HashGridConfig};
-use crate::mlp::{Mlp, MlpConfig};
-use crate::module::{Activation, Chain, Module};
+use crate::hashgrid::HashGrid;
+use crate::mlp::Mlp;
+use crate::module::{Chain, Module};
 use crate::optim::Adam;
-use crate::pipeline::{ColorLoss, NormalScheme, Pipeline, PipelineConfig};
+use crate::pipeline::Pipeline;
+use crate::presets::Preset;
 use crate::real::Real;
 use glam::Vec3;
 use std::ops::Range;
@@ -17,7 +18,7 @@ use std::ops::Range;
 #[derive(Debug, thiserror::Error)]
 pub enum BackboneError {
     /// Unknown preset name.
-    #[error("unknown backbone preset {0:?} (expected one of: neuralangelo-cpu, neus-cpu, neuralangelo, neus)")]
+    #[error("unknown backbone preset {0:?} (expected one of: {names})", names = Preset::names())]
     UnknownPreset(String),
     /// A checkpoint could not be parsed.
     #[error("checkpoint: {0}")]
@@ -33,7 +34,7 @@ pub enum BackboneError {
         expected: usize,
     },
     /// A hash grid was asked of a preset that has none.
-    #[error("the preset {0} has no hash grid to size (a hash-grid preset: neuralangelo-cpu, neuralangelo)")]
+    #[error("the preset {0} has no hash grid to size (a hash-grid preset: {hash})", hash = Preset::ALL.into_iter().filter(|p| p.has_hash_grid()).map(Preset::name).collect::<Vec<_>>().join(", "))]
     NoHashGrid(&'static str),
 }
 
@@ -150,61 +151,6 @@ pub type SdfNet = Chain<InputEncoding, Mlp>;
 /// The render + loss pipeline of every preset.
 pub type Backbone = Pipeline<SdfNet, Mlp>;
 
-/// Named configurations.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Preset {
-    /// Hash grid 8 levels × 2 features, 2¹⁶ entries, 16 → 256; SDF MLP 2 × 64; colour MLP 2 × 64.
-    #[default]
-    NeuralangeloCpu,
-    /// Positional encoding (6 frequencies); SDF MLP 4 × 64; colour MLP 2 × 64.
-    NeusCpu,
-    /// Neuralangelo's scale: 16 levels × 8 features, 2²² entries, 32 → 2048; SDF MLP 1 × 256;
-    /// colour MLP 4 × 256 (our colour input uses SH₄ of the direction, Neuralangelo's too).
-    Neuralangelo,
-    /// NeuS's scale: positional encoding (6), SDF MLP 8 × 256 with the skip at layer 4, 256
-    /// features; colour MLP 4 × 256 (view direction by SH₄ instead of NeuS's PE(4)).
-    Neus,
-}
-
-impl Preset {
-    /// Parses `neuralangelo-cpu`, `neus-cpu`, `neuralangelo`, `neus`.
-    pub fn from_name(name: &str) -> Result<Preset, BackboneError> {
-        match name {
-            "neuralangelo-cpu" => Ok(Preset::NeuralangeloCpu),
-            "neus-cpu" => Ok(Preset::NeusCpu),
-            "neuralangelo" => Ok(Preset::Neuralangelo),
-            "neus" => Ok(Preset::Neus),
-            other => Err(BackboneError::UnknownPreset(other.to_string())),
-        }
-    }
-
-    /// The name [`Preset::from_name`] accepts.
-    pub fn name(self) -> &'static str {
-        match self {
-            Preset::NeuralangeloCpu => "neuralangelo-cpu",
-            Preset::NeusCpu => "neus-cpu",
-            Preset::Neuralangelo => "neuralangelo",
-            Preset::Neus => "neus",
-        }
-    }
-
-    /// Whether the SDF network starts with a hash grid (the Neuralangelo presets): the ones with
-    /// input tangents (analytic normals) and hash tables (bf16 table moments).
-    pub fn has_hash_grid(self) -> bool {
-        self.hash_grid().is_some()
-    }
-
-    /// The preset's hash grid (`None` for the positional-encoding presets).
-    pub fn hash_grid(self) -> Option<HashGridConfig> {
-        match self {
-            Preset::NeuralangeloCpu => Some(HashGridConfig::neuralangelo_cpu()),
-            Preset::Neuralangelo => Some(HashGridConfig { levels: 16, features: 8, log2_table: 22, base_resolution: 32, finest_resolution: 2048 }),
-            Preset::NeusCpu | Preset::Neus => None,
-        }
-    }
-}
-
 /// Where each part of the flat parameter buffer lives.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ParamLayout {
@@ -218,159 +164,6 @@ pub struct ParamLayout {
     pub variance: usize,
     /// The learned background network (empty without one).
     pub background: Range<usize>,
-}
-
-/// Builds a preset with its parameters initialised: hash tables ±1e-4, SDF MLP geometric
-/// (sphere of radius `radius`) with its readout calibrated by least squares, colour MLP He,
-/// v = 0.3 (NeuS: s = e³ ≈ 20). Coarse-to-fine starts with all levels active (see
-/// [`Backbone::set_active_levels`]).
-pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
-    build_from(assemble(preset, preset.hash_grid()), preset, radius, seed)
-}
-
-/// [`build`] with another hash grid than the preset's (a model sized by the data): the preset's
-/// networks and initialisation on `grid`. An error for a preset without a hash grid.
-pub fn build_with_grid(preset: Preset, grid: HashGridConfig, radius: f64, seed: u64) -> Result<(Backbone, Vec<f32>), BackboneError> {
-    Ok(build_from(architecture_with_grid(preset, grid)?, preset, radius, seed))
-}
-
-fn build_from(backbone: Backbone, preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
-    let width = backbone.sdf.b.config().width;
-    let n_enc = Module::<f32>::n_outputs(&backbone.sdf.a);
-    init_parameters(backbone, preset, radius, seed, width, n_enc)
-}
-
-/// A preset's networks without parameters (sizes, layouts, memory estimates); [`build`] adds
-/// initialised parameters.
-pub fn architecture(preset: Preset) -> Backbone {
-    assemble(preset, preset.hash_grid())
-}
-
-/// [`architecture`] on another hash grid than the preset's (see [`build_with_grid`]).
-pub fn architecture_with_grid(preset: Preset, grid: HashGridConfig) -> Result<Backbone, BackboneError> {
-    if !preset.has_hash_grid() {
-        return Err(BackboneError::NoHashGrid(preset.name()));
-    }
-    Ok(assemble(preset, Some(grid)))
-}
-
-/// The preset's networks on `grid` (the encoding: a hash grid, else the positional encoding).
-fn assemble(preset: Preset, grid: Option<HashGridConfig>) -> Backbone {
-    let (width, layers, features, color_width, color_layers) = match preset {
-        Preset::NeuralangeloCpu => (64, 2, 15, 64, 2),
-        Preset::NeusCpu => (64, 4, 15, 64, 2),
-        Preset::Neuralangelo => (256, 1, 255, 256, 4),
-        Preset::Neus => (256, 8, 256, 256, 4),
-    };
-    let encoding = match grid {
-        Some(grid) => InputEncoding::HashGrid(WithInput { encoding: HashGrid::new(grid) }),
-        None => InputEncoding::Positional(PositionalEncoding { frequencies: 6 }),
-    };
-    let n_enc = Module::<f32>::n_outputs(&encoding);
-    let sdf_mlp = Mlp::new(MlpConfig {
-        n_inputs: n_enc,
-        width,
-        hidden_layers: layers,
-        n_outputs: 1 + features,
-        skip: (layers >= 8).then_some(layers / 2),
-        hidden_activation: Activation::Softplus { beta: 100.0 },
-        output_activation: Activation::Identity,
-    });
-    let color = Mlp::new(MlpConfig {
-        n_inputs: 22 + features,
-        width: color_width,
-        hidden_layers: color_layers,
-        n_outputs: 3,
-        skip: None,
-        hidden_activation: Activation::Relu,
-        output_activation: Activation::Sigmoid,
-    });
-    let finest = match &encoding {
-        InputEncoding::HashGrid(g) => g.encoding.resolutions().last().copied().unwrap_or(256),
-        InputEncoding::Positional(_) => 512,
-    };
-    Pipeline {
-        sdf: Chain { a: encoding, b: sdf_mlp },
-        color,
-        background: None,
-        config: PipelineConfig {
-            color_loss: ColorLoss::L1,
-            eikonal_weight: 0.1,
-            mask_weight: 0.1,
-            normal_step: 1.0 / f64::from(finest),
-            normals: NormalScheme::Tetrahedral,
-            curvature_weight: 0.0,
-            background: [0.0; 3],
-            masked_color: false,
-            opacity_entropy: 0.0,
-            normal_smoothness: 0.0,
-        },
-    }
-}
-
-/// Initial parameters of `backbone` (see [`build`]).
-fn init_parameters(backbone: Backbone, preset: Preset, radius: f64, seed: u64, width: usize, n_enc: usize) -> (Backbone, Vec<f32>) {
-    let layout = backbone.layout();
-    let mut params = vec![0.0f32; layout.variance + 1];
-    if let InputEncoding::HashGrid(g) = &backbone.sdf.a {
-        g.encoding.init(&mut params[layout.encoding.clone()], 1e-4, seed);
-    }
-    let raw = 3;
-    backbone.sdf.b.init_geometric(&mut params[layout.sdf_mlp.clone()], radius, raw, seed + 1);
-    // Calibrate the SDF readout on points of [−1, 1]³ (the scene bound).
-    {
-        use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
-        let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed ^ 0xC0FF_EE00_D15E_A5E5);
-        let n = 32 * (width + 1);
-        let x: Vec<f32> = (0..3 * n).map(|_| rng.random::<f32>() * 2.0 - 1.0).collect();
-        let target: Vec<f32> = x.chunks_exact(3).map(|p| (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - radius as f32).collect();
-        let mut enc = vec![0.0; n * n_enc];
-        let mut ctx = vec![0.0; n * Module::<f32>::ctx_per_row(&backbone.sdf.a)];
-        backbone.sdf.a.forward(&params[layout.encoding.clone()], &x, &mut enc, &mut ctx);
-        backbone.sdf.b.calibrate_first_output(&mut params[layout.sdf_mlp.clone()], &enc, &target);
-    }
-    // The paper-scale presets skip the fit (minutes on a CPU): their max error is ~0.1.
-    match preset {
-        Preset::NeuralangeloCpu => fit_sphere(&backbone.sdf, &mut params[..layout.sdf_mlp.end], radius, 200, seed + 3),
-        Preset::NeusCpu => fit_sphere(&backbone.sdf, &mut params[..layout.sdf_mlp.end], radius, 1000, seed + 3),
-        Preset::Neuralangelo | Preset::Neus => {}
-    }
-    backbone.color.init_default(&mut params[layout.color.clone()], seed + 2);
-    params[layout.variance] = 0.3;
-    (backbone, params)
-}
-
-/// Fits the SDF network to the sphere SDF `|x| − radius` on points of [−1, 1]³, a quarter of them
-/// within 0.15 of the origin (`steps` Adam steps of 2048 points, L1): after the geometric initialisation and the calibrated readout, this
-/// removes the residual error near the kink of |x| at the origin that a smooth readout cannot.
-/// Deterministic in `seed`; ~2 s for the CPU presets.
-pub fn fit_sphere(sdf: &SdfNet, params: &mut [f32], radius: f64, steps: u64, seed: u64) {
-    use crate::module::batch_gradients;
-    use crate::optim::WarmupCosine;
-    use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
-    let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-    let mut adam = Adam::new(params.len());
-    adam.epsilon = 1e-15;
-    let schedule = WarmupCosine { base: 1e-3, warmup: 10, total: steps, final_factor: 0.05 };
-    let batch = 2048;
-    let n_out = Module::<f32>::n_outputs(sdf);
-    let mut grads = vec![0.0f32; params.len()];
-    for step in 0..steps {
-        // A quarter of the points near the origin, where the kink of |x| is hardest to follow.
-        let x: Vec<f32> = (0..3 * batch).map(|i| (rng.random::<f32>() * 2.0 - 1.0) * if i < 3 * batch / 4 { 0.15 } else { 1.0 }).collect();
-        grads.fill(0.0);
-        batch_gradients(sdf, params, &x, 256, &mut grads, |x, y, dy| {
-            let mut l = 0.0;
-            for r in 0..x.len() / 3 {
-                let target = (x[3 * r] * x[3 * r] + x[3 * r + 1] * x[3 * r + 1] + x[3 * r + 2] * x[3 * r + 2]).sqrt() - radius as f32;
-                let e = y[r * n_out] - target;
-                l += f64::from(e.abs());
-                dy[r * n_out] = e.signum() / batch as f32;
-            }
-            l
-        });
-        adam.update(params, &grads, schedule.at(step));
-    }
 }
 
 impl Backbone {
@@ -555,6 +348,8 @@ pub fn adam_step(adam: &mut Adam, params: &mut [f32], grads: &mut [f32], groups:
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::hashgrid::HashGridConfig;
+    use crate::presets::{build, build_with_grid};
     use camera_geom::{Intrinsics, PinholeCamera, PixelCenters};
     use glam::DVec3;
     use prob_grid::{CameraGridConfig, SceneGridConfig, SdfField, Shape, update};

@@ -12,7 +12,7 @@
 //! on [x, n, SH(d), features], L1/L2 colour over a fixed or learned background, eikonal,
 //! curvature, mask BCE, a [`SampleLoss`] hook for the surface losses, learnt variance); Adam/AdamW
 //! with parameter groups and the warm-up + cosine or step schedules ([`optim`]).
-//! [`backbone`] is the API the trainer and the sampler use: [`Preset`]s sized for a 2-core CPU
+//! [`backbone`] is the API the trainer and the sampler use, [`presets`] its [`Preset`]s sized for a 2-core CPU
 //! and at the papers' scale, [`build`], [`Backbone::field`] (a `prob_grid::SdfField`),
 //! coarse-to-fine, [`CheckpointWriter`] / [`CheckpointReader`] (safetensors).
 //!
@@ -32,16 +32,14 @@ pub mod mlp;
 pub mod module;
 pub mod optim;
 pub mod pipeline;
+pub mod presets;
 pub mod profile;
 pub mod real;
 pub mod render;
 pub mod scratch;
 pub mod upsample;
 
-pub use backbone::{
-    Backbone, BackboneError, BackboneField, InputEncoding, ParamLayout, Preset, SdfNet, StepRates, adam_step, architecture, architecture_with_grid,
-    build, build_with_grid,
-};
+pub use backbone::{Backbone, BackboneError, BackboneField, InputEncoding, ParamLayout, SdfNet, StepRates, adam_step};
 pub use background::BackgroundModel;
 pub use checkpoint::{CheckpointReader, CheckpointWriter};
 pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};
@@ -52,6 +50,7 @@ pub use optim::{Adam, AdamStep, CompactMoments, Decay, LrSchedule, Moments, Warm
 pub use pipeline::{
     ColorLoss, DeferredGradient, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, scale_from_variance,
 };
+pub use presets::{Preset, architecture, architecture_with_grid, build, build_with_grid};
 pub use real::Real;
 pub use render::{RayGradients, RayRender, merge_sorted, render_ray, render_ray_backward, sample_intervals};
 pub use upsample::{interval_weights, trim_to_weight};

@@ -71,6 +71,11 @@ impl<R: Element> Buf<R> {
         Buf(v)
     }
 
+    /// The values, leaving this buffer empty (its allocation moves with them).
+    pub fn take(&mut self) -> Buf<R> {
+        Buf(std::mem::take(&mut self.0))
+    }
+
     /// The values, as a vector (the allocation leaves the pool for good).
     pub fn into_vec(mut self) -> Vec<R> {
         std::mem::take(&mut self.0)

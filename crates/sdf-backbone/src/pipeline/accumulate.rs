@@ -58,25 +58,30 @@ struct Dims {
     h: f64,
 }
 
-/// What the forward pass of a work item leaves for the loss and the backward pass.
+/// What the forward pass of a work item leaves for the loss and the backward pass. Fields drop
+/// in the order declared, and the scratch pool hands out its buffers by what came back last:
+/// the largest buffers go back last, so that the next work item's largest requests find them.
 struct Forward<R: Real> {
-    points: Buf<R>,
-    sdf_out: Buf<R>,
-    sdf_ctx: Buf<R>,
-    normals: Vec<[R; 3]>,
-    color_in: Buf<R>,
-    colors: Buf<R>,
-    color_ctx: Buf<R>,
     background: Option<BackgroundPass<R>>,
+    color_ctx: Buf<R>,
+    colors: Buf<R>,
+    color_in: Buf<R>,
+    normals: Vec<[R; 3]>,
+    /// The analytic gradients, read through `normals`; kept for their place in the drop order.
+    _gradients: Option<Buf<R>>,
+    sdf_ctx: Buf<R>,
+    sdf_out: Buf<R>,
+    points: Buf<R>,
 }
 
-/// The adjoints the per-ray loop gathers for one backward pass per network.
+/// The adjoints the per-ray loop gathers for one backward pass per network (dropped in the
+/// order declared, as [`Forward`]).
 struct Adjoints<R: Real> {
-    colors: Buf<R>,
-    sdf_direct: Buf<R>,
-    normals: Vec<[R; 3]>,
-    laplacian: Buf<R>,
     background: Vec<[R; 3]>,
+    laplacian: Buf<R>,
+    normals: Vec<[R; 3]>,
+    sdf_direct: Buf<R>,
+    colors: Buf<R>,
     variance: R,
 }
 
@@ -137,7 +142,7 @@ impl<S, C> Pipeline<S, C> {
         let dims = Dims { n_out: 1 + f, f, c_in: COLOR_IN_FIXED + f, probes, h: self.config.normal_step };
         let rows = Rows::of(rays, probes.len());
         let (points, sdf_out, sdf_ctx, gradients) = self.sdf_pass(p_sdf, rays, &rows, &dims);
-        let fwd = self.color_pass(p_col, &p_var[1..], rays, &rows, &dims, points, sdf_out, sdf_ctx, gradients.as_deref());
+        let mut fwd = self.color_pass(p_col, &p_var[1..], rays, &rows, &dims, points, sdf_out, sdf_ctx, gradients);
         let scale = Scale { s: scale_from_variance(p_var[0]), m, color_norm, backward: d_params.is_some() };
         let mut adj = Adjoints::new(scale.backward, &rows, rays.len());
         let mut total = R::ZERO;
@@ -155,7 +160,7 @@ impl<S, C> Pipeline<S, C> {
         let deferred = if self.config.normals == NormalScheme::Analytic {
             self.sdf_tangent_backward(p_sdf, rays, &rows, &dims, &fwd, &adj, &d_color_in, &d_sdf_out, d_sdf_params)
         } else {
-            self.sdf_backward(p_sdf, fwd.points, &fwd.sdf_ctx, &d_sdf_out, d_sdf_params)
+            self.sdf_backward(p_sdf, &mut fwd, &d_sdf_out, d_sdf_params)
         };
         (total, outputs, deferred)
     }
@@ -220,7 +225,7 @@ impl<S, C> Pipeline<S, C> {
         points: Buf<R>,
         sdf_out: Buf<R>,
         sdf_ctx: Buf<R>,
-        gradients: Option<&[R]>,
+        gradients: Option<Buf<R>>,
     ) -> Forward<R>
     where
         C: Module<R>,
@@ -236,7 +241,7 @@ impl<S, C> Pipeline<S, C> {
             SphericalHarmonics.forward(&[], &ray.direction, &mut sh_d, &mut []);
             sh.push(sh_d);
             for i in 0..n {
-                let nrm = match gradients {
+                let nrm = match gradients.as_deref() {
                     Some(grad) => [0, 1, 2].map(|k| grad[((b + i) * 3 + k) * n_out]),
                     None => {
                         let mut g = [R::ZERO; 3];
@@ -265,7 +270,7 @@ impl<S, C> Pipeline<S, C> {
             let directions: Vec<[R; 3]> = rays.iter().map(|r| r.direction).collect();
             model.forward(p_bg, &origins, &directions, &sh)
         });
-        Forward { points, sdf_out, sdf_ctx, normals, color_in, colors, color_ctx, background }
+        Forward { background, color_ctx, colors, color_in, normals, _gradients: gradients, sdf_ctx, sdf_out, points }
     }
 
     /// Ray `r`: its render, every loss term (colour, curvature, eikonal, normal smoothness,
@@ -527,17 +532,18 @@ impl<S, C> Pipeline<S, C> {
 
     /// The SDF network's backward pass (numerical normals: the probes are rows like the
     /// samples); a deferring network's record of its deferred gradient.
-    fn sdf_backward<R: Real>(&self, p_sdf: &[R], points: Buf<R>, sdf_ctx: &[R], d_sdf_out: &[R], d_sdf_params: &mut [R]) -> Deferred<R>
+    fn sdf_backward<R: Real>(&self, p_sdf: &[R], fwd: &mut Forward<R>, d_sdf_out: &[R], d_sdf_params: &mut [R]) -> Deferred<R>
     where
         S: Module<R>,
     {
         if self.sdf.deferred_params() == 0 {
-            self.sdf.backward(p_sdf, &points, sdf_ctx, d_sdf_out, d_sdf_params, None);
+            self.sdf.backward(p_sdf, &fwd.points, &fwd.sdf_ctx, d_sdf_out, d_sdf_params, None);
             return None;
         }
-        let mut record = Buf::<R>::zeroed(points.len() / 3 * self.sdf.deferred_width());
-        self.sdf.backward_deferring(p_sdf, &points, sdf_ctx, d_sdf_out, d_sdf_params, &mut record);
-        Some((points, record))
+        let mut record = Buf::<R>::zeroed(fwd.points.len() / 3 * self.sdf.deferred_width());
+        self.sdf.backward_deferring(p_sdf, &fwd.points, &fwd.sdf_ctx, d_sdf_out, d_sdf_params, &mut record);
+        // The record's input: the points themselves.
+        Some((fwd.points.take(), record))
     }
 
     /// The SDF network's backward pass with analytic normals. L depends on nᵢ = ∇ₓS(xᵢ) through

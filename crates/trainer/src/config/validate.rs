@@ -5,14 +5,30 @@ use super::{Budget, GridSize, MeshResolution, MomentStorage, Normals, TrainConfi
 use anyhow::{Result, bail};
 use std::time::Duration;
 
+/// `Ok` when `ok`, else an error naming `key`, its value and what it expects.
+fn need(ok: bool, key: &str, value: impl std::fmt::Debug, expected: &str) -> Result<()> {
+    if ok { Ok(()) } else { bail!("{key} = {value:?} is out of range: expected {expected}") }
+}
+
+/// What a key that needs a hash grid expects of `model.preset`.
+fn hash_grid_preset(with: &str) -> String {
+    let presets: Vec<&str> = sdf_backbone::Preset::ALL.into_iter().filter(|p| p.has_hash_grid()).map(sdf_backbone::Preset::name).collect();
+    format!("a hash-grid preset ({}) with {with}", presets.join(", "))
+}
+
 impl TrainConfig {
     /// Checks every range; the error names the key.
     pub fn validate(&self) -> Result<()> {
-        fn need(ok: bool, key: &str, value: impl std::fmt::Debug, expected: &str) -> Result<()> {
-            if ok { Ok(()) } else { bail!("{key} = {value:?} is out of range: expected {expected}") }
-        }
-        let finite_pos = |v: f64| v.is_finite() && v > 0.0;
-        let non_neg = |v: f64| v.is_finite() && v >= 0.0;
+        self.validate_data()?;
+        self.validate_model()?;
+        self.validate_render()?;
+        self.validate_optim()?;
+        self.validate_guide()?;
+        self.validate_output()
+    }
+
+    /// The budget and `[data]`.
+    fn validate_data(&self) -> Result<()> {
         need(self.budget != Budget::Steps(0), "budget.steps", 0, "≥ 1")?;
         need(self.budget != Budget::Time(Duration::ZERO), "budget.seconds", 0, "> 0")?;
         need(self.data.downscale >= 1, "data.downscale", self.data.downscale, "≥ 1")?;
@@ -36,13 +52,19 @@ impl TrainConfig {
             &self.data.builtin.shape,
             &prob_grid::Shape::NAMES.join(", "),
         )?;
+        Ok(())
+    }
+
+    /// `[model]` and the combinations it takes part in.
+    fn validate_model(&self) -> Result<()> {
+        let non_neg = |v: f64| v.is_finite() && v >= 0.0;
         need(self.model.init_radius > 0.0 && self.model.init_radius < 1.0, "model.init_radius", self.model.init_radius, "in (0, 1)")?;
         need(self.model.pixels_per_cell.is_finite() && self.model.pixels_per_cell > 0.0, "model.pixels_per_cell", self.model.pixels_per_cell, "> 0")?;
         need(
             self.model.grid == GridSize::Preset || self.model.preset.has_hash_grid(),
             "model.preset",
             self.model.preset.name(),
-            "a hash-grid preset (neuralangelo-cpu, neuralangelo) with model.grid = \"footprint\"",
+            &hash_grid_preset("model.grid = \"footprint\""),
         )?;
         need(self.model.initial_levels >= 1, "model.initial_levels", self.model.initial_levels, "≥ 1")?;
         need((0.0..=1.0).contains(&self.model.all_levels_at), "model.all_levels_at", self.model.all_levels_at, "in [0, 1]")?;
@@ -59,14 +81,15 @@ impl TrainConfig {
                 self.model.curvature,
                 "0 with model.normals = \"analytic\" (the curvature's Laplacian comes from the probes of numerical normals)",
             )?;
-            need(
-                self.model.preset.has_hash_grid(),
-                "model.preset",
-                self.model.preset.name(),
-                "a hash-grid preset (neuralangelo-cpu, neuralangelo) with model.normals = \"analytic\"",
-            )?;
+            need(self.model.preset.has_hash_grid(), "model.preset", self.model.preset.name(), &hash_grid_preset("model.normals = \"analytic\""))?;
         }
         need(self.model.background.iter().all(|c| (0.0..=1.0).contains(c)), "model.background", self.model.background, "each in [0, 1]")?;
+        Ok(())
+    }
+
+    /// `[render]`.
+    fn validate_render(&self) -> Result<()> {
+        let finite_pos = |v: f64| v.is_finite() && v > 0.0;
         need(self.render.rays >= 1, "render.rays", self.render.rays, "≥ 1")?;
         need(self.render.coarse >= 2, "render.coarse", self.render.coarse, "≥ 2")?;
         need(
@@ -91,6 +114,13 @@ impl TrainConfig {
         need((0.0..0.5).contains(&self.render.render_trim), "render.render_trim", self.render.render_trim, "in [0, 0.5)")?;
         need(self.render.chunk >= 1, "render.chunk", self.render.chunk, "≥ 1")?;
         need(self.render.occupancy_dilation <= 8, "render.occupancy_dilation", self.render.occupancy_dilation, "in 0..=8")?;
+        Ok(())
+    }
+
+    /// `[optim]`.
+    fn validate_optim(&self) -> Result<()> {
+        let finite_pos = |v: f64| v.is_finite() && v > 0.0;
+        let non_neg = |v: f64| v.is_finite() && v >= 0.0;
         need(finite_pos(self.optim.lr), "optim.lr", self.optim.lr, "> 0")?;
         need(non_neg(self.optim.lr_grid), "optim.lr_grid", self.optim.lr_grid, "≥ 0")?;
         self.optim.schedule.validate().map_err(|e| anyhow::anyhow!("optim.schedule.{e}"))?;
@@ -99,8 +129,14 @@ impl TrainConfig {
             self.optim.table_moments == MomentStorage::F32 || self.model.preset.has_hash_grid(),
             "model.preset",
             self.model.preset.name(),
-            "a hash-grid preset (neuralangelo-cpu, neuralangelo) with optim.table_moments = \"bf16\"",
+            &hash_grid_preset("optim.table_moments = \"bf16\""),
         )?;
+        Ok(())
+    }
+
+    /// `[guide]` and `[mining]`.
+    fn validate_guide(&self) -> Result<()> {
+        let non_neg = |v: f64| v.is_finite() && v >= 0.0;
         need(self.guide.updates >= 1, "guide.updates", self.guide.updates, "≥ 1")?;
         self.guide.scene.validate().map_err(|e| anyhow::anyhow!("guide.scene: {e}"))?;
         self.guide.camera.validate().map_err(|e| anyhow::anyhow!("guide.camera: {e}"))?;
@@ -122,6 +158,12 @@ impl TrainConfig {
         need((0.0..=1.0).contains(&self.mining.uniform), "mining.uniform", self.mining.uniform, "in [0, 1]")?;
         need((0.0..=1.0).contains(&self.mining.alpha), "mining.alpha", self.mining.alpha, "in [0, 1]")?;
         need((0.0..=1.0).contains(&self.mining.alpha_warmup), "mining.alpha_warmup", self.mining.alpha_warmup, "in [0, 1]")?;
+        Ok(())
+    }
+
+    /// `[surface]` and `[output]`.
+    fn validate_output(&self) -> Result<()> {
+        let finite_pos = |v: f64| v.is_finite() && v > 0.0;
         self.surface.validate().map_err(|e| anyhow::anyhow!("surface.{e}"))?;
         need((0.0..=1.0).contains(&self.output.validate_share), "output.validate_share", self.output.validate_share, "in [0, 1]")?;
         need(self.output.validate_downscale >= 1, "output.validate_downscale", self.output.validate_downscale, "≥ 1")?;

@@ -8,12 +8,12 @@
 //! that fails before its first checkpoint removes the run folder it created.
 
 use crate::config::TrainConfig;
-use crate::data::{SceneData, SceneSize, ViewSplit};
+use crate::data::{SceneData, SceneSize};
 pub use crate::folder::{AtomicFiles, RunFolder, Sink, checkpoint_path, read_run_config};
 use crate::folder::{DataRecord, is_run_folder};
 use crate::memory::{self, MemoryEstimate};
-use crate::metrics::{RunMetrics, ViewPsnr};
-use crate::outputs::{geometry_metrics, mesh_files, mesh_picture, run_geometry};
+use crate::metrics::RunMetrics;
+use crate::outputs::run_geometry;
 use crate::plot::{Panel, Series, render};
 use crate::progress::Progress;
 use crate::snapshot::{Snapshots, write_snapshot};
@@ -25,6 +25,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::time::Instant;
+
+mod finish;
+use finish::{FinishTiming, final_eval_views, finish};
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -430,182 +433,4 @@ fn interim_metrics(trainer: &Trainer) -> Result<serde_json::Value> {
     let t = trainer.timing();
     Ok(json!({"eval": true, "step": trainer.state().step, "psnr": psnr, "psnr_masked": masked, "chamfer": geometry.map(|g| g.chamfer),
         "f_score": geometry.map(|g| g.f_score), "time_s": t.step_seconds + t.grid_seconds}))
-}
-
-fn mean(values: impl Iterator<Item = f64>) -> Option<f64> {
-    let v: Vec<f64> = values.collect();
-    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
-}
-
-/// The views of the final PSNR: `output.eval_views` spread over the held-out views (all views
-/// when none is held out).
-fn final_eval_views(config: &TrainConfig, split: &ViewSplit) -> Vec<usize> {
-    let candidates = split.evaluation_views();
-    let every = candidates.len().div_ceil(config.output.eval_views.max(1));
-    candidates.iter().copied().step_by(every.max(1)).collect()
-}
-
-/// Times of the training loop and its side work, for the metrics.
-struct FinishTiming {
-    train_wall: f64,
-    checkpoint: f64,
-    pictures: f64,
-}
-
-/// Final pictures, mesh, metrics and summary; `None` when `stop` was set on the way (nothing
-/// more is written then: the checkpoint is kept).
-fn finish(
-    trainer: &Trainer,
-    folder: &RunFolder,
-    progress: &Progress,
-    times: &FinishTiming,
-    estimate: &MemoryEstimate,
-    stop: &AtomicBool,
-) -> Result<Option<RunSummary>> {
-    let stopped = || stop.load(Ordering::SeqCst);
-    let config = trainer.config();
-    let scene = &trainer.data().scene;
-    let split = trainer.split();
-    let step = trainer.state().step;
-    // Each phase's scratch buffers differ in size: the resident size is the largest phase's.
-    sdf_backbone::scratch::release_all();
-    validation_pictures(trainer, folder, step)?;
-    // Image metrics on the held-out views (all views when none are held out).
-    let eval_views = final_eval_views(config, split);
-    let fit_every = split.train.len().div_ceil(config.output.eval_train_views.max(1));
-    let fit_views: Vec<usize> =
-        if config.output.eval_train_views == 0 { Vec::new() } else { split.train.iter().copied().step_by(fit_every.max(1)).collect() };
-    let t = Instant::now();
-    let n_renders = eval_views.len() + fit_views.len();
-    let mut held = Vec::new();
-    let mut fit = Vec::new();
-    for (i, &v) in eval_views.iter().chain(&fit_views).enumerate() {
-        if stopped() {
-            return Ok(None);
-        }
-        let metrics = trainer.view_metrics(v, config.output.eval_downscale)?;
-        progress.phase("eval", i + 1, n_renders);
-        if i < eval_views.len() { held.push(metrics) } else { fit.push(metrics) }
-    }
-    let eval_seconds = t.elapsed().as_secs_f64();
-    sdf_backbone::scratch::release_all();
-    let psnr = mean(held.iter().map(|p| p.0));
-    let psnr_masked = mean(held.iter().filter_map(|p| p.1));
-    let ssim = mean(held.iter().filter_map(|p| p.2));
-    let psnr_train = mean(fit.iter().map(|p| p.0));
-    let psnr_train_masked = mean(fit.iter().filter_map(|p| p.1));
-
-    if stopped() {
-        return Ok(None);
-    }
-    let t = Instant::now();
-    let (mesh, components, kept) = trainer.extract_mesh_with_stats(&|done, total| progress.phase("mesh", done, total))?;
-    if stopped() {
-        return Ok(None);
-    }
-    let colors = config.output.vertex_colors.then(|| trainer.vertex_colors(&mesh));
-    let mut meshes = Vec::new();
-    for (format, bytes) in mesh_files(&mesh, &scene.world_from_normalized, colors.as_deref(), &config.output.mesh_formats) {
-        let name = format!("mesh.{}", format.extension());
-        folder.write(&name, &bytes)?;
-        meshes.push(folder.dir().join(name).display().to_string());
-    }
-    if !mesh.triangles.is_empty() {
-        let views = [eval_views[0], split.train[split.train.len() / 2]];
-        let cams: Vec<camera_geom::PinholeCamera> = views.iter().map(|&v| scene.views[v].camera).collect();
-        folder.write_png("pictures/mesh.png", &mesh_picture(&mesh, &cams))?;
-    }
-    let mesh_seconds = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let world_scale = scene.world_from_normalized.determinant().abs().cbrt();
-    let gt = trainer.data().ground_truth(config.output.chamfer_spacing)?;
-    let geometry = match (&gt, mesh.triangles.is_empty()) {
-        (Some(gt), false) => {
-            Some(geometry_metrics(&mesh, gt, config.output.chamfer_spacing, config.output.chamfer_max_dist, config.output.fscore_tau)?)
-        }
-        _ => None,
-    };
-    let mesh_floor = match (&gt, geometry) {
-        (Some(gt), Some(_)) => crate::outputs::mesh_floor(trainer.data(), gt, &config.output, trainer.mesh_resolution())?,
-        _ => None,
-    };
-    let geometry_seconds = t.elapsed().as_secs_f64();
-    progress.finish_phase();
-    let timing = trainer.timing();
-    let per_step = |x: f64| x / timing.steps.max(1) as f64;
-    let held_out = !split.held_out.is_empty();
-    let metrics = RunMetrics {
-        sampler: config.sampler,
-        steps: step,
-        time_budget_s: config.budget.time_s(),
-        psnr,
-        psnr_masked,
-        ssim,
-        psnr_views: eval_views.clone(),
-        psnr_held_out: held_out,
-        psnr_train,
-        psnr_train_masked,
-        psnr_train_views: fit_views.clone(),
-        psnr_per_view: held.iter().map(|p| ViewPsnr { whole: p.0, masked: p.1 }).collect(),
-        chamfer: geometry.map(|g| g.chamfer),
-        chamfer_world: geometry.map(|g| g.chamfer * world_scale),
-        accuracy: geometry.map(|g| g.accuracy),
-        completeness: geometry.map(|g| g.completeness),
-        f_score: geometry.map(|g| g.f_score),
-        f_score_tau: config.output.fscore_tau,
-        world_scale,
-        mesh_resolution: trainer.mesh_resolution(),
-        mesh_floor,
-        mesh_vertices: mesh.vertices.len(),
-        mesh_triangles: mesh.triangles.len(),
-        mesh_components: components,
-        mesh_components_kept: kept,
-        train_s: trainer.state().train_seconds,
-        train_wall_s: times.train_wall,
-        step_s: per_step(timing.step_seconds),
-        iteration_s: per_step(timing.step_seconds + timing.grid_seconds),
-        rays_s: per_step(timing.ray_seconds),
-        grid_s: timing.grid_seconds,
-        grid_updates: timing.grid_updates,
-        eval_s: eval_seconds,
-        mesh_s: mesh_seconds,
-        geometry_s: geometry_seconds,
-        checkpoint_s: times.checkpoint,
-        validation_s: times.pictures,
-        threads: rayon::current_num_threads(),
-        memory_estimate_bytes: estimate.peak(),
-        peak_rss_bytes: memory::peak_rss_bytes(),
-    };
-    folder.write("metrics.json", serde_json::to_string_pretty(&metrics)?.as_bytes())?;
-    eprintln!(
-        "done in {:.0} s ({:.3} s/iteration, {step} iterations). mesh: {} ({} triangles, {kept} of {components} components)",
-        trainer.state().train_seconds,
-        per_step(timing.step_seconds + timing.grid_seconds),
-        meshes.first().map_or("-", String::as_str),
-        mesh.triangles.len()
-    );
-    eprintln!(
-        "PSNR {} on {} {} view(s){}; {}",
-        match (psnr, psnr_masked) {
-            (Some(p), Some(m)) => format!("{p:.2} dB (masked {m:.2} dB)"),
-            (Some(p), None) => format!("{p:.2} dB"),
-            _ => "-".into(),
-        },
-        eval_views.len(),
-        if held_out { "held-out" } else { "training (none held out)" },
-        psnr_train.map_or(String::new(), |p| format!(", {p:.2} dB on {} training view(s)", fit_views.len())),
-        match geometry {
-            Some(g) => format!(
-                "Chamfer {:.4} ({:.4} in world units{}), F-score {:.3} at τ = {}",
-                g.chamfer,
-                g.chamfer * world_scale,
-                mesh_floor.map_or(String::new(), |f| format!("; the truth's own {}³ mesh: {f:.4}", trainer.mesh_resolution())),
-                g.f_score,
-                g.tau
-            ),
-            None if gt.is_none() => "no ground truth for Chamfer".into(),
-            None => "the mesh is empty: no Chamfer".into(),
-        }
-    );
-    Ok(Some(RunSummary { out: folder.dir().display().to_string(), meshes, metrics, history: Vec::new() }))
 }

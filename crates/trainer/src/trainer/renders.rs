@@ -1,0 +1,155 @@
+//! What a trainer renders and meshes: views, pdf heat maps, per-view metrics, the mesh and its
+//! filters and colours (no gradient, the rays through the same pipeline).
+
+use super::Trainer;
+use crate::config::MeshFilter;
+use crate::outputs::{ViewRender, filter_components, heat_map};
+use anyhow::{Context, Result, bail};
+use datasets::images::RgbImage;
+use prob_grid::{IsoMesh, MarchingCubesConfig, Occupancy, marching_cubes_with_progress};
+use rayon::prelude::*;
+use sdf_backbone::{NoSampleLoss, RayInput, RayOutput};
+use view_sampler::march_through;
+
+impl Trainer {
+    /// Sets how renders sample (`render.render_fine` in `rounds` rounds, `render.render_trim`,
+    /// `render.render_skip_empty`): what a render costs and resolves, not what the model learnt,
+    /// so a finished run can be re-rendered with others (`cargo xtask eval --run DIR
+    /// --render-fine N --render-rounds R --render-trim W --render-skip-empty B`).
+    pub fn set_render_upsampling(&mut self, fine: usize, rounds: usize, trim: f64, skip_empty: bool) -> Result<()> {
+        let mut config = self.config.clone();
+        let r = &mut config.render;
+        (r.render_fine, r.render_upsample_rounds, r.render_trim, r.render_skip_empty) = (fine, rounds, trim, skip_empty);
+        config.validate()?;
+        self.config = config;
+        Ok(())
+    }
+
+    /// Renders `rays` (forward only, parallel chunks).
+    pub fn render_rays(&self, rays: &[RayInput<f32>]) -> Vec<RayOutput<f32>> {
+        let params = &self.state.params;
+        rays.par_chunks(64).flat_map_iter(|c| self.backbone.loss(params, c, None, &NoSampleLoss).1).collect()
+    }
+
+    /// Renders view `view` of the scene at 1/`downscale` resolution (the estimator's coarse
+    /// samples without jitter, up-sampled), with its targets and mask.
+    pub fn render_view(&self, view: usize, downscale: u32) -> Result<ViewRender> {
+        let view = &self.data.scene.views[view];
+        if downscale == 0 {
+            bail!("a render's downscale must be ≥ 1");
+        }
+        let k = view.camera.intrinsics.downscaled(downscale, view.camera.pixel_centers);
+        let image = view.image.downscaled(downscale);
+        let mask = view.mask.as_ref().map(|m| m.downscaled(downscale));
+        let (width, height) = (image.width, image.height);
+        let c = &view.camera;
+        let camera = camera_geom::PinholeCamera::new(k, width, height, c.camera_from_world, c.pixel_centers)
+            .with_context(|| format!("view {:?} ({}×{}) rendered at downscale {downscale}", view.name, c.width, c.height))?;
+        let r = &self.config.render;
+        let occupancy = if r.render_skip_empty { Some(self.render_occupancy()?) } else { None };
+        let (mut rays, hits): (Vec<RayInput<f32>>, Vec<bool>) = (0..height)
+            .into_par_iter()
+            .flat_map_iter(|row| (0..width).map(move |col| (col, row)))
+            .map(|(col, row)| {
+                let ray = camera.ray_through_pixel_index(col, row);
+                let mut depths = Vec::with_capacity(r.coarse + 1);
+                // The render's own occupancy, else the estimator's (training with skipping).
+                let crosses = march_through(occupancy.as_ref().or(self.estimator.occupancy()), ray.origin, ray.direction, r.coarse, 0.5, &mut depths);
+                let empty = occupancy.is_some() && !crosses;
+                if empty {
+                    // Nothing along it can carry weight: one interval at its far end.
+                    depths.drain(..depths.len() - 2);
+                }
+                let (origin, direction) = (ray.origin.as_vec3().to_array(), ray.direction.as_vec3().to_array());
+                (RayInput { origin, direction, depths, target: image.get_f32(col, row), mask: None, weight: 1.0 }, !empty)
+            })
+            .unzip();
+        // Up-sampling and the trim for the rays that cross occupied space.
+        let index: Vec<usize> = (0..rays.len()).filter(|&i| hits[i]).collect();
+        let mut crossing: Vec<RayInput<f32>> =
+            index.iter().map(|&i| RayInput { depths: std::mem::take(&mut rays[i].depths), ..rays[i].clone() }).collect();
+        let (params, fine, rounds) = (&self.state.params, r.render_fine, r.render_upsample_rounds);
+        if r.render_trim > 0.0 {
+            self.backbone.upsample_trimmed(params, &mut crossing, fine, rounds, r.upsample_s, self.s() as f32, r.render_trim as f32);
+        } else {
+            self.backbone.upsample(params, &mut crossing, fine, rounds, r.upsample_s);
+        }
+        for (ray, &i) in crossing.into_iter().zip(&index) {
+            rays[i] = ray;
+        }
+        let outputs = self.render_rays(&rays);
+        let target = rays.iter().map(|r| r.target).collect();
+        let mask = mask.map(|m| (0..height).flat_map(|r| (0..width).map(move |c| (c, r))).map(|(c, r)| m.get(c, r)).collect());
+        Ok(ViewRender { width, height, outputs, target, mask })
+    }
+
+    /// The pixel marginal of the guide for the training camera nearest in index to `view`.
+    pub fn pdf_heat_map(&self, view: usize) -> Option<RgbImage> {
+        let distributions = self.estimator.distributions();
+        if distributions.is_empty() {
+            return None;
+        }
+        let i = self.split.train.iter().position(|&v| v >= view).unwrap_or(0).min(distributions.len() - 1);
+        let (ru, rv, _) = distributions[i].resolution();
+        Some(heat_map(&distributions[i].pixel_marginal(), ru, rv, 4))
+    }
+
+    /// The zero level set of the current SDF (normalised frame) at [`Self::mesh_resolution`],
+    /// components filtered by `output.mesh_filter`; `progress(blocks done, blocks)`.
+    pub fn extract_mesh(&self, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<IsoMesh> {
+        Ok(self.extract_mesh_with_stats(progress)?.0)
+    }
+
+    /// The occupancy of the current field at the current s on the guide's scene grid (dilated by
+    /// `render.occupancy_dilation`, at least one cell), for renders (`render.render_skip_empty`).
+    fn render_occupancy(&self) -> Result<Occupancy> {
+        let mut field = self.backbone.field(&self.state.params);
+        field.lipschitz = self.estimator.lipschitz_bound();
+        let scene = &self.config.guide.scene;
+        let active = prob_grid::evaluate(&field, self.s() as f32, scene).context("the occupancy of a render")?;
+        Ok(Occupancy::from_active(&active, scene, self.config.render.occupancy_dilation.max(1)))
+    }
+
+    /// PSNR (whole image, inside the mask) and SSIM of view `view` rendered at `downscale`.
+    pub fn view_metrics(&self, view: usize, downscale: u32) -> Result<(f64, Option<f64>, Option<f64>)> {
+        let render = self.render_view(view, downscale)?;
+        let (whole, masked) = render.psnr();
+        Ok((whole, masked, render.ssim()))
+    }
+
+    /// [`Self::extract_mesh`] with (components found, components kept).
+    pub fn extract_mesh_with_stats(&self, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<(IsoMesh, usize, usize)> {
+        let mc = MarchingCubesConfig { resolution: self.mesh_resolution, block: 16, ..Default::default() };
+        let mut field = self.backbone.field(&self.state.params);
+        field.lipschitz = self.estimator.lipschitz_bound();
+        let (mesh, _) = marching_cubes_with_progress(&field, &mc, progress)?;
+        Ok(self.filter_mesh(&mesh, self.config.output.mesh_filter))
+    }
+
+    /// `mesh` with its components filtered by `filter` (see [`MeshFilter`]): (mesh, found, kept).
+    pub fn filter_mesh(&self, mesh: &IsoMesh, filter: MeshFilter) -> (IsoMesh, usize, usize) {
+        filter_components(mesh, filter, &self.data.scene, &self.split.train, self.use_masks, self.config.output.min_component_area)
+    }
+
+    /// Vertex colours: each vertex rendered by a short ray coming to it along its normal.
+    pub fn vertex_colors(&self, mesh: &IsoMesh) -> Vec<[u8; 3]> {
+        let normals = prob_grid::vertex_normals(&mesh.vertices, &mesh.triangles);
+        let rays: Vec<RayInput<f32>> = mesh
+            .vertices
+            .iter()
+            .zip(&normals)
+            .map(|(p, n)| {
+                let n = if n.length() > 0.0 { *n } else { glam::Vec3::Z };
+                RayInput {
+                    origin: (*p + 0.05 * n).to_array(),
+                    direction: (-n).to_array(),
+                    depths: (0..=16).map(|i| i as f32 * 0.1 / 16.0).collect(),
+                    target: [0.0; 3],
+                    mask: None,
+                    weight: 1.0,
+                }
+            })
+            .collect();
+        self.render_rays(&rays).iter().map(|o| o.color.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)).collect()
+    }
+}

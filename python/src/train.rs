@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
-use trainer::config::parse_duration;
+use trainer::config::{Budget, SamplerKind, parse_duration, positive_duration};
 use trainer::folder::AtomicFiles;
 use trainer::run::{Outcome, RunOptions, RunRequest, free_default_out, run};
 
@@ -17,18 +17,16 @@ use trainer::run::{Outcome, RunOptions, RunRequest, free_default_out, run};
 const SIGNAL_POLL: Duration = Duration::from_millis(100);
 
 /// A budget given in Python: `"90s"`, `"10m"`, `"1.5h"`, or seconds as a number.
-fn budget_seconds(budget: &Bound<'_, PyAny>) -> PyResult<f64> {
-    let seconds = if let Ok(text) = budget.cast::<PyString>() {
-        parse_duration(&text.to_cow()?).map_err(|e| PyValueError::new_err(format!("budget {text}: {e:#}")))?.as_secs_f64()
+fn time_budget(budget: &Bound<'_, PyAny>) -> PyResult<Budget> {
+    let duration = if let Ok(text) = budget.cast::<PyString>() {
+        parse_duration(&text.to_cow()?).map_err(|e| PyValueError::new_err(format!("budget {text}: {e:#}")))?
     } else if budget.is_instance_of::<PyFloat>() || budget.is_instance_of::<PyInt>() {
-        budget.extract()?
+        let seconds: f64 = budget.extract()?;
+        positive_duration(seconds).map_err(|e| PyValueError::new_err(format!("budget = {seconds} s: {e:#}")))?
     } else {
         return Err(PyTypeError::new_err("budget: a duration such as \"2m\", or seconds as a number"));
     };
-    if !(seconds.is_finite() && seconds > 0.0) {
-        return Err(PyValueError::new_err(format!("budget = {seconds} s: expected a positive duration")));
-    }
-    Ok(seconds)
+    Ok(Budget::Time(duration))
 }
 
 /// Trains a model and returns the run's metrics (the `metrics.json` fields) with `mesh` (the
@@ -77,20 +75,14 @@ pub fn train<'py>(
             RunRequest::Resume { dir, data }
         }
         None => {
-            let mut values = Vec::new();
-            if let Some(b) = &budget {
-                let mut table = toml::Table::new();
-                table.insert("seconds".into(), toml::Value::Float(budget_seconds(b)?));
-                values.push(("budget".to_string(), toml::Value::Table(table)));
-            }
-            if let Some(s) = sampler {
-                values.push(("sampler".into(), toml::Value::String(s.into())));
-            }
-            if let Some(s) = seed {
-                values.push(("seed".into(), toml::Value::Integer(i64::try_from(s).map_err(|_| PyValueError::new_err("seed: at most 2⁶³ − 1"))?)));
-            }
-            values.extend(overrides(options, "")?);
-            let config = crate::convert::config(config.as_deref(), &values)?;
+            let budget = budget.as_ref().map(time_budget).transpose()?;
+            let sampler = sampler.map(SamplerKind::from_name).transpose().map_err(PyValueError::new_err)?;
+            let mut config = crate::convert::config(config.as_deref(), &overrides(options, "")?)?;
+            // The arguments replace the file's and the overrides' values, as on the command line.
+            config.budget = budget.unwrap_or(config.budget);
+            config.sampler = sampler.unwrap_or(config.sampler);
+            config.seed = seed.unwrap_or(config.seed);
+            config.validate().map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
             let out = out.unwrap_or_else(free_default_out);
             RunRequest::Fresh { config: Box::new(config), data, out, overwrite }
         }

@@ -29,12 +29,12 @@ pub struct BackboneArgs {
     pub reps: usize,
     /// Run one preset in this process (the parent runs each preset this way, so that every
     /// figure's peak memory is its own).
-    #[arg(long, hide = true)]
-    pub preset: Option<String>,
+    #[arg(long, hide = true, value_parser = Preset::from_name)]
+    pub preset: Option<Preset>,
     /// With `--preset`: only this normal scheme (tetrahedral, central, analytic), e.g. to profile
     /// one step with `perf record`.
-    #[arg(long, requires = "preset")]
-    pub normals: Option<String>,
+    #[arg(long, requires = "preset", value_parser = NormalScheme::from_name)]
+    pub normals: Option<NormalScheme>,
     /// With `--preset`: where one step's time goes (CPU seconds per stage, summed over threads:
     /// hash-grid gathers and scatters, MLP passes, the pipeline's own work, Adam), as a table.
     #[arg(long, requires = "preset")]
@@ -144,7 +144,7 @@ fn rays(n_rays: usize, n_samples: usize) -> Vec<RayInput<f32>> {
 /// is off; the peer does not clip either).
 fn trainer_rates() -> StepRates {
     let optim = trainer::config::OptimConfig::default();
-    StepRates { tables: optim.lr_grid as f32, rest: optim.lr as f32, clip_norm: (optim.clip_norm > 0.0).then_some(optim.clip_norm as f32) }
+    StepRates { tables: optim.lr_grid as f32, rest: optim.lr as f32, clip_norm: optim.clip_norm.map(|c| c as f32) }
 }
 
 /// Seconds per training step: forward + backward of the whole loss + Adam, as the trainer
@@ -377,16 +377,12 @@ fn print_row(f: &Value) {
 
 /// Runs the benchmark.
 pub fn run(args: &BackboneArgs) -> Result<()> {
-    if let Some(name) = &args.preset {
-        let preset: Preset = serde_json::from_value(json!(name)).with_context(|| format!("unknown preset {name:?}"))?;
+    if let Some(preset) = args.preset {
         let gemm_best: f64 = std::env::var("PSNEUS_GEMM_GFLOPS")
             .ok()
             .and_then(|s| s.parse().ok())
             .unwrap_or_else(|| gemm_rates().iter().map(|g| g.1).fold(0.0, f64::max));
-        let only: Option<NormalScheme> = match &args.normals {
-            Some(n) => Some(serde_json::from_value(json!(n)).with_context(|| format!("unknown normal scheme {n:?}"))?),
-            None => None,
-        };
+        let only = args.normals;
         if args.profile {
             profile_step(
                 preset,

@@ -8,6 +8,7 @@
 //! high-water mark `VmHWM`, `rss_bytes` the resident size when the line was logged).
 
 use anyhow::{Context, Result, bail};
+use sdf_backbone::Preset;
 use serde_json::{Value, json};
 use std::path::Path;
 use std::time::Instant;
@@ -27,16 +28,15 @@ fn train_child(out: &Path, overrides: &[String]) -> Result<f64> {
 }
 
 /// `bench memory`: each preset for `steps` iterations end to end.
-pub fn memory(presets: &[String], steps: u64, json_out: bool) -> Result<()> {
-    let presets: Vec<String> =
-        if presets.is_empty() { ["neuralangelo-cpu", "neus-cpu", "neus", "neuralangelo"].map(String::from).to_vec() } else { presets.to_vec() };
+pub fn memory(presets: &[Preset], steps: u64, json_out: bool) -> Result<()> {
+    let presets = if presets.is_empty() { &Preset::ALL[..] } else { presets };
     let work = tempfile_dir()?;
     if !json_out {
         println!(
             "| preset | iterations | s / iteration | mesh s | evaluation s | checkpoint-free wall s | peak RSS | estimate | estimate / peak |\n|---|---|---|---|---|---|---|---|---|"
         );
     }
-    for preset in &presets {
+    for preset in presets.iter().map(|p| p.name()) {
         let out = work.join(preset);
         let overrides = vec![
             format!("steps={steps}"),

@@ -145,8 +145,8 @@ enum Command {
         #[arg(long)]
         mesh: Option<PathBuf>,
         /// Camera rig: dtu, sphere, random.
-        #[arg(long, default_value = "dtu")]
-        rig: String,
+        #[arg(long, default_value = "dtu", value_parser = parse_rig)]
+        rig: Rig,
         /// Output folder.
         #[arg(long)]
         out: PathBuf,
@@ -193,8 +193,8 @@ enum BenchKind {
     /// time per phase, peak resident memory against the memory model's estimate.
     Memory {
         /// Presets (repeat); default all four.
-        #[arg(long)]
-        preset: Vec<String>,
+        #[arg(long, value_parser = sdf_backbone::Preset::from_name)]
+        preset: Vec<sdf_backbone::Preset>,
         /// Iterations per preset.
         #[arg(long, default_value_t = 3)]
         steps: u64,
@@ -351,7 +351,6 @@ fn main() -> Result<()> {
             };
             let width = width.unwrap_or(spec.rig.width);
             let height = height.unwrap_or(spec.rig.height);
-            let rig = Rig::by_name(&rig).with_context(|| format!("unknown rig {rig:?} (dtu, sphere, random)"))?;
             if views == 0 || width == 0 || height == 0 {
                 bail!("--views, --width and --height must be positive");
             }
@@ -379,6 +378,11 @@ fn main() -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// `--rig`: a camera rig by name.
+fn parse_rig(name: &str) -> Result<Rig, String> {
+    Rig::by_name(name).ok_or_else(|| format!("unknown rig {name:?} (dtu, sphere, random)"))
 }
 
 fn cameras(data: &DataArgs, ply_path: Option<&std::path::Path>) -> Result<()> {

@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
-use trainer::config::{Budget, TrainConfig, parse_duration};
+use trainer::config::{Budget, SamplerKind, TrainConfig, parse_duration};
 use trainer::folder::checkpoint_path;
 use trainer::metrics::RunMetrics;
 use trainer::plot::{Panel, Point, Series, render};
@@ -60,9 +60,6 @@ pub struct TradeArgs {
     pub overrides: Vec<String>,
 }
 
-/// Variant names that mean a sampler (`sampler = NAME`).
-const SAMPLER_NAMES: [&str; 4] = ["uniform", "guided", "error-map", "soft-mining"];
-
 /// A named set of overrides.
 #[derive(Debug, Clone)]
 struct Variant {
@@ -74,7 +71,7 @@ fn parse_variant(text: &str) -> Variant {
     let (name, rest) = text.split_once(':').unwrap_or((text, ""));
     let mut overrides: Vec<String> = rest.split(',').map(str::trim).filter(|s| !s.is_empty()).map(String::from).collect();
     // A sampler's name names the sampler unless the variant sets it itself.
-    if SAMPLER_NAMES.contains(&name) && !overrides.iter().any(|o| o.trim_start().starts_with("sampler")) {
+    if SamplerKind::from_name(name).is_ok() && !overrides.iter().any(|o| o.trim_start().starts_with("sampler")) {
         overrides.push(format!("sampler={name}"));
     }
     Variant { name: name.to_string(), overrides }

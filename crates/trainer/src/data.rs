@@ -11,10 +11,7 @@ use std::path::{Path, PathBuf};
 
 /// The options the loaders get from a configuration.
 fn load_options(config: &TrainConfig) -> LoadOptions {
-    let bound_sphere = match config.data.bound.as_slice() {
-        [x, y, z, r] => Some((glam::DVec3::new(*x, *y, *z), *r)),
-        _ => None,
-    };
+    let bound_sphere = config.data.bound.map(|[x, y, z, r]| (glam::DVec3::new(x, y, z), r));
     LoadOptions { downscale: config.data.downscale, background: config.model.background.map(|c| c as f32), bound_sphere, ..Default::default() }
 }
 
@@ -88,7 +85,7 @@ pub struct SceneData {
 impl SceneData {
     /// The built-in golden scene as `config.data.builtin` describes it (no files).
     pub fn builtin(config: &TrainConfig) -> Result<SceneData> {
-        if !config.data.bound.is_empty() {
+        if config.data.bound.is_some() {
             bail!("data.bound applies to dataset folders (COLMAP, instant-ngp, NeRF-synthetic); the built-in scene's bound is the unit sphere");
         }
         let g = golden::generate(&builtin_spec(config)).context("rendering the built-in scene")?;
@@ -186,9 +183,8 @@ pub struct ViewSplit {
 impl ViewSplit {
     /// Every `holdout_every`-th view is held out (a single view is always trained on).
     pub fn new(config: &TrainConfig, scene: &Scene) -> ViewSplit {
-        let every = config.data.holdout_every;
         let n = scene.views.len();
-        let held = |i: usize| every > 0 && i % every == every - 1 && n > 1;
+        let held = |i: usize| config.data.holdout_every.is_some_and(|every| i % every == every - 1) && n > 1;
         ViewSplit { train: (0..n).filter(|&i| !held(i)).collect(), held_out: (0..n).filter(|&i| held(i)).collect() }
     }
 

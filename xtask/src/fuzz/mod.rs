@@ -38,8 +38,8 @@ pub struct FuzzArgs {
     #[arg(long, default_value_t = 1_000_000)]
     pub cases: u64,
     /// Stop after this long (e.g. 10m) even if cases remain.
-    #[arg(long)]
-    pub time: Option<String>,
+    #[arg(long, value_parser = trainer::config::parse_duration)]
+    pub time: Option<std::time::Duration>,
     /// Targets (repeat); default all. `--list` names them.
     #[arg(long)]
     pub target: Vec<String>,
@@ -198,7 +198,7 @@ fn replay(args: &FuzzArgs, targets: &[Target], hooks: &ProcessHooks) -> Result<b
 fn worker(args: &FuzzArgs, targets: &[Target], hooks: &ProcessHooks) -> Result<bool> {
     let inflight = args.out.join("inflight");
     std::fs::create_dir_all(&inflight).with_context(|| format!("creating {}", inflight.display()))?;
-    let deadline = args.time.as_deref().map(trainer::config::parse_duration).transpose()?.map(|d| Instant::now() + d);
+    let deadline = args.time.map(|d| Instant::now() + d);
     // Seeds and the checkpoint target's runs are built before the cap (they train a tiny run).
     let seeds = seeds_of(targets);
     let threads = rayon::current_num_threads();
@@ -240,8 +240,9 @@ fn supervise(args: &FuzzArgs, targets: &[Target]) -> Result<bool> {
     command.arg("fuzz").arg("--worker").args(["--cases", &args.cases.to_string(), "--seed", &args.seed.to_string()]);
     command.args(["--first-case", &args.first_case.to_string(), "--max-memory", &args.max_memory, "--case-timeout", &args.case_timeout.to_string()]);
     command.arg("--out").arg(&args.out);
-    if let Some(t) = &args.time {
-        command.args(["--time", t]);
+    if let Some(t) = args.time {
+        // The worker is another process: its command line is text.
+        command.args(["--time", &format!("{}s", t.as_secs_f64())]);
     }
     for t in targets {
         command.args(["--target", t.name]);

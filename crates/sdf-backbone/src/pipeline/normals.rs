@@ -20,6 +20,26 @@ pub enum NormalScheme {
 }
 
 impl NormalScheme {
+    /// Every scheme.
+    pub const ALL: [NormalScheme; 3] = [NormalScheme::Central, NormalScheme::Tetrahedral, NormalScheme::Analytic];
+
+    /// The name in configurations and on command lines.
+    pub fn name(self) -> &'static str {
+        match self {
+            NormalScheme::Central => "central",
+            NormalScheme::Tetrahedral => "tetrahedral",
+            NormalScheme::Analytic => "analytic",
+        }
+    }
+
+    /// The scheme of [`NormalScheme::name`]; the error names the known ones.
+    pub fn from_name(name: &str) -> Result<NormalScheme, String> {
+        NormalScheme::ALL
+            .into_iter()
+            .find(|n| n.name() == name)
+            .ok_or_else(|| format!("unknown normal scheme {name:?} (known: {})", NormalScheme::ALL.map(NormalScheme::name).join(", ")))
+    }
+
     /// Extra SDF evaluations (probe rows) per sample: 6 central, 4 tetrahedral, 0 analytic.
     pub fn probe_count(self) -> usize {
         self.probes().len()

@@ -19,10 +19,7 @@ pub enum Budget {
 impl Budget {
     /// A time budget of `seconds`; an error unless it is finite and positive.
     pub fn seconds(seconds: f64) -> Result<Budget> {
-        if !(seconds.is_finite() && seconds > 0.0) {
-            bail!("a time budget must be a positive number of seconds, not {seconds}");
-        }
-        Duration::try_from_secs_f64(seconds).map(Budget::Time).map_err(|_| anyhow::anyhow!("a time budget of {seconds} s is too long"))
+        positive_duration(seconds).map(Budget::Time).context("a time budget")
     }
 
     /// The time budget in seconds (`None` for a step budget).
@@ -92,11 +89,16 @@ pub fn parse_duration(text: &str) -> Result<Duration> {
         "h" => 3600.0,
         other => bail!("{text:?}: unknown unit {other:?} (s, m, h)"),
     };
-    let seconds = value * scale;
+    positive_duration(value * scale).with_context(|| format!("{text:?}"))
+}
+
+/// `seconds` as a duration: an error unless finite, positive and representable — the one place
+/// a duration is checked (`--budget`, `budget.seconds`, `fuzz --time`, Python's `budget`).
+pub fn positive_duration(seconds: f64) -> Result<Duration> {
     if !(seconds.is_finite() && seconds > 0.0) {
-        bail!("{text:?}: a duration must be positive");
+        bail!("a duration must be a positive number of seconds, not {seconds}");
     }
-    Duration::try_from_secs_f64(seconds).with_context(|| format!("{text:?} is too long a duration"))
+    Duration::try_from_secs_f64(seconds).with_context(|| format!("{seconds} s is too long a duration"))
 }
 
 /// The budget's short keys (`steps = N`, `time_budget_s = X`, as earlier versions wrote them)

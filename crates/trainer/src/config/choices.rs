@@ -26,6 +26,17 @@ pub enum SamplerKind {
 }
 
 impl SamplerKind {
+    /// Every sampler.
+    pub const ALL: [SamplerKind; 4] = [SamplerKind::Guided, SamplerKind::Uniform, SamplerKind::ErrorMap, SamplerKind::SoftMining];
+
+    /// The sampler of [`SamplerKind::name`]; the error names the known ones.
+    pub fn from_name(name: &str) -> Result<SamplerKind, String> {
+        SamplerKind::ALL
+            .into_iter()
+            .find(|k| k.name() == name)
+            .ok_or_else(|| format!("unknown sampler {name:?} (known: {})", SamplerKind::ALL.map(SamplerKind::name).join(", ")))
+    }
+
     /// The name in configurations and on the command line.
     pub fn name(self) -> &'static str {
         match self {

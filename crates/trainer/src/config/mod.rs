@@ -25,10 +25,12 @@ use view_sampler::Interpolation;
 mod annotated;
 mod budget;
 mod choices;
+mod defaults;
+mod off;
 mod validate;
 pub use annotated::annotated_default;
 use budget::budget_from_short_keys;
-pub use budget::{Budget, parse_duration};
+pub use budget::{Budget, parse_duration, positive_duration};
 pub use choices::{BackgroundModel, GridSize, MeshFilter, MeshResolution, MomentStorage, Normals, SamplerKind};
 
 /// The default spacing of the points sampled on meshes for Chamfer (`output.chamfer_spacing`,
@@ -78,12 +80,14 @@ pub struct DataConfig {
     /// the mask BCE drives the opacity (NeuS).
     pub masks: bool,
     /// Every n-th view is held out for evaluation (0: none).
-    pub holdout_every: usize,
+    #[serde(with = "off::zero_is_none")]
+    pub holdout_every: Option<usize>,
     /// The region of interest `[x, y, z, radius]` in the dataset's own units, overriding what
     /// the format gives (COLMAP's sparse points, instant-ngp's `aabb`, NeRF-synthetic's default).
     /// Empty: the format's. An error for the IDR layout (its `scale_mat` is the bound: re-import)
     /// and the built-in scene.
-    pub bound: Vec<f64>,
+    #[serde(with = "off::empty_is_none")]
+    pub bound: Option<[f64; 4]>,
     /// The built-in scene (no `--data`).
     pub builtin: BuiltinConfig,
 }
@@ -215,7 +219,8 @@ pub struct OptimConfig {
     /// The schedule on the fraction of the run (`sdf-backbone`'s own configuration).
     pub schedule: LrSchedule,
     /// Clip the gradient's global norm (0: off).
-    pub clip_norm: f64,
+    #[serde(with = "off::zero_is_none")]
+    pub clip_norm: Option<f64>,
     /// Storage of the hash tables' Adam moments: `f32` (default) or `bf16` (hash-grid presets;
     /// paper-scale Neuralangelo then fits a step in 4 GB).
     pub table_moments: MomentStorage,
@@ -236,7 +241,8 @@ pub struct GuideConfig {
     /// Interpolation of the conditionals: linear (the paper) or nearest.
     pub interpolation: Interpolation,
     /// FS: a fixed s for the probability update (0: the backbone's current s).
-    pub fixed_s: f64,
+    #[serde(with = "off::zero_is_none")]
+    pub fixed_s: Option<f64>,
     /// Fractions of uniform rays over equal parts of the run (paper: 0.2, 0.4, 0.6, 0.8).
     pub uniform_fractions: Vec<f64>,
     /// Extra points per ray around λ̃ (paper: 32 of 128; here half the fine samples).
@@ -272,7 +278,8 @@ pub struct MiningConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct OutputConfig {
     /// Validation pictures every n iterations (0: only at the end).
-    pub validate_every: u64,
+    #[serde(with = "off::zero_is_none")]
+    pub validate_every: Option<u64>,
     /// Largest share of the training time spent on validation pictures: a due picture is
     /// skipped while the pictures so far took more than this share of the training time so far
     /// (a picture of a large scene costs many iterations: at 100 iterations apart, DTU scan 24's
@@ -291,13 +298,15 @@ pub struct OutputConfig {
     pub eval_train_views: usize,
     /// Mesh + Chamfer and PSNR of one held-out view every n iterations, logged (0: only at the
     /// end; not counted in the training time).
-    pub metrics_every: u64,
+    #[serde(with = "off::zero_is_none")]
+    pub metrics_every: Option<u64>,
     /// Snapshots at these training times (seconds): the mesh and its metrics (Chamfer,
     /// F-score, PSNR of the evaluation views) in `snapshots/<seconds>s/` and the log, not counted
     /// in the training time — quality against time from one run. Empty: none.
     pub snapshots: Vec<f64>,
     /// Checkpoint every n iterations (0: only at the end).
-    pub checkpoint_every: u64,
+    #[serde(with = "off::zero_is_none")]
+    pub checkpoint_every: Option<u64>,
     /// Log scalars every n iterations.
     pub log_every: u64,
     /// Marching-cubes resolution of the meshes (final and snapshots): cells per side of the
@@ -319,148 +328,6 @@ pub struct OutputConfig {
     pub chamfer_max_dist: f64,
     /// F-score threshold τ (normalised units).
     pub fscore_tau: f64,
-}
-
-impl Default for TrainConfig {
-    fn default() -> Self {
-        TrainConfig {
-            seed: 0,
-            budget: Budget::Time(Duration::from_secs(120)),
-            sampler: SamplerKind::Guided,
-            data: DataConfig::default(),
-            model: ModelConfig::default(),
-            render: RenderConfig::default(),
-            optim: OptimConfig::default(),
-            guide: GuideConfig::default(),
-            mining: MiningConfig::default(),
-            surface: SurfaceLossConfig::default(),
-            output: OutputConfig::default(),
-        }
-    }
-}
-
-impl Default for DataConfig {
-    fn default() -> Self {
-        DataConfig { downscale: 1, masks: true, holdout_every: 8, bound: Vec::new(), builtin: BuiltinConfig::default() }
-    }
-}
-
-impl Default for BuiltinConfig {
-    fn default() -> Self {
-        BuiltinConfig { shape: "composite".into(), width: 200, views: 49, backdrop: true }
-    }
-}
-
-impl Default for ModelConfig {
-    fn default() -> Self {
-        ModelConfig {
-            preset: Preset::NeuralangeloCpu,
-            grid: GridSize::Preset,
-            pixels_per_cell: 1.0,
-            init_radius: 0.5,
-            initial_levels: 4,
-            all_levels_at: 0.25,
-            eikonal: 0.1,
-            mask: 1.0,
-            curvature: 0.0,
-            normal_smoothness: 0.0,
-            normals: Normals::Auto,
-            background: [0.0; 3],
-            background_model: BackgroundModel::Auto,
-            background_frequencies: 8,
-            background_view: false,
-            opacity_entropy: 0.0,
-        }
-    }
-}
-
-impl ModelConfig {
-    /// The normal scheme the run uses: the chosen one, or for `auto` analytic on a hash-grid
-    /// preset without a curvature loss (the curvature's Laplacian comes from the probes of
-    /// numerical normals) and tetrahedral otherwise.
-    pub fn normal_scheme(&self) -> NormalScheme {
-        match self.normals {
-            Normals::Central => NormalScheme::Central,
-            Normals::Tetrahedral => NormalScheme::Tetrahedral,
-            Normals::Analytic => NormalScheme::Analytic,
-            Normals::Auto if self.preset.has_hash_grid() && self.curvature == 0.0 => NormalScheme::Analytic,
-            Normals::Auto => NormalScheme::Tetrahedral,
-        }
-    }
-}
-
-impl Default for RenderConfig {
-    fn default() -> Self {
-        RenderConfig {
-            rays: 256,
-            coarse: 16,
-            fine: 16,
-            upsample_rounds: 2,
-            upsample_s: 64.0,
-            render_fine: 32,
-            render_upsample_rounds: 2,
-            render_trim: 1e-4,
-            render_skip_empty: true,
-            chunk: 8,
-            skip_empty: true,
-            occupancy_dilation: 1,
-        }
-    }
-}
-
-impl Default for OptimConfig {
-    fn default() -> Self {
-        OptimConfig { lr: 5e-3, lr_grid: 1e-2, schedule: LrSchedule::default(), clip_norm: 0.0, table_moments: MomentStorage::F32 }
-    }
-}
-
-impl Default for GuideConfig {
-    /// The paper's knobs at 2-core sizes: scene grid 64³ (paper 128³), camera grids 32 × 32 × 64
-    /// (paper 64 × 64 × 128), F = 2, opaque view dependency, η⁻² weighting, 8 extra points.
-    fn default() -> Self {
-        GuideConfig {
-            updates: 6,
-            scene: SceneGridConfig { resolution: 64, ..Default::default() },
-            camera: CameraGridConfig { ru: 32, rv: 32, rl: 64, ..Default::default() },
-            interpolation: Interpolation::Linear,
-            fixed_s: 0.0,
-            uniform_fractions: vec![0.2, 0.4, 0.6, 0.8],
-            extra_points: 8,
-            extra: ExtraPoints::Gaussian,
-            extra_bin_spread: true,
-        }
-    }
-}
-
-impl Default for MiningConfig {
-    fn default() -> Self {
-        MiningConfig { cells: 128, new_weight: 0.9, uniform: 0.1, alpha: 0.6, alpha_warmup: 0.1 }
-    }
-}
-
-impl Default for OutputConfig {
-    fn default() -> Self {
-        OutputConfig {
-            validate_every: 100,
-            validate_share: 0.1,
-            validate_downscale: 2,
-            eval_downscale: 1,
-            eval_views: 3,
-            eval_train_views: 2,
-            metrics_every: 0,
-            snapshots: Vec::new(),
-            checkpoint_every: 100,
-            log_every: 10,
-            mesh_resolution: MeshResolution::Cells(192),
-            mesh_filter: MeshFilter::Supported,
-            min_component_area: 0.01,
-            mesh_formats: vec![MeshFormat::Ply],
-            vertex_colors: false,
-            chamfer_spacing: DEFAULT_CHAMFER_SPACING,
-            chamfer_max_dist: 0.1,
-            fscore_tau: 0.01,
-        }
-    }
 }
 
 /// A `key=value` override's value as TOML (`5`, `1e-3`, `true`, `[1, 2]`, `"text"`), taken as a

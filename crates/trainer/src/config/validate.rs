@@ -33,15 +33,15 @@ impl TrainConfig {
         need(self.budget != Budget::Time(Duration::ZERO), "budget.seconds", 0, "> 0")?;
         need(self.data.downscale >= 1, "data.downscale", self.data.downscale, "≥ 1")?;
         need(
-            self.data.holdout_every != 1,
+            self.data.holdout_every != Some(1),
             "data.holdout_every",
             self.data.holdout_every,
             "0 (none held out) or ≥ 2 (1 would hold out every view and leave none to train on)",
         )?;
         need(
-            self.data.bound.is_empty() || (self.data.bound.len() == 4 && self.data.bound.iter().all(|v| v.is_finite()) && self.data.bound[3] > 0.0),
+            self.data.bound.is_none_or(|b| b.iter().all(|v| v.is_finite()) && b[3] > 0.0),
             "data.bound",
-            &self.data.bound,
+            self.data.bound,
             "[] or [x, y, z, radius > 0]",
         )?;
         need(self.data.builtin.width >= 16, "data.builtin.width", self.data.builtin.width, "≥ 16")?;
@@ -124,7 +124,7 @@ impl TrainConfig {
         need(finite_pos(self.optim.lr), "optim.lr", self.optim.lr, "> 0")?;
         need(non_neg(self.optim.lr_grid), "optim.lr_grid", self.optim.lr_grid, "≥ 0")?;
         self.optim.schedule.validate().map_err(|e| anyhow::anyhow!("optim.schedule.{e}"))?;
-        need(non_neg(self.optim.clip_norm), "optim.clip_norm", self.optim.clip_norm, "≥ 0")?;
+        need(self.optim.clip_norm.is_none_or(non_neg), "optim.clip_norm", self.optim.clip_norm.unwrap_or(0.0), "≥ 0")?;
         need(
             self.optim.table_moments == MomentStorage::F32 || self.model.preset.has_hash_grid(),
             "model.preset",
@@ -140,7 +140,7 @@ impl TrainConfig {
         need(self.guide.updates >= 1, "guide.updates", self.guide.updates, "≥ 1")?;
         self.guide.scene.validate().map_err(|e| anyhow::anyhow!("guide.scene: {e}"))?;
         self.guide.camera.validate().map_err(|e| anyhow::anyhow!("guide.camera: {e}"))?;
-        need(non_neg(self.guide.fixed_s), "guide.fixed_s", self.guide.fixed_s, "≥ 0 (0: the backbone's s)")?;
+        need(self.guide.fixed_s.is_none_or(non_neg), "guide.fixed_s", self.guide.fixed_s.unwrap_or(0.0), "≥ 0 (0: the backbone's s)")?;
         need(
             !self.guide.uniform_fractions.is_empty() && self.guide.uniform_fractions.iter().all(|f| (0.0..=1.0).contains(f)),
             "guide.uniform_fractions",

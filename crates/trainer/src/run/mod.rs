@@ -278,7 +278,7 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, options: &RunOptions, st
         log_step(folder, &progress, &trainer, &report)?;
         let step = report.step;
         let stopping = stop.load(Ordering::SeqCst) || options.stop_at == Some(step);
-        let periodic = |every: u64| every > 0 && step.is_multiple_of(every) && !trainer.done();
+        let periodic = |every: Option<u64>| every.is_some_and(|every| step.is_multiple_of(every)) && !trainer.done();
         if periodic(config.output.checkpoint_every) || stopping {
             folder.write_checkpoint(&trainer)?;
         }

@@ -160,7 +160,7 @@ pub fn estimator_config(config: &TrainConfig) -> EstimatorConfig {
         camera: config.guide.camera.clone(),
         interpolation: config.guide.interpolation,
         schedule: UniformSchedule { fractions: config.guide.uniform_fractions.clone() },
-        fixed_s: (config.guide.fixed_s > 0.0).then_some(config.guide.fixed_s as f32),
+        fixed_s: config.guide.fixed_s.map(|s| s as f32),
         skip_empty: config.render.skip_empty,
         dilation: config.render.occupancy_dilation,
         updates: config.guide.updates,
@@ -355,7 +355,7 @@ impl Trainer {
         let rates = StepRates {
             tables: self.config.optim.lr_grid as f32 * factor,
             rest: self.config.optim.lr as f32 * factor,
-            clip_norm: (self.config.optim.clip_norm > 0.0).then_some(self.config.optim.clip_norm as f32),
+            clip_norm: self.config.optim.clip_norm.map(|c| c as f32),
         };
         let hook = SurfaceHook { config: self.config.surface, rays: &batch.surfaces };
         let extra: &dyn SampleLoss = if self.surface_losses_on() { &hook } else { &NoSampleLoss };

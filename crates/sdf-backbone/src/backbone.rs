@@ -6,7 +6,7 @@
 use crate::encoding::{PositionalEncoding, WithInput};
 use crate::hashgrid::HashGrid;
 use crate::mlp::Mlp;
-use crate::module::{Chain, Module};
+use crate::module::{Chain, Module, TangentAdjoints};
 use crate::optim::Adam;
 use crate::pipeline::Pipeline;
 use crate::presets::Preset;
@@ -123,19 +123,9 @@ impl<R: Real> Module<R> for InputEncoding {
             g.forward_tangents(params, input, ctx, k, tangents_in, tangents_out);
         }
     }
-    fn backward_tangent(
-        &self,
-        params: &[R],
-        input: &[R],
-        ctx: &[R],
-        tangent_in: &[R],
-        d_output: &[R],
-        d_tangent_out: &[R],
-        d_params: &mut [R],
-        d_input: Option<(&mut [R], &mut [R])>,
-    ) {
+    fn backward_tangent(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], d_input: Option<(&mut [R], &mut [R])>) {
         if let InputEncoding::HashGrid(g) = self {
-            g.backward_tangent(params, input, ctx, tangent_in, d_output, d_tangent_out, d_params, d_input);
+            g.backward_tangent(pass, d_params, d_input);
         }
     }
     fn tangent_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {

@@ -1,6 +1,6 @@
 //! Input encodings without parameters.
 
-use crate::module::Module;
+use crate::module::{Module, TangentAdjoints};
 use crate::real::Real;
 
 /// NeuS's positional (Fourier) encoding of a 3-vector with L frequencies:
@@ -220,17 +220,8 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
             out[n_in..].copy_from_slice(e);
         }
     }
-    fn backward_tangent(
-        &self,
-        params: &[R],
-        input: &[R],
-        ctx: &[R],
-        tangent_in: &[R],
-        d_output: &[R],
-        d_tangent_out: &[R],
-        d_params: &mut [R],
-        d_input: Option<(&mut [R], &mut [R])>,
-    ) {
+    fn backward_tangent(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], d_input: Option<(&mut [R], &mut [R])>) {
+        let TangentAdjoints { params, input, ctx, tangent_in, d_output, d_tangent_out } = pass;
         let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
         let rows = input.len() / n_in;
         let n_out = n_in + n_enc;
@@ -243,18 +234,10 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
         };
         let (d_enc, d_enc_tangent) = (strip(d_output), strip(d_tangent_out));
         let enc_ctx = &ctx[..rows * self.encoding.ctx_per_row()];
+        let inner = TangentAdjoints { params, input, ctx: enc_ctx, tangent_in, d_output: &d_enc, d_tangent_out: &d_enc_tangent };
         match d_input {
             Some((d_in, d_in_tangent)) => {
-                self.encoding.backward_tangent(
-                    params,
-                    input,
-                    enc_ctx,
-                    tangent_in,
-                    &d_enc,
-                    &d_enc_tangent,
-                    d_params,
-                    Some((&mut *d_in, &mut *d_in_tangent)),
-                );
+                self.encoding.backward_tangent(inner, d_params, Some((&mut *d_in, &mut *d_in_tangent)));
                 for r in 0..rows {
                     for q in 0..n_in {
                         d_in[r * n_in + q] += d_output[r * n_out + q];
@@ -262,7 +245,7 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
                     }
                 }
             }
-            None => self.encoding.backward_tangent(params, input, enc_ctx, tangent_in, &d_enc, &d_enc_tangent, d_params, None),
+            None => self.encoding.backward_tangent(inner, d_params, None),
         }
     }
     fn tangent_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {

@@ -10,7 +10,7 @@
 //! layout; a table of T entries for a dense level would leave most of it untouched).
 //! Levels above `active_levels` output zeros (coarse-to-fine activation, Neuralangelo).
 
-use crate::module::Module;
+use crate::module::{Module, TangentAdjoints};
 use crate::real::Real;
 use crate::scratch::Buf;
 
@@ -252,17 +252,8 @@ impl<R: Real> Module<R> for HashGrid {
     /// The tables' gradient: T̄\[c\] += w_c ȳ + (∇ₓw_c · v) ẏ̄. The adjoint of the input is not
     /// computed (a hash grid is the first module of an SDF network, whose inputs are not learnt):
     /// `d_input`, if given, is zeroed.
-    fn backward_tangent(
-        &self,
-        _: &[R],
-        input: &[R],
-        _: &[R],
-        tangent_in: &[R],
-        d_output: &[R],
-        d_tangent_out: &[R],
-        d_params: &mut [R],
-        d_input: Option<(&mut [R], &mut [R])>,
-    ) {
+    fn backward_tangent(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], d_input: Option<(&mut [R], &mut [R])>) {
+        let TangentAdjoints { params: _, input, ctx: _, tangent_in, d_output, d_tangent_out } = pass;
         let _span = crate::profile::span(crate::profile::Stage::HashTangentScatter);
         debug_assert!(d_input.is_none(), "a hash grid does not propagate tangent adjoints to its input");
         if let Some((a, b)) = d_input {

@@ -45,7 +45,7 @@ pub use checkpoint::{CheckpointReader, CheckpointWriter};
 pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};
 pub use hashgrid::{HashGrid, HashGridConfig};
 pub use mlp::{Mlp, MlpConfig};
-pub use module::{Activation, Chain, Module, batch_gradients};
+pub use module::{Activation, Chain, Module, TangentAdjoints, batch_gradients};
 pub use optim::{Adam, AdamStep, CompactMoments, Decay, LrSchedule, Moments, WarmupCosine, WarmupStep};
 pub use pipeline::{
     ColorLoss, DeferredGradient, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, scale_from_variance,

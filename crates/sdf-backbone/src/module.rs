@@ -6,6 +6,25 @@
 
 use crate::real::Real;
 
+/// What a reverse pass through the outputs and their tangents reads ([`Module::backward_tangent`]):
+/// the forward pass's parameters, inputs and context, the input's tangent (one direction per
+/// row) and the adjoints of the outputs and of their tangents.
+#[derive(Debug, Clone, Copy)]
+pub struct TangentAdjoints<'a, R> {
+    /// Parameters.
+    pub params: &'a [R],
+    /// Inputs, rows × n_inputs.
+    pub input: &'a [R],
+    /// The forward pass's context.
+    pub ctx: &'a [R],
+    /// The input's tangent, rows × n_inputs.
+    pub tangent_in: &'a [R],
+    /// ∂L/∂y, rows × n_outputs.
+    pub d_output: &'a [R],
+    /// ∂L/∂ẏ, rows × n_outputs.
+    pub d_tangent_out: &'a [R],
+}
+
 /// A differentiable map from `n_inputs` to `n_outputs` values per batch row.
 pub trait Module<R: Real>: Sync {
     /// Number of parameters.
@@ -122,37 +141,14 @@ pub trait Module<R: Real>: Sync {
     /// `d_output` (of y) and `d_tangent_out` (of ẏ), both rows × n_outputs; writes the adjoints
     /// of the input and of its tangent into `d_input` when given (encodings that come first in
     /// a network need not: the pipeline's inputs are not learnt).
-    #[allow(clippy::too_many_arguments)]
-    fn backward_tangent(
-        &self,
-        _params: &[R],
-        _input: &[R],
-        _ctx: &[R],
-        _tangent_in: &[R],
-        _d_output: &[R],
-        _d_tangent_out: &[R],
-        _d_params: &mut [R],
-        _d_input: Option<(&mut [R], &mut [R])>,
-    ) {
-    }
+    fn backward_tangent(&self, _pass: TangentAdjoints<'_, R>, _d_params: &mut [R], _d_input: Option<(&mut [R], &mut [R])>) {}
 
     /// [`Module::backward_tangent`] without the gradient of the first [`Module::deferred_params`]
     /// parameters; what it needs goes to `deferred`, rows × 2·[`Module::deferred_width`] in two
     /// blocks (the adjoints of the deferred module's outputs, then of their tangents), for
     /// [`Module::apply_deferred_tangent_block`] with the input `[points block; tangents block]`.
-    #[allow(clippy::too_many_arguments)]
-    fn backward_tangent_deferring(
-        &self,
-        params: &[R],
-        input: &[R],
-        ctx: &[R],
-        tangent_in: &[R],
-        d_output: &[R],
-        d_tangent_out: &[R],
-        d_params: &mut [R],
-        _deferred: &mut [R],
-    ) {
-        self.backward_tangent(params, input, ctx, tangent_in, d_output, d_tangent_out, d_params, None);
+    fn backward_tangent_deferring(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], _deferred: &mut [R]) {
+        self.backward_tangent(pass, d_params, None);
     }
 
     /// The tangent counterpart of [`Module::backward_parts_block`] (modules that
@@ -377,17 +373,8 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         self.a.forward_tangents(pa, input, ca, k, tangents_in, &mut mid_tangents);
         self.b.forward_tangents(pb, mid, cb, k, &mid_tangents, tangents_out);
     }
-    fn backward_tangent(
-        &self,
-        params: &[R],
-        input: &[R],
-        ctx: &[R],
-        tangent_in: &[R],
-        d_output: &[R],
-        d_tangent_out: &[R],
-        d_params: &mut [R],
-        d_input: Option<(&mut [R], &mut [R])>,
-    ) {
+    fn backward_tangent(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], d_input: Option<(&mut [R], &mut [R])>) {
+        let TangentAdjoints { params, input, ctx, tangent_in, d_output, d_tangent_out } = pass;
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
         let (dpa, dpb) = d_params.split_at_mut(self.a.n_params());
@@ -396,23 +383,16 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         let mut mid_tangent = crate::scratch::Buf::<R>::zeroed(mid.len());
         self.a.forward_tangents(pa, input, ca, 1, tangent_in, &mut mid_tangent);
         let (mut d_mid, mut d_mid_tangent) = (crate::scratch::Buf::<R>::zeroed(mid.len()), crate::scratch::Buf::<R>::zeroed(mid.len()));
-        self.b.backward_tangent(pb, mid, cb, &mid_tangent, d_output, d_tangent_out, dpb, Some((&mut d_mid, &mut d_mid_tangent)));
-        self.a.backward_tangent(pa, input, ca, tangent_in, &d_mid, &d_mid_tangent, dpa, d_input);
+        let outer = TangentAdjoints { params: pb, input: mid, ctx: cb, tangent_in: &mid_tangent, d_output, d_tangent_out };
+        self.b.backward_tangent(outer, dpb, Some((&mut d_mid, &mut d_mid_tangent)));
+        let inner = TangentAdjoints { params: pa, input, ctx: ca, tangent_in, d_output: &d_mid, d_tangent_out: &d_mid_tangent };
+        self.a.backward_tangent(inner, dpa, d_input);
     }
-    fn backward_tangent_deferring(
-        &self,
-        params: &[R],
-        input: &[R],
-        ctx: &[R],
-        tangent_in: &[R],
-        d_output: &[R],
-        d_tangent_out: &[R],
-        d_params: &mut [R],
-        deferred: &mut [R],
-    ) {
+    fn backward_tangent_deferring(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], deferred: &mut [R]) {
         if !self.a.defers_gradient() {
-            return self.backward_tangent(params, input, ctx, tangent_in, d_output, d_tangent_out, d_params, None);
+            return self.backward_tangent(pass, d_params, None);
         }
+        let TangentAdjoints { params, input, ctx, tangent_in, d_output, d_tangent_out } = pass;
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
         let (ca, rest) = ctx.split_at(rows * self.a.ctx_per_row());
@@ -421,7 +401,8 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         self.a.forward_tangents(pa, input, ca, 1, tangent_in, &mut mid_tangent);
         // The record: ∂L/∂(first module's outputs), then ∂L/∂(their tangents).
         let (d_mid, d_mid_tangent) = deferred.split_at_mut(mid.len());
-        self.b.backward_tangent(pb, mid, cb, &mid_tangent, d_output, d_tangent_out, d_params, Some((d_mid, d_mid_tangent)));
+        let outer = TangentAdjoints { params: pb, input: mid, ctx: cb, tangent_in: &mid_tangent, d_output, d_tangent_out };
+        self.b.backward_tangent(outer, d_params, Some((d_mid, d_mid_tangent)));
     }
     fn apply_deferred_tangent_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
         if self.a.defers_gradient() {

@@ -329,7 +329,8 @@ fn tangent_check<M: Module<f64>>(module: &M, params: &[f64], rows: usize, check_
     let mut d_params = vec![0.0; params.len()];
     let (mut d_input, mut d_tangent) = (vec![0.0; input.len()], vec![0.0; input.len()]);
     let d_in = check_input.then_some((&mut d_input[..], &mut d_tangent[..]));
-    module.backward_tangent(params, &input, &ctx, &v, &r, &q, &mut d_params, d_in);
+    let pass = TangentAdjoints { params, input: &input, ctx: &ctx, tangent_in: &v, d_output: &r, d_tangent_out: &q };
+    module.backward_tangent(pass, &mut d_params, d_in);
     for i in 0..params.len() {
         let (mut p, mut m) = (params.to_vec(), params.to_vec());
         p[i] += h;

@@ -1,7 +1,7 @@
 //! Dense layers with activations, an optional skip connection, and NeuS's geometric initialisation.
 
 use crate::kernels::{Dense, Strided, dense_forward, gemm, pad};
-use crate::module::{Activation, Module};
+use crate::module::{Activation, Module, TangentAdjoints};
 use crate::real::Real;
 use crate::scratch::Buf;
 
@@ -273,17 +273,8 @@ impl<R: Real> Module<R> for Mlp {
 
     /// Layer by layer, with u = act'(Z) ⊙ Ż the tangent of the activation: Ż̄ = act'(Z) ⊙ ū,
     /// Z̄ = act'(Z) ⊙ ȳ + act''(Z) ⊙ Ż ⊙ ū; W̄ += Z̄ᵀA + Ż̄ᵀȦ, b̄ += ΣZ̄; Ā = Z̄W, Ǡ = Ż̄W.
-    fn backward_tangent(
-        &self,
-        params: &[R],
-        input: &[R],
-        ctx: &[R],
-        tangent_in: &[R],
-        d_output: &[R],
-        d_tangent_out: &[R],
-        d_params: &mut [R],
-        d_input: Option<(&mut [R], &mut [R])>,
-    ) {
+    fn backward_tangent(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], d_input: Option<(&mut [R], &mut [R])>) {
+        let TangentAdjoints { params, input, ctx, tangent_in, d_output, d_tangent_out } = pass;
         let _span = crate::profile::span(crate::profile::Stage::MlpTangents);
         let n_x = self.config.n_inputs;
         let n_y = self.config.n_outputs;

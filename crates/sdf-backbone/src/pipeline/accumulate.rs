@@ -10,7 +10,7 @@ use super::deferred::Deferred;
 use super::{ColorLoss, NormalScheme, Pipeline, RayInput, RayOutput, SampleLoss, scale_derivative, scale_from_variance};
 use crate::background::BackgroundPass;
 use crate::encoding::SphericalHarmonics;
-use crate::module::Module;
+use crate::module::{Module, TangentAdjoints};
 use crate::real::Real;
 use crate::render::{RayRender, render_ray, render_ray_backward};
 use crate::scratch::Buf;
@@ -579,12 +579,20 @@ impl<S, C> Pipeline<S, C> {
                 d_tangent_out[(b + i) * n_out] = R::ONE;
             }
         }
+        let pass = |tangent_in, d_tangent_out| TangentAdjoints {
+            params: p_sdf,
+            input: &fwd.points,
+            ctx: &fwd.sdf_ctx,
+            tangent_in,
+            d_output: d_sdf_out,
+            d_tangent_out,
+        };
         if self.sdf.deferred_params() == 0 {
-            self.sdf.backward_tangent(p_sdf, &fwd.points, &fwd.sdf_ctx, &v, d_sdf_out, &d_tangent_out, d_sdf_params, None);
+            self.sdf.backward_tangent(pass(&v, &d_tangent_out), d_sdf_params, None);
             return None;
         }
         let mut record = Buf::<R>::zeroed(2 * rows.sdf * self.sdf.deferred_width());
-        self.sdf.backward_tangent_deferring(p_sdf, &fwd.points, &fwd.sdf_ctx, &v, d_sdf_out, &d_tangent_out, d_sdf_params, &mut record);
+        self.sdf.backward_tangent_deferring(pass(&v, &d_tangent_out), d_sdf_params, &mut record);
         // The record's input: the points, then their tangents.
         let mut points_and_tangents = Buf::<R>::zeroed(6 * rows.sdf);
         points_and_tangents[..3 * rows.sdf].copy_from_slice(&fwd.points);

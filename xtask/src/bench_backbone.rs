@@ -173,7 +173,7 @@ fn time_step(backbone: &Backbone, params: &mut [f32], rays: &[RayInput<f32>], re
 fn profile_step(preset: Preset, normals: NormalScheme, reps: usize, chunk: usize, gemm_best: f64) {
     use sdf_backbone::profile::{self, Stage};
     let (mut backbone, mut params) = build(preset, 0.5, 1);
-    backbone.config.normals = normals;
+    backbone.set_normals(normals);
     let (n_rays, n_samples) = batch_of(preset);
     let rays = rays(n_rays, n_samples);
     let mut adam = Adam::new(params.len());
@@ -276,10 +276,10 @@ fn preset_figures(preset: Preset, reps: usize, gemm_best: f64, only: Option<Norm
         InputEncoding::Positional(_) => None,
     };
     let mut out = Vec::new();
-    let analytic = Module::<f32>::has_tangents(&backbone.sdf).then_some(NormalScheme::Analytic);
-    let schemes = [Some(NormalScheme::Tetrahedral), Some(NormalScheme::Central), analytic].into_iter().flatten();
-    for normals in schemes.filter(|n| only.is_none_or(|o| o == *n)) {
-        backbone.config.normals = normals;
+    // Every preset's network has tangents.
+    let schemes = [NormalScheme::Tetrahedral, NormalScheme::Central, NormalScheme::Analytic];
+    for normals in schemes.into_iter().filter(|n| only.is_none_or(|o| o == *n)) {
+        backbone.set_normals(normals);
         let step = time_step(&backbone, &mut params, &rays, reps);
         let samples = (n_rays * n_samples) as f64;
         // Forward 2·MACs, backward 4·MACs (input and weight gradients) per SDF row: 1 + probes

@@ -6,7 +6,7 @@
 use crate::encoding::{PositionalEncoding, WithInput};
 use crate::hashgrid::HashGrid;
 use crate::mlp::Mlp;
-use crate::module::{Chain, Module, TangentAdjoints};
+use crate::module::{Chain, DeferringModule, Module, ScatterGradient, ScatterTangent, TangentAdjoints, TangentModule};
 use crate::optim::Adam;
 use crate::pipeline::Pipeline;
 use crate::presets::Preset;
@@ -81,10 +81,19 @@ impl<R: Real> Module<R> for InputEncoding {
             InputEncoding::Positional(p) => p.backward(params, input, ctx, d_output, d_params, d_input),
         }
     }
-    fn defers_gradient(&self) -> bool {
+}
+
+impl<R: Real> ScatterGradient<R> for InputEncoding {
+    fn gradient_blocks(&self) -> usize {
         match self {
-            InputEncoding::HashGrid(g) => Module::<R>::defers_gradient(g),
-            InputEncoding::Positional(_) => false,
+            InputEncoding::HashGrid(g) => ScatterGradient::<R>::gradient_blocks(g),
+            InputEncoding::Positional(p) => ScatterGradient::<R>::gradient_blocks(p),
+        }
+    }
+    fn gradient_block_range(&self, block: usize) -> Range<usize> {
+        match self {
+            InputEncoding::HashGrid(g) => ScatterGradient::<R>::gradient_block_range(g, block),
+            InputEncoding::Positional(p) => ScatterGradient::<R>::gradient_block_range(p, block),
         }
     }
     fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
@@ -93,44 +102,35 @@ impl<R: Real> Module<R> for InputEncoding {
             InputEncoding::Positional(p) => p.backward_parts(parts, d_params),
         }
     }
-    fn gradient_blocks(&self) -> usize {
-        match self {
-            InputEncoding::HashGrid(g) => Module::<R>::gradient_blocks(g),
-            InputEncoding::Positional(_) => 1,
-        }
-    }
-    fn gradient_block_range(&self, block: usize) -> Range<usize> {
-        match self {
-            InputEncoding::HashGrid(g) => Module::<R>::gradient_block_range(g, block),
-            InputEncoding::Positional(p) => Module::<R>::gradient_block_range(p, block),
-        }
-    }
     fn backward_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
         match self {
             InputEncoding::HashGrid(g) => g.backward_parts_block(parts, block, d_block),
             InputEncoding::Positional(p) => p.backward_parts_block(parts, block, d_block),
         }
     }
-    /// Analytic normals: the hash grid only.
-    fn has_tangents(&self) -> bool {
-        match self {
-            InputEncoding::HashGrid(g) => Module::<R>::has_tangents(g),
-            InputEncoding::Positional(_) => false,
-        }
-    }
+}
+
+/// Analytic normals through either encoding.
+impl<R: Real> TangentModule<R> for InputEncoding {
     fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
-        if let InputEncoding::HashGrid(g) = self {
-            g.forward_tangents(params, input, ctx, k, tangents_in, tangents_out);
+        match self {
+            InputEncoding::HashGrid(g) => g.forward_tangents(params, input, ctx, k, tangents_in, tangents_out),
+            InputEncoding::Positional(p) => p.forward_tangents(params, input, ctx, k, tangents_in, tangents_out),
         }
     }
     fn backward_tangent(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], d_input: Option<(&mut [R], &mut [R])>) {
-        if let InputEncoding::HashGrid(g) = self {
-            g.backward_tangent(pass, d_params, d_input);
+        match self {
+            InputEncoding::HashGrid(g) => g.backward_tangent(pass, d_params, d_input),
+            InputEncoding::Positional(p) => p.backward_tangent(pass, d_params, d_input),
         }
     }
+}
+
+impl<R: Real> ScatterTangent<R> for InputEncoding {
     fn tangent_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
-        if let InputEncoding::HashGrid(g) = self {
-            g.tangent_parts_block(parts, block, d_block);
+        match self {
+            InputEncoding::HashGrid(g) => g.tangent_parts_block(parts, block, d_block),
+            InputEncoding::Positional(p) => p.tangent_parts_block(parts, block, d_block),
         }
     }
 }
@@ -259,7 +259,7 @@ impl Backbone {
         use rayon::prelude::*;
         let layout = self.layout();
         let n = params.len();
-        let n_def = Module::<f32>::deferred_params(&self.sdf);
+        let n_def = DeferringModule::<f32>::deferred_params(&self.sdf);
         debug_assert!(n_def == 0 || n_def == layout.encoding.len(), "the encoding's parameters are deferred whole");
         let mut rest = crate::scratch::Buf::<f32>::zeroed(n - n_def);
         let (loss, outputs, deferred) = self.loss_parallel_split(params, rays, &mut rest, chunk, extra);

@@ -1,6 +1,6 @@
 //! Input encodings without parameters.
 
-use crate::module::{Module, TangentAdjoints};
+use crate::module::{Module, ScatterGradient, ScatterTangent, TangentAdjoints, TangentModule};
 use crate::real::Real;
 
 /// NeuS's positional (Fourier) encoding of a 3-vector with L frequencies:
@@ -53,6 +53,65 @@ impl<R: Real> Module<R> for PositionalEncoding {
             }
         }
     }
+}
+
+impl<R: Real> TangentModule<R> for PositionalEncoding {
+    /// `[ẋ, f cos(f x) ẋ, −f sin(f x) ẋ, …]`.
+    fn forward_tangents(&self, _: &[R], input: &[R], _: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
+        let n_out = 3 + 6 * self.frequencies;
+        for (t, (dx, dy)) in tangents_in.chunks_exact(3).zip(tangents_out.chunks_exact_mut(n_out)).enumerate() {
+            let x = &input[3 * (t / k)..3 * (t / k) + 3];
+            dy[..3].copy_from_slice(dx);
+            let mut f = R::ONE;
+            for j in 0..self.frequencies {
+                for d in 0..3 {
+                    dy[3 + 6 * j + d] = f * (f * x[d]).cos() * dx[d];
+                    dy[6 + 6 * j + d] = -f * (f * x[d]).sin() * dx[d];
+                }
+                f = f + f;
+            }
+        }
+    }
+    /// No parameters: only the input's adjoints, when asked for. With ẏ = J(x) ẋ:
+    /// x̄ = Jᵀȳ + (∂J/∂x · ẋ)ᵀ ẏ̄ (−f² sin and −f² cos terms), ẋ̄ = Jᵀ ẏ̄.
+    fn backward_tangent(&self, pass: TangentAdjoints<'_, R>, _: &mut [R], d_input: Option<(&mut [R], &mut [R])>) {
+        let Some((d_in, d_in_tangent)) = d_input else { return };
+        let TangentAdjoints { input, tangent_in, d_output, d_tangent_out, .. } = pass;
+        let n_out = 3 + 6 * self.frequencies;
+        for r in 0..input.len() / 3 {
+            let (x, t) = (&input[3 * r..3 * r + 3], &tangent_in[3 * r..3 * r + 3]);
+            let (dy, du) = (&d_output[r * n_out..(r + 1) * n_out], &d_tangent_out[r * n_out..(r + 1) * n_out]);
+            for d in 0..3 {
+                let (mut g, mut gt) = (dy[d], du[d]);
+                let mut f = R::ONE;
+                for j in 0..self.frequencies {
+                    let (s, c) = ((f * x[d]).sin(), (f * x[d]).cos());
+                    let (sin_at, cos_at) = (3 + 6 * j + d, 6 + 6 * j + d);
+                    g += f * (c * dy[sin_at] - s * dy[cos_at]) - f * f * t[d] * (s * du[sin_at] + c * du[cos_at]);
+                    gt += f * (c * du[sin_at] - s * du[cos_at]);
+                    f = f + f;
+                }
+                d_in[3 * r + d] = g;
+                d_in_tangent[3 * r + d] = gt;
+            }
+        }
+    }
+}
+
+/// No parameters: no blocks, nothing to scatter.
+impl<R: Real> ScatterGradient<R> for PositionalEncoding {
+    fn gradient_blocks(&self) -> usize {
+        0
+    }
+    fn gradient_block_range(&self, _: usize) -> std::ops::Range<usize> {
+        0..0
+    }
+    fn backward_parts_block(&self, _: &[(&[R], &[R])], _: usize, _: &mut [R]) {}
+}
+
+/// No parameters: nothing to scatter.
+impl<R: Real> ScatterTangent<R> for PositionalEncoding {
+    fn tangent_parts_block(&self, _: &[(&[R], &[R])], _: usize, _: &mut [R]) {}
 }
 
 /// Real spherical harmonics of a unit direction up to degree 4 (16 outputs, tiny-cuda-nn's
@@ -186,9 +245,9 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
             None => self.encoding.backward(params, input, enc_ctx, &d_enc, d_params, None),
         }
     }
-    fn defers_gradient(&self) -> bool {
-        self.encoding.defers_gradient()
-    }
+}
+
+impl<R: Real, M: ScatterGradient<R>> ScatterGradient<R> for WithInput<M> {
     fn gradient_blocks(&self) -> usize {
         self.encoding.gradient_blocks()
     }
@@ -205,9 +264,9 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
         let inner: Vec<(&[R], &[R])> = parts.iter().zip(&inner).map(|((input, _), d)| (*input, &d[..])).collect();
         self.encoding.backward_parts_block(&inner, block, d_block);
     }
-    fn has_tangents(&self) -> bool {
-        self.encoding.has_tangents()
-    }
+}
+
+impl<R: Real, M: TangentModule<R>> TangentModule<R> for WithInput<M> {
     /// `[ẋ, ∂m/∂x · ẋ]`.
     fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
         let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
@@ -248,6 +307,9 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
             None => self.encoding.backward_tangent(inner, d_params, None),
         }
     }
+}
+
+impl<R: Real, M: ScatterTangent<R>> ScatterTangent<R> for WithInput<M> {
     fn tangent_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
         // Each record is two blocks of rows (output adjoints, then tangent adjoints), so dropping
         // the raw input's columns row by row drops them from both.

@@ -10,7 +10,7 @@
 //! layout; a table of T entries for a dense level would leave most of it untouched).
 //! Levels above `active_levels` output zeros (coarse-to-fine activation, Neuralangelo).
 
-use crate::module::{Module, TangentAdjoints};
+use crate::module::{Module, ScatterGradient, ScatterTangent, TangentAdjoints, TangentModule};
 use crate::real::Real;
 use crate::scratch::Buf;
 
@@ -179,16 +179,10 @@ impl<R: Real> Module<R> for HashGrid {
             || self.backward_rows(params, input, d_output, d_params, d_input),
         );
     }
-    fn defers_gradient(&self) -> bool {
-        true
-    }
-    /// In parallel over levels (each level's table is its own slice of the gradient), each
-    /// level taking the parts in order: deterministic for any thread count.
-    fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
-        use rayon::prelude::*;
-        let tables = crate::module::split_blocks(d_params, (0..self.config.levels).map(|level| self.level_params(level)));
-        tables.into_par_iter().enumerate().for_each(|(level, d_table)| self.backward_parts_block(parts, level, d_table));
-    }
+}
+
+/// The tables' gradient is a scatter from (points, ∂L/∂features) alone, one level per block.
+impl<R: Real> ScatterGradient<R> for HashGrid {
     /// One level's table.
     fn gradient_blocks(&self) -> usize {
         self.config.levels
@@ -210,12 +204,13 @@ impl<R: Real> Module<R> for HashGrid {
             },
         );
     }
-    /// For the feature counts the kernels are compiled for (1, 2, 4, 8: every preset's).
-    fn has_tangents(&self) -> bool {
-        matches!(self.config.features, 1 | 2 | 4 | 8)
-    }
+}
+
+impl<R: Real> TangentModule<R> for HashGrid {
     /// ∂(features)/∂x · ẋ = Σ_c (∇ₓw_c · ẋ) T\[c\]: the same 8 corners as the features, weighted by
     /// the trilinear weights' gradients (zero outside the grid, where inputs are clamped).
+    /// Kernels compiled for 1, 2, 4 and 8 features (every preset's); other counts take a
+    /// per-row loop.
     fn forward_tangents(&self, params: &[R], input: &[R], _: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
         let _span = crate::profile::span(crate::profile::Stage::HashTangents);
         let f = self.config.features;
@@ -242,8 +237,7 @@ impl<R: Real> Module<R> for HashGrid {
                         2 => run!(2),
                         4 => run!(4),
                         8 => run!(8),
-                        // Other feature counts have no tangents (`has_tangents`).
-                        _ => {}
+                        _ => self.level_tangents_any(level, table, input, k, tangents_in, tangents_out),
                     }
                 }
             },
@@ -264,6 +258,9 @@ impl<R: Real> Module<R> for HashGrid {
             self.scatter_tangent_level(level, input, tangent_in, d_output, d_tangent_out, &mut d_params[self.level_params(level)]);
         }
     }
+}
+
+impl<R: Real> ScatterTangent<R> for HashGrid {
     fn tangent_parts_block(&self, parts: &[(&[R], &[R])], level: usize, d_table: &mut [R]) {
         if level >= self.active_levels.min(self.config.levels) {
             return;
@@ -273,6 +270,45 @@ impl<R: Real> Module<R> for HashGrid {
             let (x, v) = points.split_at(points.len() / 2);
             let (d_output, d_tangent_out) = record.split_at(record.len() / 2);
             self.scatter_tangent_level(level, x, v, d_output, d_tangent_out, d_table);
+        }
+    }
+}
+
+impl HashGrid {
+    /// [`level_tangents`] for any feature count, a row at a time.
+    fn level_tangents_any<R: Real>(&self, level: usize, table: &[R], input: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
+        let f = self.config.features;
+        let (n_out, at) = (self.config.levels * f, level * f);
+        for (r, x) in input.chunks_exact(3).enumerate() {
+            let (idx, _, dw) = self.corners(level, x);
+            for j in 0..k {
+                let t = &tangents_in[3 * (r * k + j)..3 * (r * k + j) + 3];
+                let o = (r * k + j) * n_out + at;
+                for c in 0..8 {
+                    let s = dw[c][0] * t[0] + dw[c][1] * t[1] + dw[c][2] * t[2];
+                    for q in 0..f {
+                        tangents_out[o + q] = s.mul_add(table[idx[c] * f + q], tangents_out[o + q]);
+                    }
+                }
+            }
+        }
+    }
+
+    /// [`level_tangent_scatter`] for any feature count, a row at a time.
+    #[allow(clippy::too_many_arguments)]
+    fn level_tangent_scatter_any<R: Real>(&self, level: usize, input: &[R], v: &[R], d_output: &[R], d_tangent_out: &[R], d_table: &mut [R]) {
+        let f = self.config.features;
+        let (n_out, at) = (self.config.levels * f, level * f);
+        for (r, x) in input.chunks_exact(3).enumerate() {
+            let (idx, w, dw) = self.corners(level, x);
+            let t = &v[3 * r..3 * r + 3];
+            for c in 0..8 {
+                let s = dw[c][0] * t[0] + dw[c][1] * t[1] + dw[c][2] * t[2];
+                for q in 0..f {
+                    let d = &mut d_table[idx[c] * f + q];
+                    *d = w[c].mul_add(d_output[r * n_out + at + q], s.mul_add(d_tangent_out[r * n_out + at + q], *d));
+                }
+            }
         }
     }
 }
@@ -519,8 +555,7 @@ impl HashGrid {
                     2 => run!(2),
                     4 => run!(4),
                     8 => run!(8),
-                    // Other feature counts have no tangents (`has_tangents`).
-                    _ => {}
+                    _ => self.level_tangent_scatter_any(level, input, v, d_output, d_tangent_out, d_table),
                 }
             },
         );

@@ -45,10 +45,14 @@ pub use checkpoint::{CheckpointReader, CheckpointWriter};
 pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};
 pub use hashgrid::{HashGrid, HashGridConfig};
 pub use mlp::{Mlp, MlpConfig};
-pub use module::{Activation, Chain, Module, TangentAdjoints, batch_gradients};
+pub use module::{
+    Activation, Chain, DeferringModule, DeferringTangentModule, Module, ScatterGradient, ScatterTangent, TangentAdjoints, TangentModule,
+    batch_gradients,
+};
 pub use optim::{Adam, AdamStep, CompactMoments, Decay, LrSchedule, Moments, WarmupCosine, WarmupStep};
 pub use pipeline::{
-    ColorLoss, DeferredGradient, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss, scale_from_variance,
+    AnalyticNormals, ColorLoss, DeferredGradient, Differences, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss,
+    scale_from_variance,
 };
 pub use presets::{Preset, architecture, architecture_with_grid, build, build_with_grid};
 pub use real::Real;

@@ -6,7 +6,7 @@
 
 use crate::real::Real;
 
-/// What a reverse pass through the outputs and their tangents reads ([`Module::backward_tangent`]):
+/// What a reverse pass through the outputs and their tangents reads ([`TangentModule::backward_tangent`]):
 /// the forward pass's parameters, inputs and context, the input's tangent (one direction per
 /// row) and the adjoints of the outputs and of their tangents.
 #[derive(Debug, Clone, Copy)]
@@ -25,7 +25,12 @@ pub struct TangentAdjoints<'a, R> {
     pub d_tangent_out: &'a [R],
 }
 
-/// A differentiable map from `n_inputs` to `n_outputs` values per batch row.
+/// A differentiable map from `n_inputs` to `n_outputs` values per batch row: what every module
+/// has. What only some have is an extension trait: [`ScatterGradient`] (a parameter gradient
+/// that can be computed later, block by block), [`TangentModule`] (forward-mode derivatives
+/// along the input, for analytic normals), and for networks that put the two together
+/// [`DeferringModule`] and [`DeferringTangentModule`]. A call a module cannot answer does not
+/// compile.
 pub trait Module<R: Real>: Sync {
     /// Number of parameters.
     fn n_params(&self) -> usize;
@@ -39,126 +44,106 @@ pub trait Module<R: Real>: Sync {
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]);
     /// Backward pass: adds ∂L/∂params into `d_params`, writes ∂L/∂input into `d_input` if given.
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>);
+}
 
-    /// Whether this module's parameter gradient can be computed later from (input, d_output)
-    /// alone, without a context or the parameter values (a hash grid: its gradient is a scatter
-    /// into large tables, better done once per batch in order than per work item into a private
-    /// copy).
-    fn defers_gradient(&self) -> bool {
-        false
-    }
+/// A module whose parameter gradient is a function of (input, ∂L/∂output) alone, without a
+/// context or the parameter values (a hash grid: a scatter into large tables, better done once
+/// per batch in order than per work item into a private copy), in independent blocks of its
+/// parameters (a hash grid's levels). Encodings without parameters have it trivially.
+pub trait ScatterGradient<R: Real>: Module<R> {
+    /// Independent blocks of the parameters.
+    fn gradient_blocks(&self) -> usize;
 
-    /// The parameter gradient of several work items, `parts` = (input, d_output) each, added to
-    /// `d_params` in order (the same bits for any thread count). Default: one
-    /// [`Module::backward`] per part with empty parameters and context (only for modules that
-    /// [`Module::defers_gradient`]).
-    fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
-        for (input, d_output) in parts {
-            self.backward(&[], input, &[], d_output, d_params, None);
-        }
-    }
-
-    /// Independent blocks of this module's parameters for [`Module::backward_parts_block`]
-    /// (a hash grid: its levels). Default 1.
-    fn gradient_blocks(&self) -> usize {
-        1
-    }
-
-    /// The parameters of block `block` (< [`Module::gradient_blocks`]): the blocks are
+    /// The parameters of block `block` (< [`ScatterGradient::gradient_blocks`]): the blocks are
     /// contiguous and in order, and may differ in size (a hash grid's dense coarse levels are
-    /// smaller than its hashed ones). Default: the one block, every parameter.
-    fn gradient_block_range(&self, block: usize) -> std::ops::Range<usize> {
-        if block == 0 { 0..self.n_params() } else { self.n_params()..self.n_params() }
+    /// smaller than its hashed ones).
+    fn gradient_block_range(&self, block: usize) -> std::ops::Range<usize>;
+
+    /// Adds block `block` of the parameter gradient of several work items, `parts` = (input,
+    /// d_output) each, in order, to `d_block` (that block's gradient; so blocks can be done in
+    /// parallel, or one at a time into a small buffer).
+    fn backward_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]);
+
+    /// Every block of [`ScatterGradient::backward_parts_block`] into `d_params`, in parallel over
+    /// blocks: the same bits for any thread count.
+    fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
+        use rayon::prelude::*;
+        let blocks = split_blocks(d_params, (0..self.gradient_blocks()).map(|b| self.gradient_block_range(b)));
+        blocks.into_par_iter().enumerate().for_each(|(block, d)| self.backward_parts_block(parts, block, d));
     }
+}
 
-    /// [`Module::backward_parts`] for one of the parameter blocks: `d_block` is that block's
-    /// gradient ([`Module::gradient_block_range`]; so blocks can be done in parallel, or one at a
-    /// time into a small buffer). Default: the one block, the whole gradient.
-    fn backward_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
-        if block == 0 {
-            self.backward_parts(parts, d_block);
-        }
-    }
-
-    /// Leading parameters whose gradient [`Module::backward_deferring`] leaves out. Default 0.
-    fn deferred_params(&self) -> usize {
-        0
-    }
-
-    /// Values per row that [`Module::backward_deferring`] records for the deferred gradient.
-    fn deferred_width(&self) -> usize {
-        0
-    }
-
-    /// [`Module::backward`] without the gradient of the first [`Module::deferred_params`]
-    /// parameters: `d_params` covers the parameters after them, and what their gradient needs is
-    /// written to `deferred` (rows × [`Module::deferred_width`]) for
-    /// [`Module::apply_deferred`]. Default: the whole backward (nothing deferred).
-    fn backward_deferring(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], _deferred: &mut [R]) {
-        self.backward(params, input, ctx, d_output, d_params, None);
-    }
-
-    /// Adds the deferred gradients of several work items, `parts` = (input, deferred record) in
-    /// order, to `d_deferred` (the first [`Module::deferred_params`] parameters' gradient).
-    fn apply_deferred(&self, _parts: &[(&[R], &[R])], _d_deferred: &mut [R]) {}
-
-    /// Blocks of the deferred parameters for [`Module::apply_deferred_block`].
-    fn deferred_blocks(&self) -> usize {
-        1
-    }
-
-    /// The deferred parameters of block `block` (contiguous, in order; sizes may differ).
-    fn deferred_block_range(&self, block: usize) -> std::ops::Range<usize> {
-        let n = self.deferred_params();
-        if block == 0 { 0..n } else { n..n }
-    }
-
-    /// [`Module::apply_deferred`] for one block of the deferred parameters into `d_block`.
-    fn apply_deferred_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
-        if block == 0 {
-            self.apply_deferred(parts, d_block);
-        }
-    }
-
-    // Forward-mode derivatives with respect to the input (analytic normals ∇ₓS), and the
-    // reverse pass through them. A module without them says so with `has_tangents` = false (the
-    // default), and the other methods then do nothing: callers check `has_tangents` first (the
-    // trainer's configuration refuses analytic normals for such networks; the pipeline asserts it
-    // in debug builds).
-
-    /// Whether [`Module::forward_tangents`] and the tangent backward passes are implemented.
-    fn has_tangents(&self) -> bool {
-        false
-    }
-
+/// Forward-mode derivatives with respect to the input (analytic normals ∇ₓS), and the reverse
+/// pass through them.
+pub trait TangentModule<R: Real>: Module<R> {
     /// After [`Module::forward`] (with its `ctx`): the outputs' derivatives along `k` input
     /// directions per row. `tangents_in` is rows × k × n_inputs (direction j of row r at
     /// `(r·k + j)·n_inputs`), `tangents_out` rows × k × n_outputs, written.
-    fn forward_tangents(&self, _params: &[R], _input: &[R], _ctx: &[R], _k: usize, _tangents_in: &[R], _tangents_out: &mut [R]) {}
+    fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]);
 
     /// The reverse pass through the outputs y and their derivative ẏ along one input direction
     /// per row (`tangent_in`, rows × n_inputs): adds ∂L/∂params for a loss with adjoints
     /// `d_output` (of y) and `d_tangent_out` (of ẏ), both rows × n_outputs; writes the adjoints
     /// of the input and of its tangent into `d_input` when given (encodings that come first in
     /// a network need not: the pipeline's inputs are not learnt).
-    fn backward_tangent(&self, _pass: TangentAdjoints<'_, R>, _d_params: &mut [R], _d_input: Option<(&mut [R], &mut [R])>) {}
+    fn backward_tangent(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], d_input: Option<(&mut [R], &mut [R])>);
+}
 
-    /// [`Module::backward_tangent`] without the gradient of the first [`Module::deferred_params`]
-    /// parameters; what it needs goes to `deferred`, rows × 2·[`Module::deferred_width`] in two
-    /// blocks (the adjoints of the deferred module's outputs, then of their tangents), for
-    /// [`Module::apply_deferred_tangent_block`] with the input `[points block; tangents block]`.
-    fn backward_tangent_deferring(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], _deferred: &mut [R]) {
-        self.backward_tangent(pass, d_params, None);
-    }
+/// A [`ScatterGradient`] module with tangents: the scatter of the reverse pass through values
+/// and tangents.
+pub trait ScatterTangent<R: Real>: ScatterGradient<R> + TangentModule<R> {
+    /// The tangent counterpart of [`ScatterGradient::backward_parts_block`]: `parts` =
+    /// ([inputs block; input tangents block], [output adjoints block; output-tangent adjoints
+    /// block]) per work item.
+    fn tangent_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]);
+}
 
-    /// The tangent counterpart of [`Module::backward_parts_block`] (modules that
-    /// [`Module::defers_gradient`]): `parts` = ([inputs block; input tangents block],
-    /// [output adjoints block; output-tangent adjoints block]) per work item.
-    fn tangent_parts_block(&self, _parts: &[(&[R], &[R])], _block: usize, _d_block: &mut [R]) {}
+/// A network whose leading parameters' gradient can be left out of its backward pass and
+/// computed later from a per-row record (an encoding with a [`ScatterGradient`] first: the
+/// pipeline's SDF network).
+pub trait DeferringModule<R: Real>: Module<R> {
+    /// Leading parameters whose gradient [`DeferringModule::backward_deferring`] leaves out
+    /// (0: nothing deferred).
+    fn deferred_params(&self) -> usize;
 
-    /// The tangent counterpart of [`Module::apply_deferred_block`], for the records of
-    /// [`Module::backward_tangent_deferring`].
-    fn apply_deferred_tangent_block(&self, _parts: &[(&[R], &[R])], _block: usize, _d_block: &mut [R]) {}
+    /// Values per row that [`DeferringModule::backward_deferring`] records.
+    fn deferred_width(&self) -> usize;
+
+    /// [`Module::backward`] without the gradient of the first
+    /// [`DeferringModule::deferred_params`] parameters: `d_params` covers the parameters after
+    /// them, and what their gradient needs is written to `deferred` (rows ×
+    /// [`DeferringModule::deferred_width`]).
+    fn backward_deferring(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], deferred: &mut [R]);
+
+    /// Adds the deferred gradients of several work items, `parts` = (input, deferred record) in
+    /// order, to `d_deferred` (the first [`DeferringModule::deferred_params`] parameters'
+    /// gradient).
+    fn apply_deferred(&self, parts: &[(&[R], &[R])], d_deferred: &mut [R]);
+
+    /// Blocks of the deferred parameters for [`DeferringModule::apply_deferred_block`].
+    fn deferred_blocks(&self) -> usize;
+
+    /// The deferred parameters of block `block` (contiguous, in order; sizes may differ).
+    fn deferred_block_range(&self, block: usize) -> std::ops::Range<usize>;
+
+    /// [`DeferringModule::apply_deferred`] for one block of the deferred parameters into
+    /// `d_block`.
+    fn apply_deferred_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]);
+}
+
+/// A [`DeferringModule`] with tangents: the deferred reverse pass of analytic normals.
+pub trait DeferringTangentModule<R: Real>: DeferringModule<R> + TangentModule<R> {
+    /// [`TangentModule::backward_tangent`] without the gradient of the first
+    /// [`DeferringModule::deferred_params`] parameters; what it needs goes to `deferred`, rows ×
+    /// 2·[`DeferringModule::deferred_width`] in two blocks (the adjoints of the deferred
+    /// module's outputs, then of their tangents), for
+    /// [`DeferringTangentModule::apply_deferred_tangent_block`] with the input `[points block;
+    /// tangents block]`.
+    fn backward_tangent_deferring(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], deferred: &mut [R]);
+
+    /// The tangent counterpart of [`DeferringModule::apply_deferred_block`], for the records of
+    /// [`DeferringTangentModule::backward_tangent_deferring`].
+    fn apply_deferred_tangent_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]);
 }
 
 /// Element-wise activations.
@@ -215,16 +200,22 @@ impl Activation {
         }
     }
 
-    /// d²y/dz² from dy/dz (what a forward pass keeps): 0 for the piecewise-linear ones;
-    /// softplus: β·σ(βz)(1 − σ(βz)) with σ(βz) = dy/dz. `None` for the sigmoid, whose dy/dz does
-    /// not determine z's side (no tangents through it).
+    /// d²y/dz² from dy/dz (what a forward pass keeps) and y: 0 for the piecewise-linear ones;
+    /// softplus: β·σ(βz)(1 − σ(βz)) with σ(βz) = dy/dz; sigmoid: σ'(z)(1 − 2σ(z)), which needs
+    /// y = σ(z) too (dy/dz alone does not tell z's side; [`Activation::second_needs_value`]).
+    /// `value` is read only when that says so.
     #[inline]
-    pub fn second_from_slope<R: Real>(self, slope: R) -> Option<R> {
+    pub fn second_derivative<R: Real>(self, slope: R, value: R) -> R {
         match self {
-            Activation::Identity | Activation::Relu => Some(R::ZERO),
-            Activation::Softplus { beta } => Some(R::of(beta) * slope * (R::ONE - slope)),
-            Activation::Sigmoid => None,
+            Activation::Identity | Activation::Relu => R::ZERO,
+            Activation::Softplus { beta } => R::of(beta) * slope * (R::ONE - slope),
+            Activation::Sigmoid => slope * (R::ONE - (value + value)),
         }
+    }
+
+    /// Whether [`Activation::second_derivative`] reads y (the sigmoid).
+    pub fn second_needs_value(self) -> bool {
+        matches!(self, Activation::Sigmoid)
     }
 
     /// dy/dz at z.
@@ -263,7 +254,7 @@ pub fn sigmoid<R: Real>(z: R) -> R {
 }
 
 /// Splits `values` into consecutive blocks, `ranges` starting at 0 and each starting where the
-/// last ended (e.g. a module's [`Module::gradient_block_range`]s).
+/// last ended (e.g. a module's [`ScatterGradient::gradient_block_range`]s).
 pub fn split_blocks<T>(values: &mut [T], ranges: impl IntoIterator<Item = std::ops::Range<usize>>) -> Vec<&mut [T]> {
     let mut rest = values;
     let mut at = 0;
@@ -278,9 +269,9 @@ pub fn split_blocks<T>(values: &mut [T], ranges: impl IntoIterator<Item = std::o
     blocks
 }
 
-/// The ranges of `net`'s deferred parameter blocks ([`Module::deferred_block_range`]), in order;
-/// none when it defers no gradient.
-pub fn deferred_block_ranges<R: Real, M: Module<R> + ?Sized>(net: &M) -> Vec<std::ops::Range<usize>> {
+/// The ranges of `net`'s deferred parameter blocks ([`DeferringModule::deferred_block_range`]),
+/// in order; none when it defers no gradient.
+pub fn deferred_block_ranges<R: Real, M: DeferringModule<R> + ?Sized>(net: &M) -> Vec<std::ops::Range<usize>> {
     if net.deferred_params() == 0 {
         return Vec::new();
     }
@@ -294,6 +285,18 @@ pub struct Chain<A, B> {
     pub a: A,
     /// Second module.
     pub b: B,
+}
+
+impl<A, B> Chain<A, B> {
+    /// The context's three blocks for `rows` rows: (a's context, a's output, b's context).
+    fn split_ctx<'c, R: Real>(&self, ctx: &'c [R], rows: usize) -> (&'c [R], &'c [R], &'c [R])
+    where
+        A: Module<R>,
+    {
+        let (ca, rest) = ctx.split_at(rows * self.a.ctx_per_row());
+        let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
+        (ca, mid, cb)
+    }
 }
 
 impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
@@ -321,54 +324,47 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
         let (dpa, dpb) = d_params.split_at_mut(self.a.n_params());
-        let (ca, rest) = ctx.split_at(rows * self.a.ctx_per_row());
-        let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
+        let (ca, mid, cb) = self.split_ctx(ctx, rows);
         let mut d_mid = crate::scratch::Buf::<R>::zeroed(mid.len());
         self.b.backward(pb, mid, cb, d_output, dpb, Some(&mut d_mid));
         self.a.backward(pa, input, ca, &d_mid, dpa, d_input);
     }
-    /// The first module's parameters are deferred when it [`Module::defers_gradient`].
+}
+
+/// The first module's parameters are deferred (none when it has none): the record is ∂L/∂(its
+/// outputs), from which its [`ScatterGradient`] computes them.
+impl<R: Real, A: ScatterGradient<R>, B: Module<R>> DeferringModule<R> for Chain<A, B> {
     fn deferred_params(&self) -> usize {
-        if self.a.defers_gradient() { self.a.n_params() } else { 0 }
+        self.a.n_params()
     }
     fn deferred_width(&self) -> usize {
-        if self.a.defers_gradient() { self.a.n_outputs() } else { 0 }
+        self.a.n_outputs()
     }
     fn backward_deferring(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], deferred: &mut [R]) {
-        if !self.a.defers_gradient() {
-            return self.backward(params, input, ctx, d_output, d_params, None);
-        }
         let rows = input.len() / self.a.n_inputs();
         let (_, pb) = params.split_at(self.a.n_params());
-        let (_, rest) = ctx.split_at(rows * self.a.ctx_per_row());
-        let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
-        // ∂L/∂(first module's outputs) is the record: its gradient is a's backward of it.
+        let (_, mid, cb) = self.split_ctx(ctx, rows);
         self.b.backward(pb, mid, cb, d_output, d_params, Some(deferred));
     }
     fn apply_deferred(&self, parts: &[(&[R], &[R])], d_deferred: &mut [R]) {
-        if self.a.defers_gradient() {
-            self.a.backward_parts(parts, d_deferred);
-        }
+        self.a.backward_parts(parts, d_deferred);
     }
     fn deferred_blocks(&self) -> usize {
         self.a.gradient_blocks()
     }
     fn deferred_block_range(&self, block: usize) -> std::ops::Range<usize> {
-        if self.a.defers_gradient() { self.a.gradient_block_range(block) } else { 0..0 }
+        self.a.gradient_block_range(block)
     }
     fn apply_deferred_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
-        if self.a.defers_gradient() {
-            self.a.backward_parts_block(parts, block, d_block);
-        }
+        self.a.backward_parts_block(parts, block, d_block);
     }
-    fn has_tangents(&self) -> bool {
-        self.a.has_tangents() && self.b.has_tangents()
-    }
+}
+
+impl<R: Real, A: TangentModule<R>, B: TangentModule<R>> TangentModule<R> for Chain<A, B> {
     fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
-        let (ca, rest) = ctx.split_at(rows * self.a.ctx_per_row());
-        let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
+        let (ca, mid, cb) = self.split_ctx(ctx, rows);
         let mut mid_tangents = crate::scratch::Buf::<R>::zeroed(rows * k * self.a.n_outputs());
         self.a.forward_tangents(pa, input, ca, k, tangents_in, &mut mid_tangents);
         self.b.forward_tangents(pb, mid, cb, k, &mid_tangents, tangents_out);
@@ -378,8 +374,7 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
         let (dpa, dpb) = d_params.split_at_mut(self.a.n_params());
-        let (ca, rest) = ctx.split_at(rows * self.a.ctx_per_row());
-        let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
+        let (ca, mid, cb) = self.split_ctx(ctx, rows);
         let mut mid_tangent = crate::scratch::Buf::<R>::zeroed(mid.len());
         self.a.forward_tangents(pa, input, ca, 1, tangent_in, &mut mid_tangent);
         let (mut d_mid, mut d_mid_tangent) = (crate::scratch::Buf::<R>::zeroed(mid.len()), crate::scratch::Buf::<R>::zeroed(mid.len()));
@@ -388,15 +383,14 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         let inner = TangentAdjoints { params: pa, input, ctx: ca, tangent_in, d_output: &d_mid, d_tangent_out: &d_mid_tangent };
         self.a.backward_tangent(inner, dpa, d_input);
     }
+}
+
+impl<R: Real, A: ScatterTangent<R>, B: TangentModule<R>> DeferringTangentModule<R> for Chain<A, B> {
     fn backward_tangent_deferring(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], deferred: &mut [R]) {
-        if !self.a.defers_gradient() {
-            return self.backward_tangent(pass, d_params, None);
-        }
         let TangentAdjoints { params, input, ctx, tangent_in, d_output, d_tangent_out } = pass;
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
-        let (ca, rest) = ctx.split_at(rows * self.a.ctx_per_row());
-        let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
+        let (ca, mid, cb) = self.split_ctx(ctx, rows);
         let mut mid_tangent = crate::scratch::Buf::<R>::zeroed(mid.len());
         self.a.forward_tangents(pa, input, ca, 1, tangent_in, &mut mid_tangent);
         // The record: ∂L/∂(first module's outputs), then ∂L/∂(their tangents).
@@ -405,9 +399,7 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         self.b.backward_tangent(outer, d_params, Some((d_mid, d_mid_tangent)));
     }
     fn apply_deferred_tangent_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
-        if self.a.defers_gradient() {
-            self.a.tangent_parts_block(parts, block, d_block);
-        }
+        self.a.tangent_parts_block(parts, block, d_block);
     }
 }
 

@@ -8,7 +8,7 @@ use crate::hashgrid::{HashGrid, HashGridConfig};
 use crate::mlp::{Mlp, MlpConfig};
 use crate::module::{Activation, Chain, Module};
 use crate::optim::Adam;
-use crate::pipeline::{ColorLoss, NormalScheme, Pipeline, PipelineConfig};
+use crate::pipeline::{ColorLoss, Differences, Pipeline, PipelineConfig};
 
 /// Named configurations.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -145,13 +145,14 @@ fn assemble(preset: Preset, grid: Option<HashGridConfig>) -> Backbone {
             eikonal_weight: 0.1,
             mask_weight: 0.1,
             normal_step: 1.0 / f64::from(finest),
-            normals: NormalScheme::Tetrahedral,
+            normals: Differences::Tetrahedral,
             curvature_weight: 0.0,
             background: [0.0; 3],
             masked_color: false,
             opacity_entropy: 0.0,
             normal_smoothness: 0.0,
         },
+        analytic: None,
     }
 }
 

@@ -21,6 +21,7 @@ pub trait Real:
     + MulAssign
     + ndarray::LinalgScalar
     + crate::scratch::Element
+    + crate::pipeline::TangentPrecision
     + 'static
 {
     /// 0.

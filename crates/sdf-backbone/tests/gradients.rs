@@ -280,9 +280,9 @@ fn with_input_gradients_match() {
 }
 
 /// Checks `d_params`, `d_input` and the adjoint of the input tangent of
-/// [`Module::backward_tangent`], and [`Module::forward_tangents`] itself, against central
+/// [`TangentModule::backward_tangent`], and [`TangentModule::forward_tangents`] itself, against central
 /// differences of L = Σ r ⊙ y(x) + Σ q ⊙ (∂y/∂x · v). Returns the largest relative error.
-fn tangent_check<M: Module<f64>>(module: &M, params: &[f64], rows: usize, check_input: bool, seed: u64) -> f64 {
+fn tangent_check<M: TangentModule<f64>>(module: &M, params: &[f64], rows: usize, check_input: bool, seed: u64) -> f64 {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let (n_in, n_out) = (module.n_inputs(), module.n_outputs());
     let input: Vec<f64> = (0..rows * n_in).map(|_| rng.random::<f64>() * 1.6 - 0.8).collect();
@@ -380,15 +380,54 @@ fn mlp_tangents_and_their_backward_match_finite_differences() {
     });
     let params = random_params(Module::<f64>::n_params(&mlp), 0.6, 23);
     assert!(tangent_check(&mlp, &params, 5, true, 24) < 1e-6);
-    let sigmoid = Mlp::new(MlpConfig { hidden_activation: Activation::Sigmoid, ..mlp.config().clone() });
-    assert!(!Module::<f64>::has_tangents(&sigmoid), "act'' of a sigmoid is not known from act'");
+    // Sigmoids, hidden (act'' from the next layer's input, through the skip's 1/√2) and at the
+    // output (act'' from the output recomputed).
+    let sigmoid = Mlp::new(MlpConfig {
+        hidden_layers: 3,
+        skip: Some(2),
+        hidden_activation: Activation::Sigmoid,
+        output_activation: Activation::Sigmoid,
+        ..mlp.config().clone()
+    });
+    let params = random_params(Module::<f64>::n_params(&sigmoid), 0.8, 25);
+    let worst = tangent_check(&sigmoid, &params, 5, true, 26);
+    assert!(worst < 1e-6, "sigmoid: relative error {worst:e}");
 }
 
+/// The positional encoding's tangents and their reverse pass (second derivatives of sin and
+/// cos), alone and in front of an MLP as the NeuS presets have it.
+#[test]
+fn positional_encoding_tangents_and_their_backward_match_finite_differences() {
+    let pe = PositionalEncoding { frequencies: 3 };
+    let worst = tangent_check(&pe, &[], 6, true, 41);
+    assert!(worst < 1e-6, "relative error {worst:e}");
+    let mlp = Mlp::new(MlpConfig {
+        n_inputs: 3 + 18,
+        width: 6,
+        hidden_layers: 1,
+        n_outputs: 2,
+        skip: None,
+        hidden_activation: Activation::Softplus { beta: 10.0 },
+        output_activation: Activation::Identity,
+    });
+    let net = Chain { a: pe, b: mlp };
+    let params = random_params(Module::<f64>::n_params(&net), 0.5, 42);
+    let worst = tangent_check(&net, &params, 6, true, 43);
+    assert!(worst < 1e-6, "relative error {worst:e}");
+}
+
+/// Two features per level (a compiled kernel) and three (the per-row loop for other counts).
 #[test]
 fn hash_grid_network_tangents_and_their_backward_match_finite_differences() {
-    let grid = HashGrid::new(HashGridConfig { levels: 3, features: 2, log2_table: 6, base_resolution: 2, finest_resolution: 9 });
+    for features in [2, 3] {
+        check_hash_grid_network_tangents(features);
+    }
+}
+
+fn check_hash_grid_network_tangents(features: usize) {
+    let grid = HashGrid::new(HashGridConfig { levels: 3, features, log2_table: 6, base_resolution: 2, finest_resolution: 9 });
     let mlp = Mlp::new(MlpConfig {
-        n_inputs: 3 + 6,
+        n_inputs: 3 + 3 * features,
         width: 6,
         hidden_layers: 1,
         n_outputs: 3,
@@ -397,9 +436,7 @@ fn hash_grid_network_tangents_and_their_backward_match_finite_differences() {
         output_activation: Activation::Identity,
     });
     let net = Chain { a: WithInput { encoding: grid }, b: mlp };
-    assert!(Module::<f64>::has_tangents(&net));
     let params = random_params(Module::<f64>::n_params(&net), 0.5, 31);
     let worst = tangent_check(&net, &params, 9, false, 32);
-    assert!(worst < 1e-6, "relative error {worst:e}");
-    assert!(!Module::<f64>::has_tangents(&PositionalEncoding { frequencies: 2 }), "no tangents through the positional encoding");
+    assert!(worst < 1e-6, "{features} features: relative error {worst:e}");
 }

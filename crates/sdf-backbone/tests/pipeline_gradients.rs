@@ -119,7 +119,10 @@ fn rendering_is_stable_at_the_extremes() {
 /// samples, learnt variance) against finite differences in f64.
 #[test]
 fn whole_pipeline_gradients_match_finite_differences() {
-    for (normals, masked_color) in [(NormalScheme::Central, false), (NormalScheme::Tetrahedral, false), (NormalScheme::Central, true)] {
+    // Analytic normals through the positional encoding too (no curvature: it needs the probes).
+    for (normals, masked_color) in
+        [(NormalScheme::Central, false), (NormalScheme::Tetrahedral, false), (NormalScheme::Central, true), (NormalScheme::Analytic, false)]
+    {
         let pe = PositionalEncoding { frequencies: 2 };
         let sdf_mlp = Mlp::new(MlpConfig {
             n_inputs: 15,
@@ -139,7 +142,7 @@ fn whole_pipeline_gradients_match_finite_differences() {
             hidden_activation: Activation::Softplus { beta: 10.0 },
             output_activation: Activation::Sigmoid,
         });
-        let pipeline = Pipeline {
+        let mut pipeline = Pipeline {
             sdf: Chain { a: pe, b: sdf_mlp },
             color,
             // The learned background (NeRF++) on one of the variants: 5 samples beyond the bound.
@@ -165,14 +168,16 @@ fn whole_pipeline_gradients_match_finite_differences() {
                 eikonal_weight: 0.1,
                 mask_weight: 0.1,
                 normal_step: 1e-2,
-                normals,
-                curvature_weight: 1e-3,
+                normals: Differences::Central,
+                curvature_weight: if normals == NormalScheme::Analytic { 0.0 } else { 1e-3 },
                 background: [0.3, 0.5, 0.1],
                 masked_color,
                 opacity_entropy: 0.05,
                 normal_smoothness: 0.05,
             },
+            analytic: None,
         };
+        pipeline.set_normals(normals);
         let n = pipeline.n_params::<f64>();
         let mut params = random_params(n, 0.5, 21);
         params[n - 1] = 0.25; // s = e^{2.5} ≈ 12
@@ -269,8 +274,9 @@ fn both_normal_schemes_recover_a_known_gradient() {
         output_activation: Activation::Sigmoid,
     });
     for normals in [NormalScheme::Central, NormalScheme::Tetrahedral, NormalScheme::Analytic] {
-        let pipeline = Pipeline {
-            sdf: mlp.clone(),
+        let mut pipeline = Pipeline {
+            // A plain MLP of xyz: PositionalEncoding with no frequency is the identity.
+            sdf: Chain { a: PositionalEncoding { frequencies: 0 }, b: mlp.clone() },
             color: color.clone(),
             background: None,
             config: PipelineConfig {
@@ -278,14 +284,16 @@ fn both_normal_schemes_recover_a_known_gradient() {
                 eikonal_weight: 0.0,
                 mask_weight: 0.0,
                 normal_step: 1e-2,
-                normals,
+                normals: Differences::Central,
                 curvature_weight: 0.0,
                 background: [0.0; 3],
                 masked_color: false,
                 opacity_entropy: 0.0,
                 normal_smoothness: 0.0,
             },
+            analytic: None,
         };
+        pipeline.set_normals(normals);
         let n = pipeline.n_params::<f64>();
         let mut params = vec![0.0; n];
         let a = [0.6, -0.48, 0.64]; // |a| = 1
@@ -332,13 +340,14 @@ fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
             eikonal_weight: 0.1,
             mask_weight: 0.0,
             normal_step: 1e-3,
-            normals: NormalScheme::Tetrahedral,
+            normals: Differences::Tetrahedral,
             curvature_weight: 1e-4,
             background: [0.2; 3],
             masked_color: false,
             opacity_entropy: 0.0,
             normal_smoothness: 0.0,
         },
+        analytic: None,
     };
     let n = pipeline.n_params::<f64>();
     let params = random_params(n, 0.5, 41);
@@ -404,7 +413,7 @@ fn sine_pipeline(normals: NormalScheme) -> (SinePipeline, Vec<f64>, RayInput<f64
         mask: None,
         weight: 1.0,
     };
-    let pipeline = Pipeline {
+    let mut pipeline = Pipeline {
         sdf: Chain { a: pe, b: mlp },
         color,
         background: None,
@@ -413,14 +422,16 @@ fn sine_pipeline(normals: NormalScheme) -> (SinePipeline, Vec<f64>, RayInput<f64
             eikonal_weight: 0.0,
             mask_weight: 0.0,
             normal_step: 1e-3,
-            normals,
+            normals: Differences::Central,
             curvature_weight: 0.0,
             background: [0.0; 3],
             masked_color: false,
             opacity_entropy: 0.0,
             normal_smoothness: 0.0,
         },
+        analytic: None,
     };
+    pipeline.set_normals(normals);
     let n = pipeline.n_params::<f64>();
     let mut params = vec![0.0; n];
     params[3] = 1.0; // weight of sin(x₀)
@@ -445,7 +456,7 @@ fn curvature_term_is_the_mean_absolute_laplacian() {
 /// samples: for S(x) = sin(x₀) along the x axis, nᵢ = (cos(x₀ᵢ), 0, 0) at the first four samples.
 #[test]
 fn normal_smoothness_is_the_mean_squared_change_of_neighbouring_normals() {
-    for normals in [NormalScheme::Central, NormalScheme::Tetrahedral] {
+    for normals in [NormalScheme::Central, NormalScheme::Tetrahedral, NormalScheme::Analytic] {
         let (mut pipeline, params, ray) = sine_pipeline(normals);
         let normal = |i: usize| (ray.origin[0] + ray.depths[i]).cos();
         let expected: f64 = (0..3).map(|i| (normal(i + 1) - normal(i)).powi(2)).sum::<f64>() / 3.0;
@@ -530,7 +541,7 @@ fn check_hash_grid_pipeline(normals: NormalScheme) {
         hidden_activation: Activation::Relu,
         output_activation: Activation::Sigmoid,
     });
-    let pipeline = Pipeline {
+    let mut pipeline = Pipeline {
         sdf: Chain { a: WithInput { encoding: grid }, b: sdf_mlp },
         color,
         background: None,
@@ -539,15 +550,17 @@ fn check_hash_grid_pipeline(normals: NormalScheme) {
             eikonal_weight: 0.1,
             mask_weight: 0.1,
             normal_step: 1e-2,
-            normals,
+            normals: Differences::Central,
             curvature_weight: 0.0,
             background: [0.2; 3],
             masked_color: true,
             opacity_entropy: 0.0,
             normal_smoothness: 0.05,
         },
+        analytic: None,
     };
-    assert!(Module::<f64>::deferred_params(&pipeline.sdf) > 0, "the tables are deferred");
+    pipeline.set_normals(normals);
+    assert!(DeferringModule::<f64>::deferred_params(&pipeline.sdf) > 0, "the tables are deferred");
     let n = pipeline.n_params::<f64>();
     let mut params = random_params(n, 0.3, 51);
     params[n - 1] = 0.2;

@@ -14,7 +14,7 @@
 use crate::config::TrainConfig;
 use crate::data::SceneSize;
 use sdf_backbone::module::deferred_block_ranges;
-use sdf_backbone::{Backbone, Module, NormalScheme};
+use sdf_backbone::{Backbone, DeferringModule, Module, NormalScheme};
 
 /// Bytes of f32.
 const F32: f64 = 4.0;
@@ -108,7 +108,7 @@ impl MemoryEstimate {
 
 /// Bytes of one work item's forward + backward buffers for `rays` rays of `samples` intervals.
 fn work_item_bytes(backbone: &Backbone, rays: usize, samples: usize, backward: bool) -> f64 {
-    let probes = backbone.config.normals.probe_count();
+    let probes = backbone.normal_scheme().probe_count();
     let sdf_rows = (rays * ((probes + 1) * samples + 1)) as f64;
     let col_rows = (rays * samples) as f64;
     let sdf_out = Module::<f32>::n_outputs(&backbone.sdf) as f64;
@@ -121,7 +121,7 @@ fn work_item_bytes(backbone: &Backbone, rays: usize, samples: usize, backward: b
     let forward = sdf_rows * (3.0 + sdf_out + sdf_ctx) + col_rows * (2.0 * col_in + col_ctx + 6.0);
     // Analytic normals: the tangents along x, y, z of every layer (forward), then along ∂L/∂n
     // with their adjoints (backward).
-    let tangents = if backbone.config.normals == NormalScheme::Analytic {
+    let tangents = if backbone.normal_scheme() == NormalScheme::Analytic {
         sdf_rows * (3.0 * (sdf_ctx + sdf_out) + if backward { 2.0 * sdf_ctx + 6.0 } else { 0.0 })
     } else {
         0.0
@@ -146,10 +146,10 @@ pub fn estimate(
     let tables = backbone.layout().encoding.len() as f64;
     let samples = config.render.coarse + config.render.fine;
     let chunks = config.render.rays.div_ceil(config.render.chunk) as f64;
-    let rows_per_chunk = (config.render.chunk * ((backbone.config.normals.probe_count() + 1) * samples + 1)) as f64;
+    let rows_per_chunk = (config.render.chunk * ((backbone.normal_scheme().probe_count() + 1) * samples + 1)) as f64;
     // Analytic normals record the tangents too: twice the width, twice the points.
-    let twice = if backbone.config.normals == NormalScheme::Analytic { 2.0 } else { 1.0 };
-    let record = twice * (Module::<f32>::deferred_width(&backbone.sdf) as f64 + 3.0);
+    let twice = if backbone.normal_scheme() == NormalScheme::Analytic { 2.0 } else { 1.0 };
+    let record = twice * (DeferringModule::<f32>::deferred_width(&backbone.sdf) as f64 + 3.0);
     // The table update's buffer: one level's gradient per thread (the largest level's).
     let level = deferred_block_ranges::<f32, _>(&backbone.sdf).iter().map(|r| r.len()).max().unwrap_or(0) as f64;
     // Every work item's gradient (without the tables) and table record live until the sum.

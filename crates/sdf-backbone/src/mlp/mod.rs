@@ -1,7 +1,7 @@
 //! Dense layers with activations, an optional skip connection, and NeuS's geometric initialisation.
 
 use crate::kernels::{Dense, Strided, dense_forward, gemm, pad};
-use crate::module::{Activation, Module, TangentAdjoints};
+use crate::module::{Activation, Module, TangentAdjoints, TangentModule};
 use crate::real::Real;
 use crate::scratch::Buf;
 
@@ -258,11 +258,10 @@ impl<R: Real> Module<R> for Mlp {
             },
         );
     }
+}
 
-    fn has_tangents(&self) -> bool {
-        self.config.hidden_activation.second_from_slope(R::ZERO).is_some() && self.config.output_activation.second_from_slope(R::ZERO).is_some()
-    }
-
+/// Tangents through every activation (act'' from act' and, for the sigmoid, act).
+impl<R: Real> TangentModule<R> for Mlp {
     fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
         let _span = crate::profile::span(crate::profile::Stage::MlpTangents);
         let rows = input.len() / self.config.n_inputs;
@@ -304,9 +303,10 @@ impl<R: Real> Module<R> for Mlp {
                     let a = &ctx[starts[l].0..starts[l].0 + rows * ip];
                     let slope = &ctx[starts[l].1..starts[l].1 + rows * op];
                     let (a_dot, z_dot) = &tangents[l];
+                    let values = act.second_needs_value().then(|| self.layer_values(params, ctx, &starts, rows, l));
                     // Z̄ and Ż̄ in place of ȳ and ū.
                     for i in 0..rows * op {
-                        let second = act.second_from_slope(slope[i]).unwrap_or(R::ZERO);
+                        let second = act.second_derivative(slope[i], values.as_ref().map_or(R::ZERO, |v| v[i]));
                         let (g, u) = (dy[i], du[i]);
                         dy[i] = slope[i] * g + second * z_dot[i] * u;
                         du[i] = slope[i] * u;
@@ -397,6 +397,35 @@ impl Mlp {
         } else {
             (self.config.hidden_activation, R::ONE)
         }
+    }
+
+    /// act(Z) of layer `l` (rows × out_pad) for an activation whose second derivative needs it
+    /// ([`Activation::second_needs_value`]): the next layer's input block (its first columns,
+    /// the skip's 1/√2 undone), or for the output layer act(A Wᵀ + b) recomputed from its input.
+    fn layer_values<R: Real>(&self, params: &[R], ctx: &[R], starts: &[(usize, usize)], rows: usize, l: usize) -> Buf<R> {
+        let (n_in, n_out, off) = self.layers[l];
+        let (ip, op) = (pad(n_in), pad(n_out));
+        let (act, scale) = self.layer_activation::<R>(l);
+        let mut y = Buf::<R>::zeroed(rows * op);
+        if l + 1 < self.layers.len() {
+            let next_ip = pad(self.layers[l + 1].0);
+            let a = &ctx[starts[l + 1].0..starts[l + 1].0 + rows * next_ip];
+            for r in 0..rows {
+                for q in 0..n_out {
+                    y[r * op + q] = a[r * next_ip + q] / scale;
+                }
+            }
+        } else {
+            let a = &ctx[starts[l].0..starts[l].0 + rows * ip];
+            let (w, b) = params[off..off + n_in * n_out + n_out].split_at(n_in * n_out);
+            for r in 0..rows {
+                for o in 0..n_out {
+                    let z = (0..n_in).fold(b[o], |z, i| w[o * n_in + i].mul_add(a[r * ip + i], z));
+                    y[r * op + o] = act.apply(z);
+                }
+            }
+        }
+        y
     }
 
     /// Forward-mode pass of `t_rows` tangent rows, `k` per input row (row r's tangents are rows

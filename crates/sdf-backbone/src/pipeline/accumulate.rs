@@ -7,10 +7,10 @@
 //! (one matrix product per layer), the per-ray work in between.
 
 use super::deferred::Deferred;
-use super::{NormalScheme, Pipeline, RayInput, RayOutput, SampleLoss, scale_derivative, scale_from_variance};
+use super::{Pipeline, RayInput, RayOutput, SampleLoss, TangentFns, scale_derivative, scale_from_variance};
 use crate::background::BackgroundPass;
 use crate::encoding::SphericalHarmonics;
-use crate::module::{Module, TangentAdjoints};
+use crate::module::{DeferringModule, Module, TangentAdjoints};
 use crate::real::Real;
 use crate::render::{render_ray, render_ray_backward};
 use crate::scratch::Buf;
@@ -118,8 +118,8 @@ struct Scale<R> {
 impl<S, C> Pipeline<S, C> {
     /// The loss of `rays` (the batch's rays from index `first`) divided by `m` (the whole batch's
     /// ray count; the colour loss by `color_norm`), gradients added to `d_params`, which covers
-    /// every parameter after the SDF network's deferred ones ([`Module::deferred_params`]); their
-    /// gradient is returned as (points, record) for [`Module::apply_deferred`].
+    /// every parameter after the SDF network's deferred ones ([`DeferringModule::deferred_params`]);
+    /// their gradient is returned as (points, record) for [`DeferringModule::apply_deferred`].
     #[allow(clippy::too_many_arguments)]
     pub(super) fn accumulate<R: Real>(
         &self,
@@ -132,7 +132,7 @@ impl<S, C> Pipeline<S, C> {
         extra: &dyn SampleLoss,
     ) -> (R, Vec<RayOutput<R>>, Deferred<R>)
     where
-        S: Module<R>,
+        S: DeferringModule<R>,
         C: Module<R>,
     {
         let _span = crate::profile::span(crate::profile::Stage::LossPass);
@@ -140,7 +140,7 @@ impl<S, C> Pipeline<S, C> {
         let (p_sdf, rest) = params.split_at(n_sdf);
         let (p_col, p_var) = rest.split_at(n_col);
         let f = self.sdf.n_outputs() - 1;
-        let probes = self.config.normals.probes();
+        let probes = if self.analytic.is_some() { &[] } else { self.config.normals.probes() };
         let dims = Dims { n_out: 1 + f, f, c_in: COLOR_IN_FIXED + f, probes, h: self.config.normal_step };
         let rows = Rows::of(rays, probes.len());
         let (points, sdf_out, sdf_ctx, gradients) = self.sdf_pass(p_sdf, rays, &rows, &dims);
@@ -159,10 +159,12 @@ impl<S, C> Pipeline<S, C> {
         let (d_col_params, d_rest) = rest.split_at_mut(n_col);
         d_rest[0] += adj.variance;
         let (d_color_in, d_sdf_out) = self.network_adjoints(p_col, &p_var[1..], &mut d_rest[1..], d_col_params, rays, &rows, &dims, &fwd, &adj);
-        let deferred = if self.config.normals == NormalScheme::Analytic {
-            self.sdf_tangent_backward(p_sdf, rays, &rows, &dims, &fwd, &adj, &d_color_in, &d_sdf_out, d_sdf_params)
-        } else {
-            self.sdf_backward(p_sdf, &mut fwd, &d_sdf_out, d_sdf_params)
+        let deferred = match &self.analytic {
+            Some(analytic) => {
+                let fns = R::tangent_fns(analytic);
+                self.sdf_tangent_backward(fns, p_sdf, rays, &rows, &dims, &fwd, &adj, &d_color_in, &d_sdf_out, d_sdf_params)
+            }
+            None => self.sdf_backward(p_sdf, &mut fwd, &d_sdf_out, d_sdf_params),
         };
         (total, outputs, deferred)
     }
@@ -198,9 +200,7 @@ impl<S, C> Pipeline<S, C> {
         let mut sdf_out = Buf::<R>::zeroed(rows.sdf * dims.n_out);
         let mut sdf_ctx = Buf::<R>::zeroed(rows.sdf * self.sdf.ctx_per_row());
         self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
-        let analytic = self.config.normals == NormalScheme::Analytic;
-        debug_assert!(!analytic || self.sdf.has_tangents(), "analytic normals need an SDF network with tangents");
-        let gradients = analytic.then(|| {
+        let gradients = self.analytic.as_ref().map(|analytic| {
             let mut axes = Buf::<R>::zeroed(rows.sdf * 9);
             for row in axes.chunks_exact_mut(9) {
                 row[0] = R::ONE;
@@ -208,7 +208,7 @@ impl<S, C> Pipeline<S, C> {
                 row[8] = R::ONE;
             }
             let mut out = Buf::<R>::zeroed(rows.sdf * 3 * dims.n_out);
-            self.sdf.forward_tangents(p_sdf, &points, &sdf_ctx, 3, &axes, &mut out);
+            (R::tangent_fns(analytic).forward)(&self.sdf, p_sdf, &points, &sdf_ctx, 3, &axes, &mut out);
             out
         });
         (points, sdf_out, sdf_ctx, gradients)
@@ -409,7 +409,7 @@ impl<S, C> Pipeline<S, C> {
     /// samples); a deferring network's record of its deferred gradient.
     fn sdf_backward<R: Real>(&self, p_sdf: &[R], fwd: &mut Forward<R>, d_sdf_out: &[R], d_sdf_params: &mut [R]) -> Deferred<R>
     where
-        S: Module<R>,
+        S: DeferringModule<R>,
     {
         if self.sdf.deferred_params() == 0 {
             self.sdf.backward(p_sdf, &fwd.points, &fwd.sdf_ctx, d_sdf_out, d_sdf_params, None);
@@ -427,6 +427,7 @@ impl<S, C> Pipeline<S, C> {
     #[allow(clippy::too_many_arguments)]
     fn sdf_tangent_backward<R: Real>(
         &self,
+        fns: &TangentFns<S, R>,
         p_sdf: &[R],
         rays: &[RayInput<R>],
         rows: &Rows,
@@ -438,7 +439,7 @@ impl<S, C> Pipeline<S, C> {
         d_sdf_params: &mut [R],
     ) -> Deferred<R>
     where
-        S: Module<R>,
+        S: DeferringModule<R>,
     {
         let (n_out, c_in) = (dims.n_out, dims.c_in);
         let mut v = Buf::<R>::zeroed(3 * rows.sdf);
@@ -463,11 +464,11 @@ impl<S, C> Pipeline<S, C> {
             d_tangent_out,
         };
         if self.sdf.deferred_params() == 0 {
-            self.sdf.backward_tangent(pass(&v, &d_tangent_out), d_sdf_params, None);
+            (fns.backward)(&self.sdf, pass(&v, &d_tangent_out), d_sdf_params);
             return None;
         }
         let mut record = Buf::<R>::zeroed(2 * rows.sdf * self.sdf.deferred_width());
-        self.sdf.backward_tangent_deferring(pass(&v, &d_tangent_out), d_sdf_params, &mut record);
+        (fns.backward_deferring)(&self.sdf, pass(&v, &d_tangent_out), d_sdf_params, &mut record);
         // The record's input: the points, then their tangents.
         let mut points_and_tangents = Buf::<R>::zeroed(6 * rows.sdf);
         points_and_tangents[..3 * rows.sdf].copy_from_slice(&fwd.points);

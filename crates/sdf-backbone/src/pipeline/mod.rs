@@ -30,16 +30,18 @@
 //! Everything is generic over [`Real`] so that the whole pipeline is gradient-checked in f64.
 
 use crate::background::BackgroundModel;
-use crate::module::Module;
+use crate::module::{DeferringModule, DeferringTangentModule, Module};
 use crate::real::Real;
 use crate::scratch::Buf;
 
 mod accumulate;
+mod analytic;
 mod deferred;
 mod normals;
+pub use analytic::{AnalyticNormals, TangentFns, TangentPrecision};
 use deferred::Deferred;
 pub use deferred::DeferredGradient;
-pub use normals::NormalScheme;
+pub use normals::{Differences, NormalScheme};
 
 /// Colour loss.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -117,8 +119,9 @@ pub struct PipelineConfig {
     pub mask_weight: f64,
     /// Step of the numerical differences for normals (Neuralangelo ties it to the finest level).
     pub normal_step: f64,
-    /// Central or tetrahedral differences.
-    pub normals: NormalScheme,
+    /// Central or tetrahedral differences, unless the pipeline has analytic normals
+    /// ([`Pipeline::analytic`]).
+    pub normals: Differences,
     /// Weight of Neuralangelo's curvature loss, mean |ΔS| at the samples, with the Laplacian
     /// from the same probes as the normals: `ΔS ≈ (Σⱼ S(x + h vⱼ) − m S(x)) / (h² c/2)`, where
     /// Σⱼ vⱼvⱼᵀ = c I (c = 2 central, 4 tetrahedral; m probes). Neuralangelo: 5e-4.
@@ -155,6 +158,10 @@ pub struct Pipeline<S, C> {
     pub background: Option<BackgroundModel>,
     /// Configuration.
     pub config: PipelineConfig,
+    /// Analytic normals (the exact ∇ₓS, no probes) instead of `config.normals`' differences:
+    /// only for an SDF network with tangents ([`AnalyticNormals::new`],
+    /// [`Pipeline::with_analytic_normals`]).
+    pub analytic: Option<AnalyticNormals<S>>,
 }
 
 /// Per-ray results of the forward pass.
@@ -171,6 +178,40 @@ pub struct RayOutput<R> {
 }
 
 impl<S, C> Pipeline<S, C> {
+    /// How this pipeline takes its normals.
+    pub fn normal_scheme(&self) -> NormalScheme {
+        if self.analytic.is_some() { NormalScheme::Analytic } else { self.config.normals.into() }
+    }
+
+    /// This pipeline with analytic normals: only for an SDF network with tangents.
+    pub fn with_analytic_normals(mut self) -> Self
+    where
+        S: DeferringTangentModule<f32> + DeferringTangentModule<f64>,
+    {
+        self.analytic = Some(AnalyticNormals::new());
+        self
+    }
+
+    /// Takes normals by `scheme` (a user's choice; analytic needs a network with tangents).
+    pub fn set_normals(&mut self, scheme: NormalScheme)
+    where
+        S: DeferringTangentModule<f32> + DeferringTangentModule<f64>,
+    {
+        match scheme.differences() {
+            Some(differences) => {
+                self.config.normals = differences;
+                self.analytic = None;
+            }
+            None => self.analytic = Some(AnalyticNormals::new()),
+        }
+    }
+
+    /// The deferred gradient of these per-work-item records: applied by the tangent passes when
+    /// they came from analytic normals.
+    fn deferred_gradient<R: Real>(&self, records: Vec<(Buf<R>, Buf<R>)>) -> DeferredGradient<S, R> {
+        DeferredGradient { records, tangent: self.analytic.as_ref().map(|a| R::tangent_fns(a).apply_block) }
+    }
+
     /// Total parameters: SDF, colour, and the variance v.
     pub fn n_params<R: Real>(&self) -> usize
     where
@@ -184,7 +225,7 @@ impl<S, C> Pipeline<S, C> {
     /// it. Returns the loss and the per-ray outputs. Sequential; see [`Self::loss_parallel`].
     pub fn loss<R: Real>(&self, params: &[R], rays: &[RayInput<R>], d_params: Option<&mut [R]>, extra: &dyn SampleLoss) -> (R, Vec<RayOutput<R>>)
     where
-        S: Module<R>,
+        S: DeferringModule<R>,
         C: Module<R>,
     {
         let norm = self.color_normaliser::<R>(rays);
@@ -198,8 +239,7 @@ impl<S, C> Pipeline<S, C> {
                 let n_def = self.sdf.deferred_params();
                 let (d_deferred, d_rest) = d_params.split_at_mut(n_def);
                 let (loss, outputs, deferred) = self.accumulate(params, rays, 0, Some(d_rest), m, norm, extra);
-                let tangent = self.config.normals == NormalScheme::Analytic;
-                DeferredGradient { records: deferred.into_iter().collect(), tangent }.apply(&self.sdf, d_deferred);
+                self.deferred_gradient(deferred.into_iter().collect()).apply(&self.sdf, d_deferred);
                 (loss, outputs)
             }
         }
@@ -227,7 +267,7 @@ impl<S, C> Pipeline<S, C> {
         extra: &dyn SampleLoss,
     ) -> (R, Vec<RayOutput<R>>)
     where
-        S: Module<R> + Sync,
+        S: DeferringModule<R> + Sync,
         C: Module<R> + Sync,
     {
         let n_def = self.sdf.deferred_params();
@@ -240,7 +280,7 @@ impl<S, C> Pipeline<S, C> {
     }
 
     /// [`Self::loss_parallel`] with the SDF network's deferred parameters (a hash grid's tables,
-    /// [`Module::deferred_params`], the first ones) left out: `d_rest` is the gradient of the
+    /// [`DeferringModule::deferred_params`], the first ones) left out: `d_rest` is the gradient of the
     /// parameters after them, and their own gradient comes back as records to apply (whole, or one
     /// block at a time with [`DeferredGradient::apply_block`]).
     pub fn loss_parallel_split<R: Real>(
@@ -250,9 +290,9 @@ impl<S, C> Pipeline<S, C> {
         d_rest: &mut [R],
         chunk: usize,
         extra: &dyn SampleLoss,
-    ) -> (R, Vec<RayOutput<R>>, DeferredGradient<R>)
+    ) -> (R, Vec<RayOutput<R>>, DeferredGradient<S, R>)
     where
-        S: Module<R> + Sync,
+        S: DeferringModule<R> + Sync,
         C: Module<R> + Sync,
     {
         use rayon::prelude::*;
@@ -288,7 +328,7 @@ impl<S, C> Pipeline<S, C> {
                 }
             }
         });
-        (loss, outputs, DeferredGradient { records, tangent: self.config.normals == NormalScheme::Analytic })
+        (loss, outputs, self.deferred_gradient(records))
     }
 
     /// SDF values (first output of the SDF network) at `points` (xyz rows), in parallel chunks.

@@ -2,9 +2,39 @@
 //! each sample (central, tetrahedral) or the exact gradient by forward-mode derivatives.
 
 #[cfg(doc)]
-use crate::module::Module;
+use crate::module::TangentModule;
 
-/// How normals are taken from the SDF network.
+/// The probes of numerical normals.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Differences {
+    /// Central differences: 6 probes per sample.
+    Central,
+    /// Tetrahedral differences: 4 probes per sample.
+    Tetrahedral,
+}
+
+impl Differences {
+    /// Probe offsets (in units of the step h) and the weight of each probe in `nᵢ` per unit h.
+    pub(crate) fn probes(self) -> &'static [([f64; 3], f64)] {
+        const C: [([f64; 3], f64); 6] = [
+            ([1.0, 0.0, 0.0], 0.5),
+            ([-1.0, 0.0, 0.0], 0.5),
+            ([0.0, 1.0, 0.0], 0.5),
+            ([0.0, -1.0, 0.0], 0.5),
+            ([0.0, 0.0, 1.0], 0.5),
+            ([0.0, 0.0, -1.0], 0.5),
+        ];
+        const T: [([f64; 3], f64); 4] = [([1.0, -1.0, -1.0], 0.25), ([-1.0, -1.0, 1.0], 0.25), ([-1.0, 1.0, -1.0], 0.25), ([1.0, 1.0, 1.0], 0.25)];
+        match self {
+            Differences::Central => &C,
+            Differences::Tetrahedral => &T,
+        }
+    }
+}
+
+/// How normals are taken from the SDF network: what a user chooses. A pipeline takes
+/// [`NormalScheme::Analytic`] only with a network that has tangents
+/// ([`crate::Pipeline::with_analytic_normals`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum NormalScheme {
@@ -13,9 +43,8 @@ pub enum NormalScheme {
     /// Tetrahedral differences: 4 probes per sample.
     Tetrahedral,
     /// The exact gradient ∇ₓS by forward-mode derivatives through the network
-    /// ([`Module::forward_tangents`]), and the reverse pass through them: no probes. Needs a
-    /// network with tangents (the hash-grid presets) and no curvature loss (its Laplacian comes
-    /// from the probes).
+    /// ([`TangentModule::forward_tangents`]), and the reverse pass through them: no probes. Needs a
+    /// network with tangents and no curvature loss (its Laplacian comes from the probes).
     Analytic,
 }
 
@@ -42,24 +71,24 @@ impl NormalScheme {
 
     /// Extra SDF evaluations (probe rows) per sample: 6 central, 4 tetrahedral, 0 analytic.
     pub fn probe_count(self) -> usize {
-        self.probes().len()
+        self.differences().map_or(0, |d| d.probes().len())
     }
 
-    /// Probe offsets (in units of the step h) and the weight of each probe in `nᵢ` per unit h.
-    pub(crate) fn probes(self) -> &'static [([f64; 3], f64)] {
-        const C: [([f64; 3], f64); 6] = [
-            ([1.0, 0.0, 0.0], 0.5),
-            ([-1.0, 0.0, 0.0], 0.5),
-            ([0.0, 1.0, 0.0], 0.5),
-            ([0.0, -1.0, 0.0], 0.5),
-            ([0.0, 0.0, 1.0], 0.5),
-            ([0.0, 0.0, -1.0], 0.5),
-        ];
-        const T: [([f64; 3], f64); 4] = [([1.0, -1.0, -1.0], 0.25), ([-1.0, -1.0, 1.0], 0.25), ([-1.0, 1.0, -1.0], 0.25), ([1.0, 1.0, 1.0], 0.25)];
+    /// The probes of a numerical scheme (None for analytic normals).
+    pub fn differences(self) -> Option<Differences> {
         match self {
-            NormalScheme::Central => &C,
-            NormalScheme::Tetrahedral => &T,
-            NormalScheme::Analytic => &[],
+            NormalScheme::Central => Some(Differences::Central),
+            NormalScheme::Tetrahedral => Some(Differences::Tetrahedral),
+            NormalScheme::Analytic => None,
+        }
+    }
+}
+
+impl From<Differences> for NormalScheme {
+    fn from(d: Differences) -> NormalScheme {
+        match d {
+            Differences::Central => NormalScheme::Central,
+            Differences::Tetrahedral => NormalScheme::Tetrahedral,
         }
     }
 }

@@ -81,7 +81,6 @@ impl TrainConfig {
                 self.model.curvature,
                 "0 with model.normals = \"analytic\" (the curvature's Laplacian comes from the probes of numerical normals)",
             )?;
-            need(self.model.preset.has_hash_grid(), "model.preset", self.model.preset.name(), &hash_grid_preset("model.normals = \"analytic\""))?;
         }
         need(self.model.background.iter().all(|c| (0.0..=1.0).contains(c)), "model.background", self.model.background, "each in [0, 1]")?;
         Ok(())

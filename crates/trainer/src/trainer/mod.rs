@@ -143,7 +143,7 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&Grid
     backbone.config.opacity_entropy = if use_masks { 0.0 } else { config.model.opacity_entropy };
     backbone.config.masked_color = use_masks;
     backbone.config.background = config.model.background;
-    backbone.config.normals = config.model.normal_scheme();
+    backbone.set_normals(config.model.normal_scheme());
     Ok((backbone, params))
 }
 

@@ -1,0 +1,120 @@
+//! Analytic normals as a capability of the SDF network's type: [`AnalyticNormals`] can only be
+//! made for a network with tangents ([`DeferringTangentModule`] in f32 and f64), so a pipeline
+//! whose network has none cannot be asked for them.
+//!
+//! ```
+//! use sdf_backbone::pipeline::AnalyticNormals;
+//! use sdf_backbone::{Chain, Mlp, PositionalEncoding};
+//! // Positional encoding and an MLP: both have tangents.
+//! let _ = AnalyticNormals::<Chain<PositionalEncoding, Mlp>>::new();
+//! ```
+//!
+//! A network without tangents (here spherical harmonics as its second module) does not compile:
+//!
+//! ```compile_fail
+//! use sdf_backbone::pipeline::AnalyticNormals;
+//! use sdf_backbone::{Chain, PositionalEncoding, SphericalHarmonics};
+//! let _ = AnalyticNormals::<Chain<PositionalEncoding, SphericalHarmonics>>::new();
+//! ```
+//!
+//! The pipeline's code is generic over the precision `R`, while the network's tangent passes
+//! exist only where the type has them; so the passes are taken at construction, for both
+//! precisions, as function pointers ([`TangentFns`]), and each precision picks its own
+//! ([`TangentPrecision`]).
+
+#[cfg(doc)]
+use crate::module::TangentModule;
+use crate::module::{DeferringTangentModule, TangentAdjoints};
+use crate::real::Real;
+
+/// [`TangentModule::forward_tangents`] of a network `S`.
+pub type ForwardTangentsFn<S, R> = fn(&S, &[R], &[R], &[R], usize, &[R], &mut [R]);
+/// [`TangentModule::backward_tangent`] without the input's adjoints.
+pub type BackwardTangentFn<S, R> = fn(&S, TangentAdjoints<'_, R>, &mut [R]);
+/// [`DeferringTangentModule::backward_tangent_deferring`].
+pub type BackwardTangentDeferringFn<S, R> = fn(&S, TangentAdjoints<'_, R>, &mut [R], &mut [R]);
+/// [`DeferringTangentModule::apply_deferred_tangent_block`].
+pub type ApplyTangentBlockFn<S, R> = fn(&S, &[(&[R], &[R])], usize, &mut [R]);
+
+/// The tangent passes of a network `S` in precision `R`.
+pub struct TangentFns<S, R> {
+    /// The outputs' derivatives along input directions.
+    pub forward: ForwardTangentsFn<S, R>,
+    /// The reverse pass through values and one tangent per row.
+    pub backward: BackwardTangentFn<S, R>,
+    /// The same with the leading parameters' gradient deferred.
+    pub backward_deferring: BackwardTangentDeferringFn<S, R>,
+    /// One block of the deferred gradient from the records.
+    pub apply_block: ApplyTangentBlockFn<S, R>,
+}
+
+impl<S, R> Clone for TangentFns<S, R> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<S, R> Copy for TangentFns<S, R> {}
+
+impl<S: DeferringTangentModule<R>, R: Real> TangentFns<S, R> {
+    fn of() -> Self {
+        TangentFns {
+            forward: |net, params, input, ctx, k, tangents_in, tangents_out| net.forward_tangents(params, input, ctx, k, tangents_in, tangents_out),
+            backward: |net, pass, d_params| net.backward_tangent(pass, d_params, None),
+            backward_deferring: |net, pass, d_params, deferred| net.backward_tangent_deferring(pass, d_params, deferred),
+            apply_block: |net, parts, block, d_block| net.apply_deferred_tangent_block(parts, block, d_block),
+        }
+    }
+}
+
+/// Proof that the SDF network `S` has tangents, and its tangent passes in f32 and f64: a
+/// [`crate::Pipeline`] with one takes its normals as the exact gradient ∇ₓS by forward-mode
+/// derivatives ([`crate::NormalScheme::Analytic`]).
+pub struct AnalyticNormals<S> {
+    f32: TangentFns<S, f32>,
+    f64: TangentFns<S, f64>,
+}
+
+impl<S> Clone for AnalyticNormals<S> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<S> Copy for AnalyticNormals<S> {}
+
+impl<S> std::fmt::Debug for AnalyticNormals<S> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("AnalyticNormals")
+    }
+}
+
+impl<S: DeferringTangentModule<f32> + DeferringTangentModule<f64>> AnalyticNormals<S> {
+    /// The tangent passes of `S`.
+    pub fn new() -> Self {
+        AnalyticNormals { f32: TangentFns::of(), f64: TangentFns::of() }
+    }
+}
+
+impl<S: DeferringTangentModule<f32> + DeferringTangentModule<f64>> Default for AnalyticNormals<S> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The precisions the tangent passes are compiled for (a supertrait of [`Real`]: f32 to train,
+/// f64 to check gradients).
+pub trait TangentPrecision: Sized {
+    /// This precision's passes.
+    fn tangent_fns<S>(normals: &AnalyticNormals<S>) -> &TangentFns<S, Self>;
+}
+
+impl TangentPrecision for f32 {
+    fn tangent_fns<S>(normals: &AnalyticNormals<S>) -> &TangentFns<S, f32> {
+        &normals.f32
+    }
+}
+
+impl TangentPrecision for f64 {
+    fn tangent_fns<S>(normals: &AnalyticNormals<S>) -> &TangentFns<S, f64> {
+        &normals.f64
+    }
+}

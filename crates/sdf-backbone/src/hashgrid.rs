@@ -14,6 +14,29 @@ use crate::module::{Module, ScatterGradient, ScatterTangent, TangentAdjoints, Ta
 use crate::real::Real;
 use crate::scratch::Buf;
 
+/// `$kernel` with the feature count `$f` and the table layout `$dense` as constants where the
+/// kernels are compiled for them (1, 2, 4, 8 features: every preset's), `$other` otherwise.
+macro_rules! by_kernel {
+    ($f:expr, $dense:expr, |$F:ident, $D:ident| $kernel:expr, $other:expr) => {
+        match ($f, $dense) {
+            (1, true) => by_kernel!(@one 1, true, $F, $D, $kernel),
+            (1, false) => by_kernel!(@one 1, false, $F, $D, $kernel),
+            (2, true) => by_kernel!(@one 2, true, $F, $D, $kernel),
+            (2, false) => by_kernel!(@one 2, false, $F, $D, $kernel),
+            (4, true) => by_kernel!(@one 4, true, $F, $D, $kernel),
+            (4, false) => by_kernel!(@one 4, false, $F, $D, $kernel),
+            (8, true) => by_kernel!(@one 8, true, $F, $D, $kernel),
+            (8, false) => by_kernel!(@one 8, false, $F, $D, $kernel),
+            _ => $other,
+        }
+    };
+    (@one $f:literal, $d:literal, $F:ident, $D:ident, $kernel:expr) => {{
+        const $F: usize = $f;
+        const $D: bool = $d;
+        $kernel
+    }};
+}
+
 /// Hash-grid shape.
 #[derive(Debug, Clone, PartialEq)]
 pub struct HashGridConfig {
@@ -223,22 +246,12 @@ impl<R: Real> TangentModule<R> for HashGrid {
                 for level in 0..self.active_levels.min(self.config.levels) {
                     let table = &params[self.level_params(level)];
                     let (n, dense) = (self.resolutions[level], self.dense[level]);
-                    macro_rules! run {
-                        ($f:expr) => {
-                            if dense {
-                                level_tangents::<R, $f, true>(table, n, mask, input, k, tangents_in, tangents_out, n_out, level * f)
-                            } else {
-                                level_tangents::<R, $f, false>(table, n, mask, input, k, tangents_in, tangents_out, n_out, level * f)
-                            }
-                        };
-                    }
-                    match f {
-                        1 => run!(1),
-                        2 => run!(2),
-                        4 => run!(4),
-                        8 => run!(8),
-                        _ => self.level_tangents_any(level, table, input, k, tangents_in, tangents_out),
-                    }
+                    by_kernel!(
+                        f,
+                        dense,
+                        |F, DENSE| level_tangents::<R, F, DENSE>(table, n, mask, input, k, tangents_in, tangents_out, n_out, level * f),
+                        self.level_tangents_any(level, table, input, k, tangents_in, tangents_out)
+                    );
                 }
             },
         );
@@ -276,6 +289,7 @@ impl<R: Real> ScatterTangent<R> for HashGrid {
 
 impl HashGrid {
     /// [`level_tangents`] for any feature count, a row at a time.
+    #[inline(always)]
     fn level_tangents_any<R: Real>(&self, level: usize, table: &[R], input: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
         let f = self.config.features;
         let (n_out, at) = (self.config.levels * f, level * f);
@@ -296,6 +310,7 @@ impl HashGrid {
 
     /// [`level_tangent_scatter`] for any feature count, a row at a time.
     #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
     fn level_tangent_scatter_any<R: Real>(&self, level: usize, input: &[R], v: &[R], d_output: &[R], d_tangent_out: &[R], d_table: &mut [R]) {
         let f = self.config.features;
         let (n_out, at) = (self.config.levels * f, level * f);
@@ -472,32 +487,17 @@ impl HashGrid {
         for level in 0..self.active_levels.min(self.config.levels) {
             let table = &params[self.level_params(level)];
             let (n, dense) = (self.resolutions[level], self.dense[level]);
-            macro_rules! run {
-                ($f:expr) => {
-                    if dense {
-                        level_features::<R, $f, true>(table, n, mask, input, &mut level_out)
-                    } else {
-                        level_features::<R, $f, false>(table, n, mask, input, &mut level_out)
-                    }
-                };
-            }
-            match f {
-                1 => run!(1),
-                2 => run!(2),
-                4 => run!(4),
-                8 => run!(8),
-                _ => {
-                    for (x, y) in input.chunks_exact(3).zip(level_out.chunks_exact_mut(f)) {
-                        let (idx, w, _) = self.corners(level, x);
-                        y.fill(R::ZERO);
-                        for c in 0..8 {
-                            for k in 0..f {
-                                y[k] = w[c].mul_add(table[idx[c] * f + k], y[k]);
-                            }
+            by_kernel!(f, dense, |F, DENSE| level_features::<R, F, DENSE>(table, n, mask, input, &mut level_out), {
+                for (x, y) in input.chunks_exact(3).zip(level_out.chunks_exact_mut(f)) {
+                    let (idx, w, _) = self.corners(level, x);
+                    y.fill(R::ZERO);
+                    for c in 0..8 {
+                        for k in 0..f {
+                            y[k] = w[c].mul_add(table[idx[c] * f + k], y[k]);
                         }
                     }
                 }
-            }
+            });
             for (y, l) in output.chunks_exact_mut(n_out).zip(level_out.chunks_exact(f)) {
                 y[level * f..level * f + f].copy_from_slice(l);
             }
@@ -541,22 +541,12 @@ impl HashGrid {
         crate::kernels::dispatch(
             #[inline(always)]
             || {
-                macro_rules! run {
-                    ($f:expr) => {
-                        if dense {
-                            level_tangent_scatter::<R, $f, true>(n, mask, input, v, d_output, d_tangent_out, n_out, level * f, d_table)
-                        } else {
-                            level_tangent_scatter::<R, $f, false>(n, mask, input, v, d_output, d_tangent_out, n_out, level * f, d_table)
-                        }
-                    };
-                }
-                match f {
-                    1 => run!(1),
-                    2 => run!(2),
-                    4 => run!(4),
-                    8 => run!(8),
-                    _ => self.level_tangent_scatter_any(level, input, v, d_output, d_tangent_out, d_table),
-                }
+                by_kernel!(
+                    f,
+                    dense,
+                    |F, DENSE| level_tangent_scatter::<R, F, DENSE>(n, mask, input, v, d_output, d_tangent_out, n_out, level * f, d_table),
+                    self.level_tangent_scatter_any(level, input, v, d_output, d_tangent_out, d_table)
+                );
             },
         );
     }

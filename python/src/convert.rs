@@ -6,19 +6,16 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
 use trainer::config::TrainConfig;
 
-/// A library error as a Python exception: `OSError` when a missing or unreadable file is among
-/// its causes (an I/O error, a dataset file or image not found), else `ValueError`; the message
-/// is the whole chain.
-pub fn to_py_err(error: anyhow::Error) -> PyErr {
+/// A library error as a Python exception: `OSError` when a file is missing or unreadable (an I/O
+/// error, a dataset file or image not found), else `ValueError`; the message is the whole chain.
+pub fn to_py_err(error: trainer::Error) -> PyErr {
     use datasets::DatasetError;
-    let message = format!("{error:#}");
-    let file_missing = error.chain().any(|e| {
-        e.downcast_ref::<std::io::Error>().is_some()
-            || matches!(
-                e.downcast_ref::<DatasetError>(),
-                Some(DatasetError::Io { .. } | DatasetError::NotFound { .. } | DatasetError::MissingImage { .. })
-            )
-    });
+    use trainer::Error;
+    let message = error.chain();
+    let file_missing = matches!(
+        error.root(),
+        Error::Io(_) | Error::Dataset(DatasetError::Io { .. } | DatasetError::NotFound { .. } | DatasetError::MissingImage { .. })
+    );
     if file_missing { PyOSError::new_err(message) } else { PyValueError::new_err(message) }
 }
 

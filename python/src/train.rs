@@ -19,10 +19,10 @@ const SIGNAL_POLL: Duration = Duration::from_millis(100);
 /// A budget given in Python: `"90s"`, `"10m"`, `"1.5h"`, or seconds as a number.
 fn time_budget(budget: &Bound<'_, PyAny>) -> PyResult<Budget> {
     let duration = if let Ok(text) = budget.cast::<PyString>() {
-        parse_duration(&text.to_cow()?).map_err(|e| PyValueError::new_err(format!("budget {text}: {e:#}")))?
+        parse_duration(&text.to_cow()?).map_err(|e| PyValueError::new_err(format!("budget {text}: {}", e.chain())))?
     } else if budget.is_instance_of::<PyFloat>() || budget.is_instance_of::<PyInt>() {
         let seconds: f64 = budget.extract()?;
-        positive_duration(seconds).map_err(|e| PyValueError::new_err(format!("budget = {seconds} s: {e:#}")))?
+        positive_duration(seconds).map_err(|e| PyValueError::new_err(format!("budget = {seconds} s: {}", e.chain())))?
     } else {
         return Err(PyTypeError::new_err("budget: a duration such as \"2m\", or seconds as a number"));
     };
@@ -82,7 +82,7 @@ pub fn train<'py>(
             config.budget = budget.unwrap_or(config.budget);
             config.sampler = sampler.unwrap_or(config.sampler);
             config.seed = seed.unwrap_or(config.seed);
-            config.validate().map_err(|e| PyValueError::new_err(format!("{e:#}")))?;
+            config.validate().map_err(|e| PyValueError::new_err(e.chain()))?;
             let out = out.unwrap_or_else(free_default_out);
             RunRequest::Fresh { config: Box::new(config), data, out, overwrite }
         }

@@ -63,7 +63,8 @@ fn total_variation(a: &[f32], b: &[f32]) -> f64 {
     0.5 * a.iter().zip(b).map(|(x, y)| (*x as f64 / sa - *y as f64 / sb).abs()).sum::<f64>()
 }
 
-/// Runs the sampler benchmark and prints a markdown table (or JSON lines).
+/// Runs the sampler benchmark and prints a markdown table (or JSON lines): the full update's
+/// cost by partition factor, scale and evaluation mode; draws per second; accuracy against cost.
 pub fn sampler(data: Option<&Path>, json: bool, quick: bool) -> Result<()> {
     let (cameras, rig_name) = dtu_cameras(data);
     let sphere = Shape::Sphere { center: DVec3::ZERO, radius: 0.5 };
@@ -71,12 +72,23 @@ pub fn sampler(data: Option<&Path>, json: bool, quick: bool) -> Result<()> {
     let threads = rayon::current_num_threads();
     if !json {
         println!("# sampler benchmark — {rig_name}, analytic sphere r = 0.5, {threads} threads, {}", date.trim());
+    }
+    let partitions: &[u32] = if quick { &[1, 2] } else { &[1, 2, 4] };
+    let sampler = update_costs(&sphere, &cameras, &rig_name, partitions, json, quick)?;
+    draw_rate(&sampler, json);
+    accuracy_against_cost(&sphere, &cameras, partitions, json, quick)
+}
+
+/// The full update's cost (field, reprojections, CDFs) for each partition factor, scale and
+/// evaluation mode; returns the sampler of F = 2, s = 200, sparse.
+fn update_costs(sphere: &Shape, cameras: &[PinholeCamera], rig_name: &str, partitions: &[u32], json: bool, quick: bool) -> Result<ViewSampler> {
+    let threads = rayon::current_num_threads();
+    if !json {
         println!("\n## Full update (field + scene grid + 49 reprojections + CDFs), 128³, 64×64×128\n");
         println!("| F | s | mode | total s | field s | project s | CDF s | field queries | sub-cells/camera |");
         println!("|---|---|---|---|---|---|---|---|---|");
     }
     let cams = CameraGridConfig::default();
-    let partitions: &[u32] = if quick { &[1, 2] } else { &[1, 2, 4] };
     let scales: &[f32] = if quick { &[200.0] } else { &[20.0, 200.0, 2000.0] };
     let mut best_sampler = None;
     for &f in partitions {
@@ -86,7 +98,7 @@ pub fn sampler(data: Option<&Path>, json: bool, quick: bool) -> Result<()> {
                 // Median of three runs for the fast ones; one run when a run takes over 2 s.
                 let mut runs = Vec::new();
                 for _ in 0..3 {
-                    let (t, sampler) = time_update(&sphere, s, &cameras, &scene, &cams)?;
+                    let (t, sampler) = time_update(sphere, s, cameras, &scene, &cams)?;
                     let total = t.eval + t.project + t.cdf;
                     runs.push((total, t));
                     if f == 2 && s == 200.0 && mode == Evaluation::Sparse {
@@ -118,9 +130,12 @@ pub fn sampler(data: Option<&Path>, json: bool, quick: bool) -> Result<()> {
             }
         }
     }
+    best_sampler.ok_or_else(|| anyhow::anyhow!("the F = 2, s = 200, sparse update was not run"))
+}
 
-    // Draw throughput.
-    let sampler = best_sampler.expect("F = 2, s = 200, sparse was run");
+/// Draws per second of `sampler` (all guided, linear interpolation).
+fn draw_rate(sampler: &ViewSampler, json: bool) {
+    let threads = rayon::current_num_threads();
     let n = 4_000_000;
     let _ = sampler.sample_batch(100_000, 0.0, 1, 0);
     let t = Instant::now();
@@ -139,7 +154,11 @@ pub fn sampler(data: Option<&Path>, json: bool, quick: bool) -> Result<()> {
             rate / 1e6
         );
     }
+}
 
+/// Total variation of the camera pdfs against an F = 8, 256³ reference on the same camera grid,
+/// on 4 of the cameras, against the update's cost per camera.
+fn accuracy_against_cost(sphere: &Shape, cameras: &[PinholeCamera], partitions: &[u32], json: bool, quick: bool) -> Result<()> {
     // Accuracy against an F = 8, 256³ reference, on 4 of the cameras.
     let subset = &cameras[..4.min(cameras.len())];
     let s = 200.0;
@@ -156,7 +175,7 @@ pub fn sampler(data: Option<&Path>, json: bool, quick: bool) -> Result<()> {
         let reference_scene =
             SceneGridConfig { resolution: if quick { 128 } else { 256 }, partition: if quick { 4 } else { 8 }, ..Default::default() };
         let reference_grids: Vec<_> = {
-            let active = evaluate(&sphere, s, &reference_scene)?;
+            let active = evaluate(sphere, s, &reference_scene)?;
             subset.par_iter().map(|c| reproject(&active, c, &cams)).collect()
         };
         let variants: Vec<(usize, u32)> = if ruv == 64 {
@@ -167,7 +186,7 @@ pub fn sampler(data: Option<&Path>, json: bool, quick: bool) -> Result<()> {
         for (res, f) in variants {
             let scene = SceneGridConfig { resolution: res, partition: f, ..Default::default() };
             let t = Instant::now();
-            let active = evaluate(&sphere, s, &scene)?;
+            let active = evaluate(sphere, s, &scene)?;
             let grids: Vec<_> = subset.iter().map(|c| reproject(&active, c, &cams)).collect();
             let ms = t.elapsed().as_secs_f64() * 1e3 / subset.len() as f64;
             let tv: f64 = grids.iter().zip(&reference_grids).map(|(a, b)| total_variation(&a.values, &b.values)).sum::<f64>() / subset.len() as f64;

@@ -11,8 +11,8 @@ use trainer::outputs::dilate;
 use trainer::run::open_run;
 
 /// A built-in analytic shape by name.
-fn shape_by_name(name: &str) -> Result<prob_grid::Shape> {
-    prob_grid::Shape::by_name(name).with_context(|| format!("unknown shape {name:?} (known: {})", prob_grid::Shape::NAMES.join(", ")))
+fn shape_by_name(name: &str) -> std::result::Result<prob_grid::Shape, String> {
+    prob_grid::ShapeName::from_name(name).map(prob_grid::ShapeName::shape)
 }
 
 /// A positive finite number (the evaluation's distances).
@@ -255,7 +255,7 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     trainer.set_render_upsampling(fine, rounds, trim, skip_empty)?;
     let views = trainer.split().evaluation_views();
     let started = std::time::Instant::now();
-    let metrics = views.iter().map(|&v| trainer.view_metrics(v, downscale)).collect::<Result<Vec<_>>>()?;
+    let metrics = views.iter().map(|&v| trainer.view_metrics(v, downscale)).collect::<trainer::Result<Vec<_>>>()?;
     let seconds = started.elapsed().as_secs_f64();
     let pixels: u64 = views
         .iter()
@@ -305,7 +305,7 @@ mod tests {
     /// mesh or a finer protocol lowers the floor.
     #[test]
     fn the_floor_is_the_shapes_own_mesh_measured_like_any_other() {
-        let shape = prob_grid::Shape::by_name("sphere").unwrap();
+        let shape = prob_grid::ShapeName::Sphere.shape();
         let protocol = |spacing| Protocol { spacing: Some(spacing), max_dist: Some(0.1), tau: Some(0.01) };
         let floor = |resolution, spacing| {
             trainer::outputs::shape_floor(&shape, &trainer::data::analytic_truth(&shape, spacing), resolution, spacing, 0.1, 0.01).unwrap().chamfer

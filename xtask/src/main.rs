@@ -139,8 +139,8 @@ enum Command {
     Golden {
         /// Analytic shape: sphere, torus, box, composite. With neither --shape nor --mesh, the
         /// built-in default scene (composite, DTU rig, 49 views of 200×150) is rendered.
-        #[arg(long, conflicts_with = "mesh")]
-        shape: Option<String>,
+        #[arg(long, conflicts_with = "mesh", value_parser = prob_grid::ShapeName::from_name)]
+        shape: Option<prob_grid::ShapeName>,
         /// Mesh file (OBJ with MTL texture, glTF, GLB).
         #[arg(long)]
         mesh: Option<PathBuf>,

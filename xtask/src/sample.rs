@@ -5,7 +5,7 @@ use anyhow::{Context, Result, bail};
 use datasets::golden::mesh_io::load_mesh;
 use datasets::{LoadOptions, Scene, load_scene};
 use glam::DVec2;
-use prob_grid::{CameraGridConfig, MeshSdf, SdfField, Shape, TriangleMesh};
+use prob_grid::{CameraGridConfig, MeshSdf, SdfField, ShapeName, TriangleMesh};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use trainer::draw::{colormap, put};
@@ -22,8 +22,8 @@ pub struct SampleArgs {
     #[arg(long, default_value_t = 1)]
     pub downscale: u32,
     /// The SDF: sphere (r = 0.5), torus, box, composite, or mesh:FILE (closed, world units).
-    #[arg(long, default_value = "sphere")]
-    pub field: String,
+    #[arg(long, default_value = "sphere", value_parser = field_spec)]
+    pub field: FieldSpec,
     /// Logistic scale s.
     #[arg(long, default_value_t = 200.0)]
     pub s: f32,
@@ -47,17 +47,42 @@ pub struct SampleArgs {
     pub json: bool,
 }
 
-/// `sphere|torus|box|composite` or `mesh:FILE` (a closed mesh in the dataset's world units).
-fn make_field(spec: &str, scene: &Scene) -> Result<Box<dyn SdfField>> {
-    if let Some(path) = spec.strip_prefix("mesh:") {
-        let mesh = load_mesh(Path::new(path))?;
-        let normalized_from_world = scene.world_from_normalized.inverse();
-        let positions = mesh.mesh.positions.iter().map(|p| normalized_from_world.transform_point3(p.as_dvec3()).as_vec3()).collect();
-        return Ok(Box::new(MeshSdf { mesh: TriangleMesh::new(positions, mesh.mesh.triangles.clone()) }));
+/// The SDF to sample: a named analytic shape or a closed mesh in the dataset's world units.
+#[derive(Debug, Clone)]
+pub enum FieldSpec {
+    /// A named analytic shape.
+    Shape(ShapeName),
+    /// `mesh:FILE`.
+    Mesh(PathBuf),
+}
+
+impl std::fmt::Display for FieldSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            FieldSpec::Shape(name) => write!(f, "{name}"),
+            FieldSpec::Mesh(path) => write!(f, "mesh:{}", path.display()),
+        }
     }
-    match Shape::by_name(spec) {
-        Some(shape) => Ok(Box::new(shape)),
-        None => bail!("unknown field {spec:?} (sphere, torus, box, composite, or mesh:FILE)"),
+}
+
+/// `sphere|torus|box|composite|multipart` or `mesh:FILE`.
+fn field_spec(text: &str) -> std::result::Result<FieldSpec, String> {
+    match text.strip_prefix("mesh:") {
+        Some(path) => Ok(FieldSpec::Mesh(PathBuf::from(path))),
+        None => ShapeName::from_name(text).map(FieldSpec::Shape).map_err(|e| format!("{e}, or mesh:FILE")),
+    }
+}
+
+/// The field of `spec`, in the scene's normalised frame.
+fn make_field(spec: &FieldSpec, scene: &Scene) -> Result<Box<dyn SdfField>> {
+    match spec {
+        FieldSpec::Mesh(path) => {
+            let mesh = load_mesh(path)?;
+            let normalized_from_world = scene.world_from_normalized.inverse();
+            let positions = mesh.mesh.positions.iter().map(|p| normalized_from_world.transform_point3(p.as_dvec3()).as_vec3()).collect();
+            Ok(Box::new(MeshSdf { mesh: TriangleMesh::new(positions, mesh.mesh.triangles.clone()) }))
+        }
+        FieldSpec::Shape(name) => Ok(Box::new(name.shape())),
     }
 }
 
@@ -138,7 +163,7 @@ pub fn run(args: &SampleArgs) -> Result<()> {
 
     let summary = serde_json::json!({
         "data": args.data,
-        "field": args.field,
+        "field": args.field.to_string(),
         "s": args.s,
         "cameras": scene.views.len(),
         "scene_grid": estimator.config().scene.resolution, "partition": estimator.config().scene.partition,

@@ -11,6 +11,7 @@
 
 use anyhow::{Context, Result, bail};
 use datasets::io::write_atomic;
+use prob_grid::ShapeName;
 use serde_json::{Value, json};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -32,8 +33,8 @@ pub struct TradeArgs {
     pub data: Vec<PathBuf>,
     /// Built-in scenes by shape (repeat): composite, multipart, …. Default: composite when no
     /// --data is given.
-    #[arg(long)]
-    pub scene: Vec<String>,
+    #[arg(long, value_parser = ShapeName::from_name)]
+    pub scene: Vec<ShapeName>,
     /// Wall-time budgets (repeat): 60s, 2m, …
     #[arg(long, default_value = "60s", value_parser = parse_duration)]
     pub budget: Vec<Duration>,
@@ -42,8 +43,8 @@ pub struct TradeArgs {
     pub seeds: u64,
     /// Variants (repeat) `NAME` or `NAME:key=value,key=value`; `uniform`, `guided`, `error-map`
     /// and `soft-mining` alone mean the samplers. Default: uniform and guided.
-    #[arg(long)]
-    pub variant: Vec<String>,
+    #[arg(long, value_parser = parse_variant)]
+    pub variant: Vec<Variant>,
     /// Output folder.
     #[arg(long, default_value = "out/trade")]
     pub out: PathBuf,
@@ -62,19 +63,23 @@ pub struct TradeArgs {
 
 /// A named set of overrides.
 #[derive(Debug, Clone)]
-struct Variant {
+pub struct Variant {
     name: String,
     overrides: Vec<String>,
+    /// The sampler a variant named after one stands for (unless its overrides set one).
+    sampler: Option<SamplerKind>,
 }
 
-fn parse_variant(text: &str) -> Variant {
+/// `NAME` or `NAME:key=value,key=value`.
+fn parse_variant(text: &str) -> std::result::Result<Variant, String> {
     let (name, rest) = text.split_once(':').unwrap_or((text, ""));
-    let mut overrides: Vec<String> = rest.split(',').map(str::trim).filter(|s| !s.is_empty()).map(String::from).collect();
-    // A sampler's name names the sampler unless the variant sets it itself.
-    if SamplerKind::from_name(name).is_ok() && !overrides.iter().any(|o| o.trim_start().starts_with("sampler")) {
-        overrides.push(format!("sampler={name}"));
+    if name.is_empty() {
+        return Err(format!("{text:?}: a variant needs a name"));
     }
-    Variant { name: name.to_string(), overrides }
+    let overrides: Vec<String> = rest.split(',').map(str::trim).filter(|s| !s.is_empty()).map(String::from).collect();
+    let sets_sampler = overrides.iter().any(|o| o.split_once('=').is_some_and(|(key, _)| key.trim() == "sampler"));
+    let sampler = SamplerKind::from_name(name).ok().filter(|_| !sets_sampler);
+    Ok(Variant { name: name.to_string(), overrides, sampler })
 }
 
 /// The folder name of a budget: exact (`b120`, `b90.5`), so that two budgets never share runs.
@@ -89,7 +94,9 @@ fn run_record(scene: &SceneSpec, variant: &Variant, overrides: &[String], budget
         SceneSpec::Folder(p) => p.display().to_string(),
         SceneSpec::Builtin(s) => format!("builtin:{s}"),
     };
-    let mut record = json!({"scene": scene, "variant": variant.name, "overrides": overrides, "budget_s": budget.as_secs_f64(), "seed": seed});
+    let sampler = variant.sampler.map(SamplerKind::name);
+    let mut record =
+        json!({"scene": scene, "variant": variant.name, "overrides": overrides, "sampler": sampler, "budget_s": budget.as_secs_f64(), "seed": seed});
     if !snapshots.is_empty() {
         record["snapshots_s"] = json!(snapshots);
     }
@@ -111,7 +118,7 @@ fn distinct_names<'a>(what: &str, names: impl Iterator<Item = String> + 'a) -> R
 #[derive(Debug, Clone)]
 enum SceneSpec {
     Folder(PathBuf),
-    Builtin(String),
+    Builtin(ShapeName),
 }
 
 impl SceneSpec {
@@ -153,7 +160,7 @@ fn read_metrics(dir: &Path) -> Result<Option<RunMetrics>> {
     if !dir.join("metrics.json").is_file() {
         return Ok(None);
     }
-    RunMetrics::read(dir).map(Some)
+    Ok(RunMetrics::read(dir).map(Some)?)
 }
 
 /// Runs the table (or only reports it).
@@ -161,12 +168,14 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
     let mut scenes: Vec<SceneSpec> = args.data.iter().cloned().map(SceneSpec::Folder).collect();
     scenes.extend(args.scene.iter().cloned().map(SceneSpec::Builtin));
     if scenes.is_empty() {
-        scenes.push(SceneSpec::Builtin("composite".into()));
+        scenes.push(SceneSpec::Builtin(ShapeName::Composite));
     }
     let variants: Vec<Variant> = if args.variant.is_empty() {
-        vec![parse_variant("uniform"), parse_variant("guided")]
+        [SamplerKind::Uniform, SamplerKind::Guided]
+            .map(|kind| Variant { name: kind.name().into(), overrides: Vec::new(), sampler: Some(kind) })
+            .to_vec()
     } else {
-        args.variant.iter().map(|v| parse_variant(v)).collect()
+        args.variant.clone()
     };
     let budgets = &args.budget;
     // The budgets trained: each, or only the longest when the others are its snapshots.
@@ -193,9 +202,6 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
                     let dir = args.out.join(scene.name()).join(&variant.name).join(budget_dir(budget)).join(format!("s{seed}"));
                     let mut overrides = args.overrides.clone();
                     overrides.extend(variant.overrides.iter().cloned());
-                    if let SceneSpec::Builtin(shape) = scene {
-                        overrides.push(format!("data.builtin.shape={shape}"));
-                    }
                     let record = run_record(scene, variant, &overrides, budget, seed, &snapshot_times);
                     if read_metrics(&dir)?.is_some() {
                         let kept = std::fs::read_to_string(dir.join("trade_run.json")).ok().and_then(|t| serde_json::from_str::<Value>(&t).ok());
@@ -218,6 +224,12 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
                     } else {
                         let mut config = TrainConfig::load(None, &overrides).with_context(|| format!("the variant {:?}", variant.name))?;
                         config.seed = seed;
+                        if let Some(kind) = variant.sampler {
+                            config.sampler = kind;
+                        }
+                        if let SceneSpec::Builtin(shape) = scene {
+                            config.data.builtin.shape = *shape;
+                        }
                         config.budget = Budget::Time(budget);
                         config.output.snapshots.extend(&snapshot_times);
                         RunRequest::Fresh {
@@ -330,7 +342,7 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
                         curves.entry((vi, key)).or_default().push((seconds, m, (runs.len() > 1).then_some(s)));
                     }
                 }
-                all.push(json!({"scene": scene.name(), "variant": variant.name, "overrides": variant.overrides, "budget_s": seconds, "runs": runs}));
+                all.push(json!({"scene": scene.name(), "variant": variant.name, "overrides": variant.overrides, "sampler": variant.sampler.map(SamplerKind::name), "budget_s": seconds, "runs": runs}));
             }
         }
         for (key, label, _) in METRICS.iter().take(5) {
@@ -370,4 +382,24 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
         args.out.join("trade.png").display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A sampler's name stands for the sampler (typed, not an override text) unless the variant's
+    /// overrides set one; other names are plain override sets; a variant needs a name.
+    #[test]
+    fn variants_named_after_a_sampler_set_it_unless_their_overrides_do() {
+        let v = parse_variant("soft-mining").unwrap();
+        assert_eq!((v.name.as_str(), v.sampler, v.overrides.len()), ("soft-mining", Some(SamplerKind::SoftMining), 0));
+        let v = parse_variant("guided: sampler = uniform, render.rays=128").unwrap();
+        assert_eq!((v.sampler, v.overrides), (None, vec!["sampler = uniform".to_string(), "render.rays=128".to_string()]));
+        let v = parse_variant("small:render.rays=64").unwrap();
+        assert_eq!((v.sampler, v.overrides.len()), (None, 1));
+        // A key that only starts like "sampler" does not count as setting it.
+        assert_eq!(parse_variant("guided:sampler_extra=1").unwrap().sampler, Some(SamplerKind::Guided));
+        assert!(parse_variant(":render.rays=64").is_err());
+    }
 }

@@ -99,5 +99,5 @@ pub fn train(args: &TrainArgs, stop: &AtomicBool) -> Result<Outcome> {
 /// [`train`] with the files going through `sink`.
 pub fn train_with(args: &TrainArgs, stop: &AtomicBool, sink: Arc<dyn Sink>) -> Result<Outcome> {
     let (request, options) = args.request()?;
-    run(&request, &options, stop, sink)
+    Ok(run(&request, &options, stop, sink)?)
 }

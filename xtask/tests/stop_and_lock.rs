@@ -77,7 +77,10 @@ fn a_run_folder_in_use_is_refused_to_other_processes_and_the_lock_of_an_ended_on
     let mut overwrite = vec!["train", "--out", &out_arg, "--overwrite"];
     overwrite.extend(TINY);
     let eval = ["eval", "--run", &out_arg];
-    for args in [&overwrite[..], &["train", "--resume", &out_arg], &eval] {
+    // A fresh run is refused before it loads its data (here: none there to load).
+    let missing = dir.path().join("no-such-scene").display().to_string();
+    let early = ["train", "--out", &out_arg, "--overwrite", "--data", &missing];
+    for args in [&overwrite[..], &["train", "--resume", &out_arg], &eval, &early] {
         let refused = xtask(args);
         let stderr = String::from_utf8_lossy(&refused.stderr);
         assert!(!refused.status.success(), "{args:?} went ahead in a folder in use");

@@ -116,6 +116,9 @@ fn bad_input_gives_a_clear_message_and_loses_nothing() {
     std::fs::create_dir_all(&run).unwrap();
     std::fs::write(run.join("metrics.json"), "precious").unwrap();
     let out = run.to_str().unwrap();
+    // Missing data with an --out that could take the run (a folder that cannot is refused first).
+    let fresh = dir.path().join("fresh");
+    let fresh_out = fresh.to_str().unwrap();
     for (args, expect) in [
         (vec!["train", "--out", out, "guide.scene.partitoin=2"], "partitoin"),
         (vec!["train", "--out", out, "guide.scene.partition=0"], "partition factor F"),
@@ -124,7 +127,7 @@ fn bad_input_gives_a_clear_message_and_loses_nothing() {
         (vec!["train", "--out", out, "model.grid=footprint", "model.preset=neus-cpu"], "model.grid = \"footprint\""),
         (vec!["train", "--out", out, "model.grid=footprint", "model.pixels_per_cell=0"], "model.pixels_per_cell"),
         (vec!["train", "--out", out, "sampler=hard-mining"], "expected one of `guided`, `uniform`, `error-map`, `soft-mining`"),
-        (vec!["train", "--out", out, "--data", "/nonexistent/scan"], "/nonexistent/scan"),
+        (vec!["train", "--out", fresh_out, "--data", "/nonexistent/scan"], "/nonexistent/scan"),
     ] {
         let o = xtask(&args);
         let err = String::from_utf8_lossy(&o.stderr);
@@ -133,6 +136,7 @@ fn bad_input_gives_a_clear_message_and_loses_nothing() {
         assert!(!err.contains("panicked"), "{args:?} panicked: {err}");
     }
     assert_eq!(std::fs::read_to_string(run.join("metrics.json")).unwrap(), "precious");
+    assert!(!fresh.exists(), "a run that failed on its input left a folder");
     // An output folder that cannot be created (a path under a file).
     let blocked = dir.path().join("file");
     std::fs::write(&blocked, "x").unwrap();

@@ -110,23 +110,7 @@ pub(crate) fn cameras_from_json(
         serde_json::from_slice(text).map_err(|e| DatasetError::Corrupt { path: json_path.to_path_buf(), kind: "JSON", message: e.to_string() })?;
     let invalid = |entry: String, message: String| DatasetError::InvalidValue { path: json_path.to_path_buf(), entry, message };
 
-    let (center, radius) = match (options.bound_sphere, format) {
-        (Some(b), _) => b,
-        (None, Format::NerfSynthetic) => (DVec3::ZERO, 1.5),
-        (None, _) => match (t.sphere_center, t.sphere_radius, t.aabb) {
-            (Some(c), Some(r), _) => (DVec3::from_array(c), r),
-            (_, _, Some([lo, hi])) => {
-                let (lo, hi) = (DVec3::from_array(lo), DVec3::from_array(hi));
-                ((lo + hi) / 2.0, (hi - lo).length() / 2.0)
-            }
-            _ => {
-                return Err(DatasetError::MissingKey {
-                    path: json_path.to_path_buf(),
-                    key: "sphere_center + sphere_radius, or aabb (the region of interest; or pass a bound sphere)".into(),
-                });
-            }
-        },
-    };
+    let (center, radius) = bound_sphere(&t, json_path, format, options)?;
     if !(center.is_finite() && radius.is_finite() && radius > 0.0) {
         return Err(invalid("bound sphere".into(), format!("centre {center}, radius {radius}")));
     }
@@ -137,47 +121,7 @@ pub(crate) fn cameras_from_json(
     let mut records = Vec::with_capacity(t.frames.len());
     for (i, frame) in t.frames.iter().enumerate() {
         let entry = format!("frames[{i}]");
-        let f = frame.intrinsics.or(&t.intrinsics);
-        let distortion = [f.k1, f.k2, f.k3, f.k4, f.p1, f.p2];
-        if distortion.iter().any(|k| k.is_some_and(|k| k != 0.0)) {
-            return Err(DatasetError::Unsupported {
-                path: json_path.to_path_buf(),
-                message: format!("{entry}: lens distortion (k1..k4, p1, p2 non-zero); undistort the images first"),
-            });
-        }
-        if f.sk_y.is_some_and(|s| s != 0.0) {
-            return Err(DatasetError::Unsupported {
-                path: json_path.to_path_buf(),
-                message: format!("{entry}: sk_y ≠ 0 makes K not upper-triangular"),
-            });
-        }
-        let (image_path, (w_file, h_file)) = image(&frame.file_path, i)?;
-        for (key, value) in [("w", f.w), ("h", f.h)] {
-            if let Some(v) = value.filter(|v| !(v.is_finite() && *v >= 1.0 && v.fract() == 0.0)) {
-                return Err(invalid(format!("{entry}.{key} (or the file's {key})"), format!("{v} is not a whole number of pixels")));
-            }
-        }
-        let w = f.w.unwrap_or(w_file as f64);
-        let h = f.h.unwrap_or(h_file as f64);
-        if (w, h) != (w_file as f64, h_file as f64) {
-            return Err(DatasetError::SizeMismatch {
-                path: image_path,
-                found: (w_file, h_file),
-                expected: (w as u32, h as u32),
-                why: "the transforms file gives another w, h",
-            });
-        }
-        let fx = match (f.fl_x, f.camera_angle_x) {
-            (Some(fx), _) => fx,
-            (None, Some(a)) => 0.5 * w / (0.5 * a).tan(),
-            (None, None) => return Err(DatasetError::MissingKey { path: json_path.to_path_buf(), key: format!("{entry}: fl_x or camera_angle_x") }),
-        };
-        let fy = match (f.fl_y, f.camera_angle_y) {
-            (Some(fy), _) => fy,
-            (None, Some(a)) => 0.5 * h / (0.5 * a).tan(),
-            (None, None) => fx,
-        };
-        let intrinsics = Intrinsics { fx, fy, cx: f.cx.unwrap_or(w / 2.0), cy: f.cy.unwrap_or(h / 2.0), skew: f.sk_x.unwrap_or(0.0) };
+        let (image_path, intrinsics, (w, h)) = frame_intrinsics(frame, &t.intrinsics, i, json_path, image)?;
 
         let m = &frame.transform_matrix;
         if !(m.len() == 3 || m.len() == 4) || m.iter().take(3).any(|r| r.len() != 4) {
@@ -218,4 +162,80 @@ pub(crate) fn cameras_from_json(
         options.downscale
     );
     Ok(SceneCameras { records, world_from_normalized, source: SceneSource { format, path: Some(dir.to_path_buf()), description } })
+}
+
+/// The region of interest: the caller's bound sphere, NeRF-synthetic's radius 1.5 at the origin,
+/// or the file's `sphere_center` + `sphere_radius` or `aabb`.
+fn bound_sphere(t: &Transforms, json_path: &Path, format: Format, options: &LoadOptions) -> Result<(DVec3, f64)> {
+    Ok(match (options.bound_sphere, format) {
+        (Some(b), _) => b,
+        (None, Format::NerfSynthetic) => (DVec3::ZERO, 1.5),
+        (None, _) => match (t.sphere_center, t.sphere_radius, t.aabb) {
+            (Some(c), Some(r), _) => (DVec3::from_array(c), r),
+            (_, _, Some([lo, hi])) => {
+                let (lo, hi) = (DVec3::from_array(lo), DVec3::from_array(hi));
+                ((lo + hi) / 2.0, (hi - lo).length() / 2.0)
+            }
+            _ => {
+                return Err(DatasetError::MissingKey {
+                    path: json_path.to_path_buf(),
+                    key: "sphere_center + sphere_radius, or aabb (the region of interest; or pass a bound sphere)".into(),
+                });
+            }
+        },
+    })
+}
+
+/// Frame `i`'s image (path, size) and intrinsics: its own keys over the file's, no distortion, w
+/// and h whole and those of the image, fx from `fl_x` or `camera_angle_x` (fy likewise, else fx).
+fn frame_intrinsics(
+    frame: &Frame,
+    shared: &IntrinsicFields,
+    i: usize,
+    json_path: &Path,
+    image: &dyn Fn(&str, usize) -> Result<FrameImage>,
+) -> Result<(PathBuf, Intrinsics, (f64, f64))> {
+    let entry = format!("frames[{i}]");
+    let invalid = |entry: String, message: String| DatasetError::InvalidValue { path: json_path.to_path_buf(), entry, message };
+    let f = frame.intrinsics.or(shared);
+    let distortion = [f.k1, f.k2, f.k3, f.k4, f.p1, f.p2];
+    if distortion.iter().any(|k| k.is_some_and(|k| k != 0.0)) {
+        return Err(DatasetError::Unsupported {
+            path: json_path.to_path_buf(),
+            message: format!("{entry}: lens distortion (k1..k4, p1, p2 non-zero); undistort the images first"),
+        });
+    }
+    if f.sk_y.is_some_and(|s| s != 0.0) {
+        return Err(DatasetError::Unsupported {
+            path: json_path.to_path_buf(), message: format!("{entry}: sk_y ≠ 0 makes K not upper-triangular")
+        });
+    }
+    let (image_path, (w_file, h_file)) = image(&frame.file_path, i)?;
+    for (key, value) in [("w", f.w), ("h", f.h)] {
+        if let Some(v) = value.filter(|v| !(v.is_finite() && *v >= 1.0 && v.fract() == 0.0)) {
+            return Err(invalid(format!("{entry}.{key} (or the file's {key})"), format!("{v} is not a whole number of pixels")));
+        }
+    }
+    let w = f.w.unwrap_or(w_file as f64);
+    let h = f.h.unwrap_or(h_file as f64);
+    if (w, h) != (w_file as f64, h_file as f64) {
+        return Err(DatasetError::SizeMismatch {
+            path: image_path,
+            found: (w_file, h_file),
+            expected: (w as u32, h as u32),
+            why: "the transforms file gives another w, h",
+        });
+    }
+    let fx = match (f.fl_x, f.camera_angle_x) {
+        (Some(fx), _) => fx,
+        (None, Some(a)) => 0.5 * w / (0.5 * a).tan(),
+        (None, None) => return Err(DatasetError::MissingKey { path: json_path.to_path_buf(), key: format!("{entry}: fl_x or camera_angle_x") }),
+    };
+    let fy = match (f.fl_y, f.camera_angle_y) {
+        (Some(fy), _) => fy,
+        (None, Some(a)) => 0.5 * h / (0.5 * a).tan(),
+        (None, None) => fx,
+    };
+    let intrinsics = Intrinsics { fx, fy, cx: f.cx.unwrap_or(w / 2.0), cy: f.cy.unwrap_or(h / 2.0), skew: f.sk_x.unwrap_or(0.0) };
+    Ok((image_path, intrinsics, (w, h)))
 }

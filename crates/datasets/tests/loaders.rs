@@ -19,7 +19,7 @@ fn small_spec(geometry: GeometrySource) -> GoldenSpec {
 }
 
 fn composite() -> GoldenScene {
-    golden::generate(&small_spec(GeometrySource::Shape("composite".into()))).unwrap()
+    golden::generate(&small_spec(GeometrySource::Shape(prob_grid::ShapeName::Composite))).unwrap()
 }
 
 fn written_composite() -> (tempfile::TempDir, GoldenScene) {
@@ -232,7 +232,7 @@ fn instant_ngp_uses_sphere_bound_and_per_frame_overrides() {
 
 #[test]
 fn downscaled_masks_agree_with_rendering_at_the_downscaled_camera() {
-    let mut spec = small_spec(GeometrySource::Shape("torus".into()));
+    let mut spec = small_spec(GeometrySource::Shape(prob_grid::ShapeName::Torus));
     spec.rig.width = 96;
     spec.rig.height = 72;
     let g = golden::generate(&spec).unwrap();

@@ -22,6 +22,63 @@ pub trait SdfField: Sync {
     }
 }
 
+/// The named analytic shapes (golden scenes and the built-in scene), typed once at the edge.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ShapeName {
+    /// A sphere of radius 0.5.
+    Sphere,
+    /// A torus of radii 0.5 and 0.15.
+    Torus,
+    /// A box of half-extent 0.35.
+    Box,
+    /// [`Shape::composite`].
+    Composite,
+    /// [`Shape::multipart`].
+    Multipart,
+}
+
+impl ShapeName {
+    /// Every named shape.
+    pub const ALL: [ShapeName; 5] = [ShapeName::Sphere, ShapeName::Torus, ShapeName::Box, ShapeName::Composite, ShapeName::Multipart];
+
+    /// The name in configurations and on command lines.
+    pub fn name(self) -> &'static str {
+        match self {
+            ShapeName::Sphere => "sphere",
+            ShapeName::Torus => "torus",
+            ShapeName::Box => "box",
+            ShapeName::Composite => "composite",
+            ShapeName::Multipart => "multipart",
+        }
+    }
+
+    /// The shape of [`ShapeName::name`]; the error names the known ones.
+    pub fn from_name(name: &str) -> Result<ShapeName, String> {
+        ShapeName::ALL
+            .into_iter()
+            .find(|s| s.name() == name)
+            .ok_or_else(|| format!("unknown shape {name:?} (known: {})", ShapeName::ALL.map(ShapeName::name).join(", ")))
+    }
+
+    /// The shape.
+    pub fn shape(self) -> Shape {
+        match self {
+            ShapeName::Sphere => Shape::Sphere { center: DVec3::ZERO, radius: 0.5 },
+            ShapeName::Torus => Shape::Torus { center: DVec3::ZERO, major_radius: 0.5, minor_radius: 0.15 },
+            ShapeName::Box => Shape::Box { center: DVec3::ZERO, half_extents: DVec3::splat(0.35) },
+            ShapeName::Composite => Shape::composite(),
+            ShapeName::Multipart => Shape::multipart(),
+        }
+    }
+}
+
+impl std::fmt::Display for ShapeName {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 /// Analytic shapes with exact (or Lipschitz-1 bounding) SDFs and uniform surface sampling.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Shape {
@@ -94,22 +151,6 @@ impl Shape {
             ),
         ])
     }
-
-    /// Looks a named shape up: `sphere` (radius 0.5), `torus` (0.5, 0.15), `box` (half 0.35),
-    /// `composite` ([`Shape::composite`]), `multipart` ([`Shape::multipart`]).
-    pub fn by_name(name: &str) -> Option<Shape> {
-        Some(match name {
-            "sphere" => Shape::Sphere { center: DVec3::ZERO, radius: 0.5 },
-            "torus" => Shape::Torus { center: DVec3::ZERO, major_radius: 0.5, minor_radius: 0.15 },
-            "box" => Shape::Box { center: DVec3::ZERO, half_extents: DVec3::splat(0.35) },
-            "composite" => Shape::composite(),
-            "multipart" => Shape::multipart(),
-            _ => return None,
-        })
-    }
-
-    /// Names accepted by [`Shape::by_name`].
-    pub const NAMES: [&'static str; 5] = ["sphere", "torus", "box", "composite", "multipart"];
 
     /// The signed distance at `p` (exact for primitives; a Lipschitz-1 bound for CSG).
     pub fn sdf(&self, p: DVec3) -> f64 {
@@ -267,8 +308,8 @@ mod tests {
 
     #[test]
     fn surface_samples_lie_on_surface_and_cover_every_part() {
-        for name in Shape::NAMES {
-            let s = Shape::by_name(name).unwrap();
+        for name in ShapeName::ALL {
+            let s = name.shape();
             let pts = s.sample_surface(2000.0, 7);
             assert!(pts.len() > 1000, "{name}: {}", pts.len());
             assert!(pts.iter().all(|p| s.sdf(*p).abs() <= 1e-9));
@@ -301,7 +342,7 @@ mod tests {
 
     #[test]
     fn gradients_are_unit_near_the_surface() {
-        let s = Shape::by_name("box").unwrap();
+        let s = ShapeName::Box.shape();
         let g = s.gradient(DVec3::new(0.36, 0.1, -0.2));
         assert!((g - DVec3::X).length() < 1e-6);
     }

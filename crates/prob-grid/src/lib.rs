@@ -58,7 +58,7 @@ pub mod scene;
 
 pub use camera::{CameraGrid, CameraGridConfig, ViewDependency, Weighting, reproject};
 pub use density::{CellDensity, logistic_density};
-pub use field::{SdfField, Shape};
+pub use field::{SdfField, Shape, ShapeName};
 pub use marching_cubes::{ExtractionStats, IsoMesh, MarchingCubesConfig, marching_cubes, marching_cubes_with_progress};
 pub use mesh::{MeshHit, MeshSdf, TriangleMesh, vertex_normals};
 pub use occupancy::Occupancy;

@@ -1,8 +1,9 @@
 //! The data of a run: the scene (built-in golden scene or a dataset folder), its ground truth
 //! when it has one, and the split into training and held-out views.
 
+use crate::bail;
 use crate::config::TrainConfig;
-use anyhow::{Context, Result, bail};
+use crate::error::{Context, Result};
 use datasets::golden::{self, GeometrySource, GoldenSpec};
 use datasets::io::PlyData;
 use datasets::{LoadOptions, Scene, load_scene};
@@ -19,7 +20,7 @@ fn load_options(config: &TrainConfig) -> LoadOptions {
 fn builtin_spec(config: &TrainConfig) -> GoldenSpec {
     let b = &config.data.builtin;
     let mut spec = GoldenSpec::builtin();
-    spec.geometry = GeometrySource::Shape(b.shape.clone());
+    spec.geometry = GeometrySource::Shape(b.shape);
     spec.rig.width = b.width;
     spec.rig.height = b.width * 3 / 4;
     spec.rig.count = b.views;
@@ -86,7 +87,10 @@ impl SceneData {
     /// The built-in golden scene as `config.data.builtin` describes it (no files).
     pub fn builtin(config: &TrainConfig) -> Result<SceneData> {
         if config.data.bound.is_some() {
-            bail!("data.bound applies to dataset folders (COLMAP, instant-ngp, NeRF-synthetic); the built-in scene's bound is the unit sphere");
+            bail!(
+                Config,
+                "data.bound applies to dataset folders (COLMAP, instant-ngp, NeRF-synthetic); the built-in scene's bound is the unit sphere"
+            );
         }
         let g = golden::generate(&builtin_spec(config)).context("rendering the built-in scene")?;
         let builtin_shape = match g.geometry {
@@ -100,7 +104,7 @@ impl SceneData {
     pub fn folder(config: &TrainConfig, dir: &Path) -> Result<SceneData> {
         let scene = load_scene(dir, &load_options(config)).with_context(|| format!("cannot load the data folder {}", dir.display()))?;
         if scene.views.is_empty() {
-            bail!("the data folder {} has no views", dir.display());
+            bail!(Input, "the data folder {} has no views", dir.display());
         }
         Ok(SceneData { scene, builtin_truth: None, builtin_shape: None, path: Some(dir.to_path_buf()) })
     }

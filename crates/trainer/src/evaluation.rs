@@ -3,7 +3,8 @@
 //! sampled at the protocol's spacing, Chamfer and F-score ([`evaluate_mesh`]); mesh files
 //! ([`read_mesh`]). `cargo xtask eval --mesh`, the runs' metrics and the Python binding use it.
 
-use anyhow::{Context, Result, bail};
+use crate::bail;
+use crate::error::{Context, Result};
 use datasets::io::PlyData;
 use glam::Vec3;
 use std::path::Path;
@@ -52,7 +53,7 @@ impl GroundTruth {
     pub fn distances(&self, protocol: Protocol, name: &str) -> Result<Distances> {
         for (key, v) in [("spacing", protocol.spacing), ("max_dist", protocol.max_dist), ("tau", protocol.tau)] {
             if let Some(v) = v.filter(|v| !(v.is_finite() && *v > 0.0)) {
-                bail!("{key} = {v}: expected a positive distance");
+                bail!(Config, "{key} = {v}: expected a positive distance");
             }
         }
         let coarse;
@@ -70,7 +71,7 @@ impl GroundTruth {
         let diagonal = f64::from((hi - lo).length());
         if !(diagonal.is_finite() && diagonal > 0.0) {
             let what = if name.is_empty() { "the ground truth".to_string() } else { format!("the ground truth {name}") };
-            bail!("{what} is degenerate (its bounding box has diagonal {diagonal}): a single point or non-finite coordinates");
+            bail!(Input, "{what} is degenerate (its bounding box has diagonal {diagonal}): a single point or non-finite coordinates");
         }
         Ok(Distances {
             spacing: protocol.spacing.unwrap_or(diagonal / 1000.0),
@@ -104,7 +105,7 @@ pub fn evaluate_mesh(
     protocol: Protocol,
 ) -> Result<(eval_metrics::GeometryMetrics, Distances)> {
     if triangles.is_empty() {
-        bail!("the mesh has no triangles");
+        bail!(Input, "the mesh has no triangles");
     }
     let d = gt.distances(protocol, "")?;
     let gt = gt.into_points(d.spacing)?;

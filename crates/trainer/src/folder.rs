@@ -4,9 +4,10 @@
 //! its log, and the record of the data it trained on ([`DataRecord`]: the absolute path and a
 //! fingerprint of the loaded cameras and pixels, checked on resume and evaluation).
 
+use crate::bail;
 use crate::config::TrainConfig;
+use crate::error::{Context, Result};
 use crate::trainer::Trainer;
-use anyhow::{Context, Result, bail};
 use datasets::Scene;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -31,38 +32,57 @@ impl FolderLock {
     /// Locks the run folder `dir` (which must exist) for this process, or an error naming the
     /// process that holds it.
     pub fn acquire(dir: &Path) -> Result<FolderLock> {
-        use std::io::{Read, Seek, Write};
+        use std::io::{Seek, Write};
         let path = dir.join(LOCK);
-        let mut file = std::fs::OpenOptions::new()
+        let file = std::fs::OpenOptions::new()
             .read(true)
             .write(true)
             .create(true)
             .truncate(false)
             .open(&path)
             .with_context(|| format!("cannot open the lock {}", path.display()))?;
-        match file.try_lock() {
-            Ok(()) => {}
-            Err(std::fs::TryLockError::WouldBlock) => {
-                let mut holder = String::new();
-                let _ = file.read_to_string(&mut holder);
-                let holder = holder.trim();
-                bail!(
-                    "{} is in use by another run ({}): nothing was changed; wait for it to finish, stop it (Ctrl-C or SIGTERM \
-                     writes a checkpoint), or choose another --out",
-                    dir.display(),
-                    if holder.is_empty() { "a process that has not yet said which" } else { holder }
-                );
-            }
-            Err(std::fs::TryLockError::Error(e)) => {
-                return Err(e).with_context(|| format!("cannot lock {}", path.display()));
-            }
-        }
+        let mut file = Self::hold(file, dir)?;
         let who = format!("process {} on {}", std::process::id(), std::env::args().collect::<Vec<_>>().join(" "));
         file.set_len(0)
             .and_then(|()| file.rewind())
             .and_then(|()| file.write_all(who.as_bytes()))
             .with_context(|| format!("cannot write {}", path.display()))?;
         Ok(FolderLock { _file: file })
+    }
+
+    /// Whether `dir`'s lock is free, changing nothing (no lock file is made, none is written): an
+    /// error naming the process that holds it otherwise. A check before the work that precedes
+    /// taking the lock (loading data), so that a folder in use is refused at once.
+    pub fn check_free(dir: &Path) -> Result<()> {
+        let path = dir.join(LOCK);
+        if !path.is_file() {
+            return Ok(());
+        }
+        let file =
+            std::fs::OpenOptions::new().read(true).write(true).open(&path).with_context(|| format!("cannot open the lock {}", path.display()))?;
+        // Dropping the file lets the lock go.
+        Self::hold(file, dir).map(drop)
+    }
+
+    /// `file` (the lock of `dir`) locked, or an error naming the holder it records.
+    fn hold(mut file: std::fs::File, dir: &Path) -> Result<std::fs::File> {
+        use std::io::Read;
+        match file.try_lock() {
+            Ok(()) => Ok(file),
+            Err(std::fs::TryLockError::WouldBlock) => {
+                let mut holder = String::new();
+                let _ = file.read_to_string(&mut holder);
+                let holder = holder.trim();
+                bail!(
+                    Folder,
+                    "{} is in use by another run ({}): nothing was changed; wait for it to finish, stop it (Ctrl-C or SIGTERM \
+                     writes a checkpoint), or choose another --out",
+                    dir.display(),
+                    if holder.is_empty() { "a process that has not yet said which" } else { holder }
+                );
+            }
+            Err(std::fs::TryLockError::Error(e)) => Err(e).with_context(|| format!("cannot lock {}", dir.join(LOCK).display())),
+        }
     }
 }
 
@@ -117,40 +137,13 @@ impl RunFolder {
     /// the folder and whether `dir` was created now.
     pub fn create(dir: &Path, overwrite: bool, sink: Arc<dyn Sink>) -> Result<(RunFolder, bool)> {
         let existed = dir.exists();
-        if existed {
-            let meta = std::fs::symlink_metadata(dir).with_context(|| format!("cannot read {}", dir.display()))?;
-            if !meta.is_dir() {
-                bail!("--out {} exists and is not a folder: choose another --out", dir.display());
-            }
-        }
         // A folder with a lock is (or is becoming) a run folder: its lock is taken before anything
         // is read or removed, so that a run in progress there refuses this one.
         let early_lock = (dir.join(LOCK).is_file() || is_run_folder(dir)).then(|| FolderLock::acquire(dir)).transpose()?;
-        if existed {
-            let others = |d: &Path| -> Result<Vec<PathBuf>> {
-                let entries = std::fs::read_dir(d).with_context(|| format!("cannot read {}", d.display()))?;
-                Ok(entries.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.file_name() != Some(LOCK.as_ref())).collect())
-            };
-            let contents = others(dir)?;
-            if !contents.is_empty() {
-                if !is_run_folder(dir) {
-                    bail!(
-                        "--out {} is a folder that holds other files (not a run folder of psneus): nothing was written; choose another --out",
-                        dir.display()
-                    );
-                }
-                if !overwrite {
-                    bail!(
-                        "--out {} holds an earlier run: continue it with `--resume {0}`, replace it with --overwrite, or choose another --out",
-                        dir.display()
-                    );
-                }
-                // Everything but the lock, which this process holds.
-                for path in contents {
-                    let removed = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
-                    removed.with_context(|| format!("cannot clear the earlier run in {}: {}", dir.display(), path.display()))?;
-                }
-            }
+        // Everything but the lock, which this process holds.
+        for path in Self::refusals(dir, overwrite)? {
+            let removed = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+            removed.with_context(|| format!("cannot clear the earlier run in {}: {}", dir.display(), path.display()))?;
         }
         std::fs::create_dir_all(dir.join("pictures")).with_context(|| format!("cannot create the run folder {}", dir.display()))?;
         let lock = match early_lock {
@@ -162,11 +155,50 @@ impl RunFolder {
         Ok((folder, !existed))
     }
 
+    /// The refusals of [`RunFolder::create`], changing nothing: `dir` is a file, a folder of
+    /// other files, an earlier run (without `overwrite`), or in use by another process. For a
+    /// caller with work to do before it creates the folder (loading the data).
+    pub fn check_fresh(dir: &Path, overwrite: bool) -> Result<()> {
+        FolderLock::check_free(dir)?;
+        Self::refusals(dir, overwrite).map(drop)
+    }
+
+    /// The entries of `dir` but the lock (what `overwrite` removes), or why a fresh run may not
+    /// go there.
+    fn refusals(dir: &Path, overwrite: bool) -> Result<Vec<PathBuf>> {
+        if !dir.exists() {
+            return Ok(Vec::new());
+        }
+        let meta = std::fs::symlink_metadata(dir).with_context(|| format!("cannot read {}", dir.display()))?;
+        if !meta.is_dir() {
+            bail!(Folder, "--out {} exists and is not a folder: choose another --out", dir.display());
+        }
+        let entries = std::fs::read_dir(dir).with_context(|| format!("cannot read {}", dir.display()))?;
+        let contents: Vec<PathBuf> = entries.filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.file_name() != Some(LOCK.as_ref())).collect();
+        if !contents.is_empty() {
+            if !is_run_folder(dir) {
+                bail!(
+                    Folder,
+                    "--out {} is a folder that holds other files (not a run folder of psneus): nothing was written; choose another --out",
+                    dir.display()
+                );
+            }
+            if !overwrite {
+                bail!(
+                    Folder,
+                    "--out {} holds an earlier run: continue it with `--resume {0}`, replace it with --overwrite, or choose another --out",
+                    dir.display()
+                );
+            }
+        }
+        Ok(contents)
+    }
+
     /// Opens the folder of a run to continue and locks it ([`FolderLock`]); stale temporary
     /// files of a killed writer are removed.
     pub fn open(dir: &Path, sink: Arc<dyn Sink>) -> Result<RunFolder> {
         if !is_run_folder(dir) {
-            bail!("{} is not a run folder (no {MARKER}, config.toml or data.json)", dir.display());
+            bail!(Folder, "{} is not a run folder (no {MARKER}, config.toml or data.json)", dir.display());
         }
         let lock = FolderLock::acquire(dir)?;
         std::fs::create_dir_all(dir.join("pictures")).with_context(|| format!("cannot open the run folder {}", dir.display()))?;
@@ -328,6 +360,7 @@ impl DataRecord {
             Some(then) => {
                 if let Some(difference) = then.difference(&now) {
                     bail!(
+                        Input,
                         "the data of {} ({}) is not what the run trained on: {difference}; point --data at the run's own data",
                         dir.display(),
                         self.path.as_ref().map_or("the built-in scene".into(), |p| p.display().to_string())
@@ -335,6 +368,7 @@ impl DataRecord {
                 }
             }
             None if !repointed && self.path.as_ref().is_some_and(|p| p.is_relative()) => bail!(
+                Input,
                 "{} was made by an earlier version that kept its data path ({}) relative and no fingerprint: \
                  name the run's data with --data to continue",
                 dir.display(),

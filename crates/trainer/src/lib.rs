@@ -10,6 +10,8 @@
 //!   and metrics; [`run::open_run`] reopens a run at its checkpoint.
 //! - [`trainer::Trainer`]: step, checkpoint/restore, renders, mesh — without files.
 //! - [`evaluation`]: a mesh against a ground truth (DTU-protocol Chamfer, F-score).
+//! - [`Error`]: what went wrong, by kind (configuration, input, run folder, divergence, I/O,
+//!   the crates below), with its context as a chain of sources.
 //!
 //! The rest, by job:
 //! - [`data`]: the scene of a run (built-in golden scene or a dataset folder), its ground truth,
@@ -25,6 +27,7 @@
 pub mod config;
 pub mod data;
 pub mod draw;
+pub mod error;
 pub mod evaluation;
 pub mod folder;
 pub mod memory;
@@ -39,4 +42,5 @@ pub mod sizing;
 pub mod snapshot;
 pub mod trainer;
 
+pub use error::{Error, Result};
 pub use trainer::Trainer;

@@ -209,7 +209,7 @@ fn status_kib(key: &str) -> Option<f64> {
 }
 
 /// Parses a size such as `8G`, `512M`, `2.5GB` into bytes.
-pub fn parse_size(text: &str) -> anyhow::Result<f64> {
+pub fn parse_size(text: &str) -> crate::Result<f64> {
     let t = text.trim().to_ascii_uppercase();
     let t = t.trim_end_matches('B');
     let (number, scale) = match t.chars().last() {
@@ -219,9 +219,9 @@ pub fn parse_size(text: &str) -> anyhow::Result<f64> {
         Some('T') => (&t[..t.len() - 1], 1e12),
         _ => (t, 1.0),
     };
-    let value: f64 = number.trim().parse().map_err(|_| anyhow::anyhow!("{text:?} is not a size (e.g. 8G, 512M)"))?;
+    let value: f64 = number.trim().parse().map_err(|_| crate::Error::Config(format!("{text:?} is not a size (e.g. 8G, 512M)")))?;
     if !(value.is_finite() && value > 0.0) {
-        anyhow::bail!("{text:?}: a size must be positive");
+        crate::bail!(Config, "{text:?}: a size must be positive");
     }
     Ok(value * scale)
 }

@@ -3,7 +3,7 @@
 //! compile error rather than a silent NaN.
 
 use crate::config::SamplerKind;
-use anyhow::{Context, Result};
+use crate::error::{Context, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 

@@ -4,7 +4,7 @@
 
 use crate::config::MeshFilter;
 use crate::draw::colormap;
-use anyhow::Result;
+use crate::error::Result;
 use datasets::Scene;
 use datasets::images::RgbImage;
 use datasets::io::{MeshFormat, mesh_bytes};

@@ -2,7 +2,7 @@
 //! fonts): a title, axis labels with units, a legend, round tick values, error bars when a point
 //! has a spread (mean ± std over seeds), dashed vertical markers.
 
-use anyhow::{Result, anyhow};
+use crate::error::{Error, Result};
 use datasets::images::RgbImage;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
@@ -72,12 +72,12 @@ pub fn render(panels: &[Panel], columns: usize, size: (u32, u32)) -> Result<RgbI
     let mut buffer = vec![255u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buffer, (w, h)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| anyhow!("plot: {e}"))?;
+        root.fill(&WHITE).map_err(|e| Error::Drawing(format!("plot: {e}")))?;
         let areas = root.split_evenly((rows, columns));
         for (panel, area) in panels.iter().zip(areas.iter()) {
-            draw_panel(panel, area).map_err(|e| anyhow!("plot {:?}: {e}", panel.title))?;
+            draw_panel(panel, area).map_err(|e| Error::Drawing(format!("plot {:?}: {e}", panel.title)))?;
         }
-        root.present().map_err(|e| anyhow!("plot: {e}"))?;
+        root.present().map_err(|e| Error::Drawing(format!("plot: {e}")))?;
     }
     let mut img = RgbImage::new(w, h);
     img.data.copy_from_slice(&buffer);

@@ -17,8 +17,9 @@
 //! The footprint is taken over all views (training and held out alike), from the cameras alone,
 //! so the memory check before loading and the trainer after it size the same model.
 
+use crate::bail;
 use crate::config::{GridSize, MeshResolution, ModelConfig};
-use anyhow::{Result, bail};
+use crate::error::Result;
 use camera_geom::PinholeCamera;
 use glam::DVec3;
 use sdf_backbone::{Backbone, HashGridConfig};
@@ -82,10 +83,10 @@ pub fn grid_choice(model: &ModelConfig, footprint: Option<f64>) -> Result<Option
         return Ok(None);
     }
     let Some(preset) = model.preset.hash_grid() else {
-        bail!("model.grid = \"footprint\" needs a hash-grid preset (neuralangelo-cpu, neuralangelo), not {}", model.preset.name());
+        bail!(Config, "model.grid = \"footprint\" needs a hash-grid preset (neuralangelo-cpu, neuralangelo), not {}", model.preset.name());
     };
     let Some(footprint) = footprint.filter(|f| *f > 0.0) else {
-        bail!("model.grid = \"footprint\": no view has the region of interest's centre in front of its camera; use model.grid = \"preset\"");
+        bail!(Config, "model.grid = \"footprint\": no view has the region of interest's centre in front of its camera; use model.grid = \"preset\"");
     };
     let wanted = 2.0 / (model.pixels_per_cell * footprint);
     let finest = wanted.round().clamp(f64::from(2 * preset.base_resolution), f64::from(MAX_FINEST)) as u32;
@@ -109,6 +110,7 @@ pub fn mesh_resolution(resolution: MeshResolution, model: &ModelConfig, footprin
         (None, None) => match footprint.filter(|f| *f > 0.0) {
             Some(f) => (2.0 / (model.pixels_per_cell * f)).round(),
             None => bail!(
+                Config,
                 "output.mesh_resolution = \"model\" on {}: no hash grid, and no view has the region of interest's centre in front of its camera; give a number of cells",
                 model.preset.name()
             ),

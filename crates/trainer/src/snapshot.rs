@@ -5,11 +5,11 @@
 //! follow the fraction of *their* budget, so a snapshot at 60 s of a 10-minute run is not a
 //! 1-minute run).
 
+use crate::error::{Context, Result};
 use crate::folder::RunFolder;
 use crate::metrics::RunMetrics;
 use crate::outputs::{mesh_files, run_geometry};
 use crate::trainer::Trainer;
-use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 

@@ -244,7 +244,7 @@ fn golden_spec(geometry: GeometrySource) -> GoldenSpec {
 
 #[test]
 fn golden_analytic_sphere_guides_rays_onto_the_silhouette_and_surface() {
-    let g = golden::generate(&golden_spec(GeometrySource::Shape("sphere".into()))).unwrap();
+    let g = golden::generate(&golden_spec(GeometrySource::Shape(prob_grid::ShapeName::Sphere))).unwrap();
     let golden::render::Geometry::Analytic(shape) = &g.geometry else { unreachable!() };
     // λ̃ is a draw from p̃(λ | u, v), not its mode: the logistic itself has a median
     // |λ − surface| of ln 3 / s, which is 0.70 depth cells at s = 100 (Δλ = 2/128 here). The

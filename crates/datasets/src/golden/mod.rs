@@ -14,13 +14,13 @@ pub mod mesh_io;
 pub mod render;
 pub mod rig;
 
-use crate::error::{DatasetError, Result, io_err};
+use crate::error::{Result, io_err};
 use crate::io::{PlyData, write_atomic};
 use crate::npy::npy_bytes;
 use crate::scene::{Format, Scene, SceneSource, View};
 use glam::{DMat3, DMat4, DVec3};
 use mesh_io::{TexturedMesh, load_mesh};
-use prob_grid::Shape;
+use prob_grid::ShapeName;
 use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
 use render::{Geometry, render_view};
 use rig::{Rig, RigOptions};
@@ -33,8 +33,8 @@ pub const MESH_RADIUS: f64 = 0.7;
 /// What to render.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub enum GeometrySource {
-    /// A named analytic shape ([`Shape::by_name`]).
-    Shape(String),
+    /// A named analytic shape.
+    Shape(ShapeName),
     /// A mesh file (OBJ, glTF, GLB).
     Mesh(PathBuf),
 }
@@ -135,14 +135,7 @@ fn normalize_mesh(mut mesh: TexturedMesh, y_up: bool) -> (TexturedMesh, DMat4) {
 /// Renders a golden scene.
 pub fn generate(spec: &GoldenSpec) -> Result<GoldenScene> {
     let (geometry, world_from_normalized, label) = match &spec.geometry {
-        GeometrySource::Shape(name) => {
-            let shape = Shape::by_name(name).ok_or_else(|| DatasetError::InvalidValue {
-                path: PathBuf::from(name),
-                entry: "shape".into(),
-                message: format!("unknown shape (known: {})", Shape::NAMES.join(", ")),
-            })?;
-            (Geometry::Analytic(shape), DMat4::IDENTITY, format!("analytic {name}"))
-        }
+        GeometrySource::Shape(name) => (Geometry::Analytic(name.shape()), DMat4::IDENTITY, format!("analytic {name}")),
         GeometrySource::Mesh(path) => {
             let (mesh, world_from_normalized) = normalize_mesh(load_mesh(path)?, spec.mesh_y_up);
             (Geometry::from_mesh(mesh), world_from_normalized, format!("mesh {}", path.display()))
@@ -181,7 +174,7 @@ impl GoldenSpec {
     /// The built-in default scene (no files): the analytic composite (a sphere with a bite, a
     /// thin ring, a box foot), DTU rig, 49 views of 200×150, textured backdrop, masks.
     pub fn builtin() -> GoldenSpec {
-        let mut spec = GoldenSpec::new(GeometrySource::Shape("composite".into()));
+        let mut spec = GoldenSpec::new(GeometrySource::Shape(ShapeName::Composite));
         spec.rig.width = 200;
         spec.rig.height = 150;
         spec
@@ -296,7 +289,7 @@ mod tests {
 
     #[test]
     fn golden_scenes_are_deterministic_for_a_seed() {
-        let mut spec = GoldenSpec::new(GeometrySource::Shape("torus".into()));
+        let mut spec = GoldenSpec::new(GeometrySource::Shape(ShapeName::Torus));
         spec.rig = RigOptions { rig: Rig::Random, count: 3, width: 32, height: 24, seed: 9 };
         spec.surface_points = 500;
         let (a, b) = (generate(&spec).unwrap(), generate(&spec).unwrap());

@@ -1,7 +1,8 @@
 //! A run's budget ([`Budget`]) and how it is written: in TOML, on the command line (`--budget 10m`),
 //! and in run folders of earlier versions.
 
-use anyhow::{Context, Result, bail};
+use crate::bail;
+use crate::error::{Context, Result};
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
 
@@ -82,12 +83,12 @@ pub fn parse_duration(text: &str) -> Result<Duration> {
     let t = text.trim();
     let unit_start = t.trim_end_matches(|c: char| c.is_ascii_alphabetic()).len();
     let (number, unit) = t.split_at(unit_start);
-    let value: f64 = number.trim().parse().with_context(|| format!("{text:?} is not a duration (e.g. 90s, 10m, 1h)"))?;
+    let value: f64 = number.trim().parse().map_err(|_| crate::Error::Config(format!("{text:?} is not a duration (e.g. 90s, 10m, 1h)")))?;
     let scale = match unit {
         "" | "s" | "sec" => 1.0,
         "m" | "min" => 60.0,
         "h" => 3600.0,
-        other => bail!("{text:?}: unknown unit {other:?} (s, m, h)"),
+        other => bail!(Config, "{text:?}: unknown unit {other:?} (s, m, h)"),
     };
     positive_duration(value * scale).with_context(|| format!("{text:?}"))
 }
@@ -96,7 +97,7 @@ pub fn parse_duration(text: &str) -> Result<Duration> {
 /// a duration is checked (`--budget`, `budget.seconds`, `fuzz --time`, Python's `budget`).
 pub fn positive_duration(seconds: f64) -> Result<Duration> {
     if !(seconds.is_finite() && seconds > 0.0) {
-        bail!("a duration must be a positive number of seconds, not {seconds}");
+        bail!(Config, "a duration must be a positive number of seconds, not {seconds}");
     }
     Duration::try_from_secs_f64(seconds).with_context(|| format!("{seconds} s is too long a duration"))
 }
@@ -120,7 +121,7 @@ pub(super) fn budget_from_short_keys(table: &mut toml::Table) -> Result<()> {
         }
     };
     if table.insert("budget".into(), toml::Value::Table(budget)).is_some() {
-        bail!("give the budget once: `budget`, `steps` or `time_budget_s`");
+        bail!(Config, "give the budget once: `budget`, `steps` or `time_budget_s`");
     }
     Ok(())
 }

@@ -29,7 +29,7 @@ impl Default for DataConfig {
 
 impl Default for BuiltinConfig {
     fn default() -> Self {
-        BuiltinConfig { shape: "composite".into(), width: 200, views: 49, backdrop: true }
+        BuiltinConfig { shape: prob_grid::ShapeName::Composite, width: 200, views: 49, backdrop: true }
     }
 }
 

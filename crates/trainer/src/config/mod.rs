@@ -12,7 +12,7 @@
 //! a number of steps or by training time alike ([`Budget`]): learning rate (warm-up and decay), coarse-to-fine levels,
 //! the curvature ramp, the uniform-ray fractions and the grid updates (`guide.updates` per run).
 
-use anyhow::{Context, Result};
+use crate::error::{Context, Result};
 use datasets::io::MeshFormat;
 use prob_grid::{CameraGridConfig, SceneGridConfig};
 use sdf_backbone::{LrSchedule, NormalScheme, Preset};
@@ -97,7 +97,7 @@ pub struct DataConfig {
 #[serde(deny_unknown_fields, default)]
 pub struct BuiltinConfig {
     /// Analytic shape: composite (default), multipart, sphere, torus, box.
-    pub shape: String,
+    pub shape: prob_grid::ShapeName,
     /// Image width (height = 3/4 of it).
     pub width: u32,
     /// Number of views (DTU-like rig).
@@ -406,7 +406,7 @@ impl TrainConfig {
             // serde names the field, not its section: name the override that is not a key.
             let unknown = overrides.iter().map(|(k, _)| k).find(|k| !is_default_key(k));
             let key = unknown.map_or(String::new(), |k| format!(" (no key {k})"));
-            anyhow::anyhow!("config from {origin}{key}: {}", e.message())
+            crate::Error::Config(format!("config from {origin}{key}: {}", e.message()))
         })?;
         config.validate().with_context(|| format!("config from {origin}"))?;
         Ok(config)
@@ -414,9 +414,9 @@ impl TrainConfig {
 
     /// Parses the TOML text of a resolved configuration (a run folder's `config.toml`).
     pub fn from_toml(text: &str) -> Result<TrainConfig> {
-        let mut table: toml::Table = toml::from_str(text).map_err(|e| anyhow::anyhow!("{}", e.message()))?;
+        let mut table: toml::Table = toml::from_str(text).map_err(|e| crate::Error::Config(e.message().to_string()))?;
         budget_from_short_keys(&mut table)?;
-        let config: TrainConfig = table.try_into().map_err(|e: toml::de::Error| anyhow::anyhow!("{}", e.message()))?;
+        let config: TrainConfig = table.try_into().map_err(|e: toml::de::Error| crate::Error::Config(e.message().to_string()))?;
         config.validate()?;
         Ok(config)
     }

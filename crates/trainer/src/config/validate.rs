@@ -2,12 +2,13 @@
 //! that cannot run, each error naming the key and what it expects.
 
 use super::{Budget, GridSize, MeshResolution, MomentStorage, Normals, TrainConfig};
-use anyhow::{Result, bail};
+use crate::bail;
+use crate::error::Result;
 use std::time::Duration;
 
 /// `Ok` when `ok`, else an error naming `key`, its value and what it expects.
 fn need(ok: bool, key: &str, value: impl std::fmt::Debug, expected: &str) -> Result<()> {
-    if ok { Ok(()) } else { bail!("{key} = {value:?} is out of range: expected {expected}") }
+    if ok { Ok(()) } else { bail!(Config, "{key} = {value:?} is out of range: expected {expected}") }
 }
 
 /// What a key that needs a hash grid expects of `model.preset`.
@@ -46,12 +47,6 @@ impl TrainConfig {
         )?;
         need(self.data.builtin.width >= 16, "data.builtin.width", self.data.builtin.width, "≥ 16")?;
         need(self.data.builtin.views >= 2, "data.builtin.views", self.data.builtin.views, "≥ 2")?;
-        need(
-            prob_grid::Shape::by_name(&self.data.builtin.shape).is_some(),
-            "data.builtin.shape",
-            &self.data.builtin.shape,
-            &prob_grid::Shape::NAMES.join(", "),
-        )?;
         Ok(())
     }
 
@@ -122,7 +117,7 @@ impl TrainConfig {
         let non_neg = |v: f64| v.is_finite() && v >= 0.0;
         need(finite_pos(self.optim.lr), "optim.lr", self.optim.lr, "> 0")?;
         need(non_neg(self.optim.lr_grid), "optim.lr_grid", self.optim.lr_grid, "≥ 0")?;
-        self.optim.schedule.validate().map_err(|e| anyhow::anyhow!("optim.schedule.{e}"))?;
+        self.optim.schedule.validate().map_err(|e| crate::Error::Config(format!("optim.schedule.{e}")))?;
         need(self.optim.clip_norm.is_none_or(non_neg), "optim.clip_norm", self.optim.clip_norm.unwrap_or(0.0), "≥ 0")?;
         need(
             self.optim.table_moments == MomentStorage::F32 || self.model.preset.has_hash_grid(),
@@ -137,8 +132,8 @@ impl TrainConfig {
     fn validate_guide(&self) -> Result<()> {
         let non_neg = |v: f64| v.is_finite() && v >= 0.0;
         need(self.guide.updates >= 1, "guide.updates", self.guide.updates, "≥ 1")?;
-        self.guide.scene.validate().map_err(|e| anyhow::anyhow!("guide.scene: {e}"))?;
-        self.guide.camera.validate().map_err(|e| anyhow::anyhow!("guide.camera: {e}"))?;
+        self.guide.scene.validate().map_err(|e| crate::Error::Config(format!("guide.scene: {e}")))?;
+        self.guide.camera.validate().map_err(|e| crate::Error::Config(format!("guide.camera: {e}")))?;
         need(self.guide.fixed_s.is_none_or(non_neg), "guide.fixed_s", self.guide.fixed_s.unwrap_or(0.0), "≥ 0 (0: the backbone's s)")?;
         need(
             !self.guide.uniform_fractions.is_empty() && self.guide.uniform_fractions.iter().all(|f| (0.0..=1.0).contains(f)),
@@ -163,7 +158,7 @@ impl TrainConfig {
     /// `[surface]` and `[output]`.
     fn validate_output(&self) -> Result<()> {
         let finite_pos = |v: f64| v.is_finite() && v > 0.0;
-        self.surface.validate().map_err(|e| anyhow::anyhow!("surface.{e}"))?;
+        self.surface.validate().map_err(|e| crate::Error::Config(format!("surface.{e}")))?;
         need((0.0..=1.0).contains(&self.output.validate_share), "output.validate_share", self.output.validate_share, "in [0, 1]")?;
         need(self.output.validate_downscale >= 1, "output.validate_downscale", self.output.validate_downscale, "≥ 1")?;
         need(self.output.eval_downscale >= 1, "output.eval_downscale", self.output.eval_downscale, "≥ 1")?;

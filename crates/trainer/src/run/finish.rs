@@ -5,13 +5,13 @@
 use super::{RunSummary, validation_pictures};
 use crate::config::TrainConfig;
 use crate::data::ViewSplit;
+use crate::error::Result;
 use crate::folder::RunFolder;
 use crate::memory::{self, MemoryEstimate};
 use crate::metrics::{RunMetrics, ViewPsnr};
 use crate::outputs::{mesh_files, mesh_picture, run_geometry};
 use crate::progress::Progress;
 use crate::trainer::Trainer;
-use anyhow::Result;
 use eval_metrics::GeometryMetrics;
 use prob_grid::IsoMesh;
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -7,8 +7,10 @@
 //! and its cause, leaves the previous checkpoint as it was, and ends the run with an error. A run
 //! that fails before its first checkpoint removes the run folder it created.
 
+use crate::bail;
 use crate::config::TrainConfig;
 use crate::data::{SceneData, SceneSize};
+use crate::error::{Context, Result};
 pub use crate::folder::{AtomicFiles, RunFolder, Sink, checkpoint_path, read_run_config};
 use crate::folder::{DataRecord, is_run_folder};
 use crate::memory::{self, MemoryEstimate};
@@ -18,7 +20,6 @@ use crate::plot::{Panel, Series, render};
 use crate::progress::Progress;
 use crate::snapshot::{Snapshots, write_snapshot};
 use crate::trainer::{StepReport, Trainer};
-use anyhow::{Context, Result, bail};
 use sdf_backbone::CheckpointReader;
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -161,6 +162,7 @@ pub fn check_memory(config: &TrainConfig, size: &SceneSize, max_memory: Option<f
     );
     if let Some(limit) = limit.filter(|l| estimate.peak() > *l) {
         bail!(
+            Config,
             "this run needs about {:.2} GB and {:.2} GB is the limit: lower {} (or raise the limit with --max-memory)",
             estimate.peak() / 1e9,
             limit / 1e9,
@@ -182,7 +184,7 @@ pub fn open_run(dir: &Path, data: Option<&Path>) -> Result<Trainer> {
 fn load_run_data(dir: &Path, config: &TrainConfig, record: &DataRecord, repointed: Option<&Path>) -> Result<SceneData> {
     let path = repointed.or(record.path.as_deref());
     if let Some(p) = path.filter(|p| !p.exists()) {
-        bail!("the data of {} is gone: {} does not exist (give its new place with --data)", dir.display(), p.display());
+        bail!(Input, "the data of {} is gone: {} does not exist (give its new place with --data)", dir.display(), p.display());
     }
     let data = SceneData::load(config, path).with_context(|| format!("loading the data of {}", dir.display()))?;
     record.verify(dir, &data.scene, repointed.is_some())?;
@@ -222,6 +224,8 @@ pub fn run(request: &RunRequest, options: &RunOptions, stop: &AtomicBool, sink: 
             run_folder(trainer, &folder, options, stop, &estimate)
         }
         RunRequest::Fresh { config, data, out, overwrite } => {
+            // A folder that cannot take the run is refused before the data is loaded.
+            RunFolder::check_fresh(out, *overwrite)?;
             // The memory is checked before any pixel is decoded or rendered.
             let estimate = check_memory(config, &SceneData::size_before_loading(config, data.as_deref())?, options.max_memory)?;
             let scene = SceneData::load(config, data.as_deref())?;

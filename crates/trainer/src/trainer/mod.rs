@@ -7,7 +7,7 @@
 //! use trainer::config::{Budget, TrainConfig};
 //! use trainer::data::SceneData;
 //! use trainer::trainer::Trainer;
-//! # fn main() -> anyhow::Result<()> {
+//! # fn main() -> trainer::Result<()> {
 //! let mut config = TrainConfig { budget: Budget::Steps(5), ..TrainConfig::default() };
 //! config.data.builtin.width = 64;
 //! config.render.rays = 64;
@@ -29,11 +29,12 @@
 //! bounded by steps (deterministic: the same bits for any thread count, and a resumed run equals
 //! an uninterrupted one) or by a time budget (the schedules follow the fraction of time spent).
 
+use crate::bail;
 use crate::config::{Budget, MomentStorage, SamplerKind, TrainConfig};
 use crate::data::{SceneData, ViewSplit, uses_masks};
+use crate::error::{Context, Result};
 use crate::rays::{Batch, PixelSource, Sampling, build_batch};
 use crate::sizing::GridChoice;
-use anyhow::{Context, Result, bail};
 use sdf_backbone::{Adam, Backbone, CheckpointReader, CheckpointWriter, NoSampleLoss, RayOutput, SampleLoss, StepRates, build};
 use std::time::Instant;
 use surface_losses::{RaySurface, SurfaceLossConfig};
@@ -177,7 +178,7 @@ impl Trainer {
             [("output.validate_downscale", config.output.validate_downscale), ("output.eval_downscale", config.output.eval_downscale)]
         {
             if smallest < downscale {
-                bail!("{key} = {downscale} leaves no pixel of the smallest view ({smallest} pixels on its short side): lower it");
+                bail!(Config, "{key} = {downscale} leaves no pixel of the smallest view ({smallest} pixels on its short side): lower it");
             }
         }
         let split = ViewSplit::new(&config, &data.scene);
@@ -362,7 +363,7 @@ impl Trainer {
         let (loss, outputs) =
             self.backbone.train_step(&mut self.state.params, &mut self.state.adam, &batch.rays, self.config.render.chunk, extra, rates);
         if !loss.is_finite() {
-            bail!("the loss became {loss} at step {step}");
+            return Err(crate::Error::Diverged { loss: f64::from(loss), step });
         }
         if let Some(map) = &mut self.miner {
             crate::mining::record(map, &batch.drawn, &batch.rays, &outputs);
@@ -424,7 +425,7 @@ impl Trainer {
     /// rebuilds the grids from them.
     pub fn set_parameters(&mut self, params: &[f32]) -> Result<()> {
         if params.len() != self.state.params.len() {
-            bail!("{} parameters given, the model has {}", params.len(), self.state.params.len());
+            bail!(Input, "{} parameters given, the model has {}", params.len(), self.state.params.len());
         }
         self.state.params.copy_from_slice(params);
         if self.estimator.needs_updates() {
@@ -512,7 +513,7 @@ impl Trainer {
         let saved = TrainConfig::from_toml(meta("config")?).context("the checkpoint's configuration")?;
         let changed = saved.differences(&self.config);
         if !changed.is_empty() {
-            bail!("the configuration differs from the checkpoint's in: {} (a run resumes with its own configuration)", changed.join(", "));
+            bail!(Input, "the configuration differs from the checkpoint's in: {} (a run resumes with its own configuration)", changed.join(", "));
         }
         // Parse everything small before touching the state, then read the tensors in place.
         let step = meta("step")?.parse().context("the checkpoint's step")?;

@@ -2,9 +2,10 @@
 //! filters and colours (no gradient, the rays through the same pipeline).
 
 use super::Trainer;
+use crate::bail;
 use crate::config::MeshFilter;
+use crate::error::{Context, Result};
 use crate::outputs::{ViewRender, filter_components, heat_map};
-use anyhow::{Context, Result, bail};
 use datasets::images::RgbImage;
 use prob_grid::{IsoMesh, MarchingCubesConfig, Occupancy, marching_cubes_with_progress};
 use rayon::prelude::*;
@@ -36,7 +37,7 @@ impl Trainer {
     pub fn render_view(&self, view: usize, downscale: u32) -> Result<ViewRender> {
         let view = &self.data.scene.views[view];
         if downscale == 0 {
-            bail!("a render's downscale must be ≥ 1");
+            bail!(Input, "a render's downscale must be ≥ 1");
         }
         let k = view.camera.intrinsics.downscaled(downscale, view.camera.pixel_centers);
         let image = view.image.downscaled(downscale);

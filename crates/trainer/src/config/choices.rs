@@ -68,15 +68,14 @@ pub enum MomentStorage {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Normals {
-    /// Analytic where the model allows it (a hash-grid preset, no curvature loss), else
-    /// tetrahedral: the analytic step is the faster one at level mesh quality
-    /// (docs/DECISIONS.md §24).
+    /// Analytic where the model allows it (no curvature loss), else tetrahedral: the analytic
+    /// step is the faster one at level or better mesh quality (docs/DECISIONS.md §24, §29).
     Auto,
     /// Central differences: 6 probes per sample.
     Central,
     /// Tetrahedral differences: 4 probes per sample.
     Tetrahedral,
-    /// The exact gradient by forward-mode derivatives (hash-grid presets, no curvature loss).
+    /// The exact gradient by forward-mode derivatives (every preset; no curvature loss).
     Analytic,
 }
 

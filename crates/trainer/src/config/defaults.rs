@@ -57,15 +57,15 @@ impl Default for ModelConfig {
 }
 
 impl ModelConfig {
-    /// The normal scheme the run uses: the chosen one, or for `auto` analytic on a hash-grid
-    /// preset without a curvature loss (the curvature's Laplacian comes from the probes of
-    /// numerical normals) and tetrahedral otherwise.
+    /// The normal scheme the run uses: the chosen one, or for `auto` analytic without a
+    /// curvature loss (the curvature's Laplacian comes from the probes of numerical normals) and
+    /// tetrahedral with one.
     pub fn normal_scheme(&self) -> NormalScheme {
         match self.normals {
             Normals::Central => NormalScheme::Central,
             Normals::Tetrahedral => NormalScheme::Tetrahedral,
             Normals::Analytic => NormalScheme::Analytic,
-            Normals::Auto if self.preset.has_hash_grid() && self.curvature == 0.0 => NormalScheme::Analytic,
+            Normals::Auto if self.curvature == 0.0 => NormalScheme::Analytic,
             Normals::Auto => NormalScheme::Tetrahedral,
         }
     }

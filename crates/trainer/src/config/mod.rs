@@ -140,7 +140,7 @@ pub struct ModelConfig {
     /// analytic normals (default 0: see BENCHMARKS.md, "Detail against the budget").
     pub normal_smoothness: f64,
     /// Normals (and curvature) by tetrahedral (4 probes) or central (6 probes) differences, or
-    /// `analytic`: the exact ∇ₓS by forward-mode derivatives (hash-grid presets, no curvature);
+    /// `analytic`: the exact ∇ₓS by forward-mode derivatives (every preset; no curvature);
     /// `auto`: analytic where that holds, else tetrahedral ([`ModelConfig::normal_scheme`]).
     pub normals: Normals,
     /// Colour behind the object in renders (and, without masks and without a learned

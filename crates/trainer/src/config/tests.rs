@@ -82,8 +82,8 @@ fn auto_normals_are_analytic_only_where_the_model_allows_it() {
     assert_eq!(TrainConfig::default().model.normals, Normals::Auto);
     assert_eq!(scheme(&[]), NormalScheme::Analytic);
     assert_eq!(scheme(&["model.preset=neuralangelo"]), NormalScheme::Analytic);
-    assert_eq!(scheme(&["model.preset=neus-cpu"]), NormalScheme::Tetrahedral);
-    assert_eq!(scheme(&["model.preset=neus"]), NormalScheme::Tetrahedral);
+    assert_eq!(scheme(&["model.preset=neus-cpu"]), NormalScheme::Analytic);
+    assert_eq!(scheme(&["model.preset=neus"]), NormalScheme::Analytic);
     assert_eq!(scheme(&["model.curvature=5e-4"]), NormalScheme::Tetrahedral);
     assert_eq!(scheme(&["model.normals=tetrahedral"]), NormalScheme::Tetrahedral);
     // Every preset's network has tangents (the positional encoding's too).

@@ -95,6 +95,10 @@ pub struct EvalArgs {
     /// Whether --run renders skip empty space (default: the run's `render.render_skip_empty`).
     #[arg(long, requires = "run")]
     pub render_skip_empty: Option<bool>,
+    /// With --run: where the renders' CPU time goes, by stage (up-sampling, the forward pass,
+    /// the modules inside them).
+    #[arg(long, requires = "run")]
+    pub profile: bool,
     /// Print one JSON object.
     #[arg(long)]
     pub json: bool,
@@ -254,9 +258,15 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     let downscale = args.downscale.unwrap_or(trainer.config().output.eval_downscale);
     trainer.set_render_upsampling(fine, rounds, trim, skip_empty)?;
     let views = trainer.split().evaluation_views();
+    sdf_backbone::profile::take();
+    sdf_backbone::profile::enable(args.profile);
     let started = std::time::Instant::now();
     let metrics = views.iter().map(|&v| trainer.view_metrics(v, downscale)).collect::<trainer::Result<Vec<_>>>()?;
     let seconds = started.elapsed().as_secs_f64();
+    sdf_backbone::profile::enable(false);
+    if args.profile {
+        print_render_profile(seconds);
+    }
     let pixels: u64 = views
         .iter()
         .map(|&v| {
@@ -294,6 +304,16 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The CPU seconds of every stage that ran during renders of `seconds` wall time (stderr).
+fn print_render_profile(seconds: f64) {
+    let cpu = seconds * rayon::current_num_threads() as f64;
+    eprintln!("| render stage | CPU s | share of the renders' CPU time ({cpu:.2} s) |");
+    eprintln!("|---|---|---|");
+    for (stage, t) in sdf_backbone::profile::take().into_iter().filter(|(_, t)| *t > 0.0) {
+        eprintln!("| {} | {t:.3} | {:.1} % |", stage.name(), 100.0 * t / cpu);
+    }
 }
 
 #[cfg(test)]

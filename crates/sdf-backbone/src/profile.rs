@@ -35,10 +35,14 @@ pub enum Stage {
     /// Adam's update of every parameter (with clipping on, the norm's own pass over the table
     /// gradient counts as [`Stage::HashScatter`]).
     Adam,
+    /// A render's up-sampling and trim (modules included): the SDF at every depth.
+    Upsample,
+    /// A render's forward-only pass ([`crate::Pipeline::render_known`], modules included).
+    RenderPass,
 }
 
 /// Every stage, in report order (the enum's order: a stage's index is its discriminant).
-pub const STAGES: [Stage; 9] = [
+pub const STAGES: [Stage; 11] = [
     Stage::HashForward,
     Stage::HashTangents,
     Stage::MlpForward,
@@ -48,6 +52,8 @@ pub const STAGES: [Stage; 9] = [
     Stage::HashScatter,
     Stage::HashTangentScatter,
     Stage::Adam,
+    Stage::Upsample,
+    Stage::RenderPass,
 ];
 
 static ENABLED: AtomicBool = AtomicBool::new(false);
@@ -66,6 +72,8 @@ impl Stage {
             Stage::MlpTangents => "MLPs: tangents",
             Stage::LossPass => "loss pass (modules included)",
             Stage::Adam => "Adam",
+            Stage::Upsample => "render: up-sampling (modules included)",
+            Stage::RenderPass => "render: forward pass (modules included)",
         }
     }
     fn index(self) -> usize {

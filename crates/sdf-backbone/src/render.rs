@@ -47,6 +47,18 @@ fn alpha<R: Real>(a: R, b: R) -> (R, R, R) {
     (R::ONE - r, r * sigmoid(-a), -r * sigmoid(-b))
 }
 
+/// The weights wᵢ of the n intervals between n + 1 SDF values at scale `s`, into `weights`
+/// (cleared first; no allocation once it has grown).
+pub fn weights_into<R: Real>(sdf: &[R], s: R, weights: &mut Vec<R>) {
+    weights.clear();
+    let mut transmittance = R::ONE;
+    for pair in sdf.windows(2) {
+        let (a, _, _) = alpha(s * pair[0], s * pair[1]);
+        weights.push(a * transmittance);
+        transmittance *= R::ONE - a;
+    }
+}
+
 /// Renders one ray: `sdf` and `t` have n + 1 values, `colors` n (one per interval).
 pub fn render_ray<R: Real>(sdf: &[R], t: &[R], colors: &[[R; 3]], s: R) -> RayRender<R> {
     let n = colors.len();

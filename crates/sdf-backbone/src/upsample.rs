@@ -18,6 +18,7 @@
 use crate::module::Module;
 use crate::pipeline::{Pipeline, RayInput};
 use crate::render::{merge_sorted, render_ray, sample_intervals};
+use crate::scratch::Buf;
 
 /// `a` and `b` (sorted depths, each with its values) merged as [`merge_sorted`] merges them, the
 /// values following their depths.
@@ -48,8 +49,8 @@ fn chunk_sdf<S: Module<f32>>(net: &S, params: &[f32], rays: &[RayInput<f32>], de
     for (ray, depths) in rays.iter().zip(depths) {
         points.extend(depths.iter().flat_map(|&t| [0, 1, 2].map(|j| ray.origin[j] + t * ray.direction[j])));
     }
-    let mut y = vec![0.0; rows * n_out];
-    let mut ctx = vec![0.0; rows * net.ctx_per_row()];
+    let mut y = Buf::<f32>::zeroed(rows * n_out);
+    let mut ctx = Buf::<f32>::zeroed(rows * net.ctx_per_row());
     net.forward(&params[..net.n_params()], &points, &mut y, &mut ctx);
     let mut values = y.chunks_exact(n_out).map(|r| r[0]);
     depths.iter().map(|d| values.by_ref().take(d.len()).collect()).collect()
@@ -72,6 +73,7 @@ fn upsample_chunk<S: Module<f32>>(
     base_s: f64,
     keep: bool,
 ) -> Vec<Vec<f32>> {
+    let _span = crate::profile::span(crate::profile::Stage::Upsample);
     let rounds = if n_fine == 0 { 0 } else { rounds };
     if rounds == 0 && !keep {
         return Vec::new();
@@ -117,22 +119,51 @@ impl<S, C> Pipeline<S, C> {
     }
 
     /// [`Self::upsample`] for a render: each ray then trimmed by [`trim_to_weight`] at the
-    /// model's scale `s`, chunk by chunk (a chunk's SDF values are dropped with it, and the
-    /// trimmed depths release their memory).
+    /// model's scale `s`, chunk by chunk (the trimmed depths release their memory). Returns the
+    /// SDF at every ray's final depths, for [`Self::render_known`].
     #[allow(clippy::too_many_arguments)]
-    pub fn upsample_trimmed(&self, params: &[f32], rays: &mut [RayInput<f32>], n_fine: usize, rounds: usize, base_s: f64, s: f32, negligible: f32)
+    pub fn upsample_trimmed(
+        &self,
+        params: &[f32],
+        rays: &mut [RayInput<f32>],
+        n_fine: usize,
+        rounds: usize,
+        base_s: f64,
+        s: f32,
+        negligible: f32,
+    ) -> Vec<Vec<f32>>
     where
         S: Module<f32> + Sync,
     {
         use rayon::prelude::*;
         let net = &self.sdf;
-        rays.par_chunks_mut(CHUNK).for_each(|rays| {
-            let sdf = upsample_chunk(net, params, rays, n_fine, rounds, base_s, true);
-            for (ray, sdf) in rays.iter_mut().zip(&sdf) {
-                trim_to_weight(&mut ray.depths, sdf, s, negligible);
-                ray.depths.shrink_to_fit();
-            }
-        });
+        rays.par_chunks_mut(CHUNK)
+            .flat_map_iter(|rays| {
+                let mut sdf = upsample_chunk(net, params, rays, n_fine, rounds, base_s, true);
+                for (ray, sdf) in rays.iter_mut().zip(sdf.iter_mut()) {
+                    trim_to_weight(&mut ray.depths, sdf, s, negligible);
+                    ray.depths.shrink_to_fit();
+                    sdf.shrink_to_fit();
+                }
+                sdf
+            })
+            .collect()
+    }
+
+    /// The SDF at every depth of every ray (no up-sampling), in parallel chunks.
+    pub fn sdf_along(&self, params: &[f32], rays: &[RayInput<f32>]) -> Vec<Vec<f32>>
+    where
+        S: Module<f32> + Sync,
+    {
+        use rayon::prelude::*;
+        let net = &self.sdf;
+        rays.par_chunks(CHUNK)
+            .flat_map_iter(|rays| {
+                let _span = crate::profile::span(crate::profile::Stage::Upsample);
+                let lists: Vec<&[f32]> = rays.iter().map(|r| r.depths.as_slice()).collect();
+                chunk_sdf(net, params, rays, &lists)
+            })
+            .collect()
     }
 }
 
@@ -145,9 +176,9 @@ pub fn interval_weights(sdf: &[f32], s: f32) -> Vec<f32> {
 
 /// Trims a render's ray (`depths` with the SDF `sdf` at each, rendered at scale `s`) to the
 /// contiguous intervals outside which the weights sum to at most `negligible` on each side (at
-/// least one interval: a ray that carries no weight keeps its last). Returns how many depths were
-/// dropped. See the module docs for what this preserves.
-pub fn trim_to_weight(depths: &mut Vec<f32>, sdf: &[f32], s: f32, negligible: f32) -> usize {
+/// least one interval: a ray that carries no weight keeps its last), the values with their
+/// depths. Returns how many depths were dropped. See the module docs for what this preserves.
+pub fn trim_to_weight(depths: &mut Vec<f32>, sdf: &mut Vec<f32>, s: f32, negligible: f32) -> usize {
     let n = depths.len();
     if n < 3 || sdf.len() != n {
         return 0;
@@ -162,6 +193,7 @@ pub fn trim_to_weight(depths: &mut Vec<f32>, sdf: &[f32], s: f32, negligible: f3
     if first == weights.len() {
         // No weight anywhere: one interval (the last) stands for the ray.
         depths.drain(..n - 2);
+        sdf.drain(..n - 2);
         return n - 2;
     }
     let mut last = weights.len() - 1;
@@ -171,8 +203,10 @@ pub fn trim_to_weight(depths: &mut Vec<f32>, sdf: &[f32], s: f32, negligible: f3
         last -= 1;
     }
     // Intervals first..=last span depths first..=last + 1.
-    depths.truncate(last + 2);
-    depths.drain(..first);
+    for list in [&mut *depths, &mut *sdf] {
+        list.truncate(last + 2);
+        list.drain(..first);
+    }
     n - depths.len()
 }
 
@@ -196,12 +230,13 @@ mod tests {
         let colors: Vec<[f32; 3]> = (0..60).map(|i| [i as f32 / 60.0, 0.5, 1.0]).collect();
         let s = 200.0;
         let whole = render_ray(&sdf, &depths, &colors, s);
-        let mut trimmed = depths.clone();
-        let dropped = trim_to_weight(&mut trimmed, &sdf, s, 1e-4);
+        let (mut trimmed, mut trimmed_sdf) = (depths.clone(), sdf.clone());
+        let dropped = trim_to_weight(&mut trimmed, &mut trimmed_sdf, s, 1e-4);
         assert!(dropped > 40, "only {dropped} of 61 depths dropped");
         let first = depths.iter().position(|&t| t == trimmed[0]).unwrap();
         let kept = trimmed.len();
-        let part = render_ray(&sdf[first..first + kept], &trimmed, &colors[first..first + kept - 1], s);
+        assert_eq!(trimmed_sdf, &sdf[first..first + kept], "the values follow their depths");
+        let part = render_ray(&trimmed_sdf, &trimmed, &colors[first..first + kept - 1], s);
         for c in 0..3 {
             assert!((part.color[c] - whole.color[c]).abs() <= 2e-4, "colour {c}: {} vs {}", part.color[c], whole.color[c]);
         }
@@ -266,8 +301,9 @@ mod tests {
     #[test]
     fn a_ray_that_misses_keeps_one_interval() {
         let mut depths: Vec<f32> = (0..=10).map(|i| i as f32).collect();
-        let sdf = vec![5.0; 11];
-        assert_eq!(trim_to_weight(&mut depths, &sdf, 100.0, 1e-4), 9);
+        let mut sdf: Vec<f32> = (0..=10).map(|i| 5.0 + i as f32).collect();
+        assert_eq!(trim_to_weight(&mut depths, &mut sdf, 100.0, 1e-4), 9);
         assert_eq!(depths, vec![9.0, 10.0]);
+        assert_eq!(sdf, vec![14.0, 15.0]);
     }
 }

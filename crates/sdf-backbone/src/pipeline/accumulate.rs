@@ -18,7 +18,7 @@ use crate::scratch::Buf;
 mod terms;
 
 /// Colour-network inputs per row before the features: x (3), n (3), SH₄(d) (16).
-const COLOR_IN_FIXED: usize = 22;
+pub(super) const COLOR_IN_FIXED: usize = 22;
 
 /// The row layout of a work item: ray r owns SDF rows `[sdf_at[r], sdf_at[r] + (np + 1) n_r + 1)`
 /// (its n_r + 1 samples, then np probes per sample i < n_r) and colour rows

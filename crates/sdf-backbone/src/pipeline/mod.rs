@@ -37,6 +37,7 @@ use crate::scratch::Buf;
 mod accumulate;
 mod analytic;
 mod deferred;
+mod inference;
 mod normals;
 pub use analytic::{AnalyticNormals, TangentFns, TangentPrecision};
 use deferred::Deferred;

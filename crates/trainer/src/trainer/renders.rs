@@ -9,8 +9,11 @@ use crate::outputs::{ViewRender, filter_components, heat_map};
 use datasets::images::RgbImage;
 use prob_grid::{IsoMesh, MarchingCubesConfig, Occupancy, marching_cubes_with_progress};
 use rayon::prelude::*;
-use sdf_backbone::{NoSampleLoss, RayInput, RayOutput};
+use sdf_backbone::{RayInput, RayOutput};
 use view_sampler::march_through;
+
+/// Rays per work item of a render.
+const RENDER_CHUNK: usize = 64;
 
 impl Trainer {
     /// Sets how renders sample (`render.render_fine` in `rounds` rounds, `render.render_trim`,
@@ -26,10 +29,17 @@ impl Trainer {
         Ok(())
     }
 
-    /// Renders `rays` (forward only, parallel chunks).
-    pub fn render_rays(&self, rays: &[RayInput<f32>]) -> Vec<RayOutput<f32>> {
+    /// Renders `rays` forward only, in parallel chunks, given the SDF at every depth of every
+    /// ray (`None`: evaluated here), dropping what carries at most `render.render_trim` of a
+    /// ray's colour ([`sdf_backbone::Pipeline::render_known`]).
+    pub fn render_rays(&self, rays: &[RayInput<f32>], sdf: Option<Vec<Vec<f32>>>) -> Vec<RayOutput<f32>> {
         let params = &self.state.params;
-        rays.par_chunks(64).flat_map_iter(|c| self.backbone.loss(params, c, None, &NoSampleLoss).1).collect()
+        let sdf = sdf.unwrap_or_else(|| self.backbone.sdf_along(params, rays));
+        let negligible = self.config.render.render_trim as f32;
+        rays.par_chunks(RENDER_CHUNK)
+            .zip(sdf.par_chunks(RENDER_CHUNK))
+            .flat_map_iter(|(rays, sdf)| self.backbone.render_known(params, rays, sdf, negligible))
+            .collect()
     }
 
     /// Renders view `view` of the scene at 1/`downscale` resolution (the estimator's coarse
@@ -65,20 +75,29 @@ impl Trainer {
                 (RayInput { origin, direction, depths, target: image.get_f32(col, row), mask: None, weight: 1.0 }, !empty)
             })
             .unzip();
-        // Up-sampling and the trim for the rays that cross occupied space.
+        // Up-sampling and the trim for the rays that cross occupied space, the SDF at every
+        // depth kept for the render.
         let index: Vec<usize> = (0..rays.len()).filter(|&i| hits[i]).collect();
         let mut crossing: Vec<RayInput<f32>> =
             index.iter().map(|&i| RayInput { depths: std::mem::take(&mut rays[i].depths), ..rays[i].clone() }).collect();
         let (params, fine, rounds) = (&self.state.params, r.render_fine, r.render_upsample_rounds);
-        if r.render_trim > 0.0 {
-            self.backbone.upsample_trimmed(params, &mut crossing, fine, rounds, r.upsample_s, self.s() as f32, r.render_trim as f32);
+        let values = if r.render_trim > 0.0 {
+            self.backbone.upsample_trimmed(params, &mut crossing, fine, rounds, r.upsample_s, self.s() as f32, r.render_trim as f32)
         } else {
             self.backbone.upsample(params, &mut crossing, fine, rounds, r.upsample_s);
-        }
-        for (ray, &i) in crossing.into_iter().zip(&index) {
+            self.backbone.sdf_along(params, &crossing)
+        };
+        let mut sdf = vec![Vec::new(); rays.len()];
+        for ((ray, values), &i) in crossing.into_iter().zip(values).zip(&index) {
             rays[i] = ray;
+            sdf[i] = values;
         }
-        let outputs = self.render_rays(&rays);
+        let missed: Vec<usize> = (0..rays.len()).filter(|&i| !hits[i]).collect();
+        let missed_rays: Vec<RayInput<f32>> = missed.iter().map(|&i| rays[i].clone()).collect();
+        for (values, &i) in self.backbone.sdf_along(params, &missed_rays).into_iter().zip(&missed) {
+            sdf[i] = values;
+        }
+        let outputs = self.render_rays(&rays, Some(sdf));
         let target = rays.iter().map(|r| r.target).collect();
         let mask = mask.map(|m| (0..height).flat_map(|r| (0..width).map(move |c| (c, r))).map(|(c, r)| m.get(c, r)).collect());
         Ok(ViewRender { width, height, outputs, target, mask })
@@ -151,6 +170,6 @@ impl Trainer {
                 }
             })
             .collect();
-        self.render_rays(&rays).iter().map(|o| o.color.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)).collect()
+        self.render_rays(&rays, None).iter().map(|o| o.color.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)).collect()
     }
 }

@@ -1,0 +1,184 @@
+//! A render without a loss: the forward pass of rays whose SDF values at their depths are
+//! already known (the up-sampling evaluated every one of them), in four batched stages.
+//!
+//! 1. The weights of every interval from those values at the model's scale s (no network).
+//! 2. The *kept* intervals, those whose weight exceeds `negligible / n` (n intervals on the
+//!    ray): only their colour is needed, so the SDF network runs at their first sample alone
+//!    (features and normals, analytic or by probes) and the colour network on those rows. The
+//!    dropped intervals' weights sum to at most `negligible` per ray.
+//! 3. The learned background only for the rays that let more than `negligible` through.
+//! 4. Each ray composited: `colour = Σ_kept wᵢ cᵢ + (1 − O) C_bg` (the background term dropped
+//!    where 1 − O ≤ `negligible`), opacity O and depth from every interval, normal from the kept.
+//!
+//! So the colour differs from the loss pass's by at most about `2 · negligible` per channel, and
+//! with `negligible = 0` it is the loss pass's up to rounding (test): no context for a backward
+//! pass, no loss terms, no allocation per ray, and most rows of the loss pass never evaluated
+//! (a ray's last sample, the samples that carry no weight, the background of opaque rays).
+
+use super::accumulate::COLOR_IN_FIXED;
+use super::{Pipeline, RayInput, RayOutput, scale_from_variance};
+use crate::encoding::SphericalHarmonics;
+use crate::module::Module;
+use crate::real::Real;
+use crate::render::weights_into;
+use crate::scratch::Buf;
+
+/// A kept interval: its ray, its index on the ray, its weight.
+struct Kept<R> {
+    ray: usize,
+    interval: usize,
+    weight: R,
+}
+
+impl<S, C> Pipeline<S, C> {
+    /// Renders `rays` forward only, given `sdf[r]`, the SDF at every depth of ray r (as
+    /// [`Self::upsample_trimmed`] returns them), dropping per ray intervals and background that
+    /// carry at most `negligible` of its colour (see the module docs; 0 drops only what carries
+    /// nothing). Sequential: callers run chunks of rays in parallel.
+    pub fn render_known<R: Real>(&self, params: &[R], rays: &[RayInput<R>], sdf: &[Vec<R>], negligible: R) -> Vec<RayOutput<R>>
+    where
+        S: Module<R>,
+        C: Module<R>,
+    {
+        let _span = crate::profile::span(crate::profile::Stage::RenderPass);
+        assert_eq!(rays.len(), sdf.len(), "render_known: one list of SDF values per ray");
+        let (n_sdf, n_col) = (self.sdf.n_params(), self.color.n_params());
+        let (p_sdf, rest) = params.split_at(n_sdf);
+        let (p_col, p_var) = rest.split_at(n_col);
+        let s = scale_from_variance(p_var[0]);
+        let mut outputs = Vec::with_capacity(rays.len());
+        let mut kept = Vec::new();
+        let mut weights = Vec::new();
+        for (r, (ray, values)) in rays.iter().zip(sdf).enumerate() {
+            assert_eq!(ray.depths.len(), values.len(), "render_known: ray {r} has {} depths and {} SDF values", ray.depths.len(), values.len());
+            weights_into(values, s, &mut weights);
+            let cut = negligible / R::of(weights.len().max(1) as f64);
+            let (mut opacity, mut depth) = (R::ZERO, R::ZERO);
+            for (i, &w) in weights.iter().enumerate() {
+                opacity += w;
+                depth += w * (ray.depths[i] + ray.depths[i + 1]) * R::of(0.5);
+                if w > cut {
+                    kept.push(Kept { ray: r, interval: i, weight: w });
+                }
+            }
+            outputs.push(RayOutput { color: [R::ZERO; 3], opacity, depth, normal: [R::ZERO; 3] });
+        }
+        let (colors, normals) = self.kept_colors(p_sdf, p_col, rays, &kept);
+        for ((k, c), n) in kept.iter().zip(colors.chunks_exact(3)).zip(&normals) {
+            let out = &mut outputs[k.ray];
+            for j in 0..3 {
+                out.color[j] += k.weight * c[j];
+                out.normal[j] += k.weight * n[j];
+            }
+        }
+        self.composite_background(&p_var[1..], rays, &mut outputs, negligible);
+        outputs
+    }
+
+    /// The colour (rows × 3) and normal of every kept interval: the SDF network at its first
+    /// sample (and the probes, for normals by differences), then the colour network.
+    fn kept_colors<R: Real>(&self, p_sdf: &[R], p_col: &[R], rays: &[RayInput<R>], kept: &[Kept<R>]) -> (Buf<R>, Vec<[R; 3]>)
+    where
+        S: Module<R>,
+        C: Module<R>,
+    {
+        let rows = kept.len();
+        let probes = if self.analytic.is_some() { &[] } else { self.config.normals.probes() };
+        let (np, h) = (probes.len(), R::of(self.config.normal_step));
+        let mut points = Buf::<R>::zeroed(3 * rows * (1 + np));
+        for (j, k) in kept.iter().enumerate() {
+            let ray = &rays[k.ray];
+            let t = ray.depths[k.interval];
+            let x = [0, 1, 2].map(|a| ray.origin[a] + t * ray.direction[a]);
+            points[3 * j..3 * j + 3].copy_from_slice(&x);
+            for (p, (offset, _)) in probes.iter().enumerate() {
+                let at = 3 * (rows + np * j + p);
+                for a in 0..3 {
+                    points[at + a] = x[a] + R::of(offset[a]) * h;
+                }
+            }
+        }
+        let n_out = self.sdf.n_outputs();
+        let mut sdf_out = Buf::<R>::zeroed(rows * (1 + np) * n_out);
+        let mut sdf_ctx = Buf::<R>::zeroed(rows * (1 + np) * self.sdf.ctx_per_row());
+        self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
+        let normals: Vec<[R; 3]> = match &self.analytic {
+            Some(analytic) => {
+                let mut axes = Buf::<R>::zeroed(rows * 9);
+                for row in axes.chunks_exact_mut(9) {
+                    (row[0], row[4], row[8]) = (R::ONE, R::ONE, R::ONE);
+                }
+                let mut grad = Buf::<R>::zeroed(rows * 3 * n_out);
+                (R::tangent_fns(analytic).forward)(&self.sdf, p_sdf, &points, &sdf_ctx, 3, &axes, &mut grad);
+                (0..rows).map(|j| [0, 1, 2].map(|a| grad[(j * 3 + a) * n_out])).collect()
+            }
+            None => (0..rows)
+                .map(|j| {
+                    let mut g = [R::ZERO; 3];
+                    for (p, (offset, w)) in probes.iter().enumerate() {
+                        let v = sdf_out[(rows + np * j + p) * n_out];
+                        for a in 0..3 {
+                            g[a] += R::of(offset[a] * w) * v;
+                        }
+                    }
+                    g.map(|v| v / h)
+                })
+                .collect(),
+        };
+        let c_in = COLOR_IN_FIXED + n_out - 1;
+        let mut color_in = Buf::<R>::zeroed(rows * c_in);
+        let mut sh = (usize::MAX, [R::ZERO; 16]);
+        for (j, k) in kept.iter().enumerate() {
+            if sh.0 != k.ray {
+                SphericalHarmonics.forward(&[], &rays[k.ray].direction, &mut sh.1, &mut []);
+                sh.0 = k.ray;
+            }
+            let row = &mut color_in[j * c_in..(j + 1) * c_in];
+            row[..3].copy_from_slice(&points[3 * j..3 * j + 3]);
+            row[3..6].copy_from_slice(&normals[j]);
+            row[6..COLOR_IN_FIXED].copy_from_slice(&sh.1);
+            row[COLOR_IN_FIXED..].copy_from_slice(&sdf_out[j * n_out + 1..(j + 1) * n_out]);
+        }
+        let mut colors = Buf::<R>::zeroed(rows * 3);
+        let mut color_ctx = Buf::<R>::zeroed(rows * self.color.ctx_per_row());
+        self.color.forward(p_col, &color_in, &mut colors, &mut color_ctx);
+        (colors, normals)
+    }
+
+    /// Adds `(1 − O) C_bg` to every output: the learned background for the rays that let more
+    /// than `negligible` through (the others keep their colour), or the fixed background colour.
+    fn composite_background<R: Real>(&self, p_bg: &[R], rays: &[RayInput<R>], outputs: &mut [RayOutput<R>], negligible: R) {
+        let Some(model) = &self.background else {
+            let background = self.config.background.map(R::of);
+            for out in outputs.iter_mut() {
+                let left = R::ONE - out.opacity;
+                for k in 0..3 {
+                    out.color[k] += left * background[k];
+                }
+            }
+            return;
+        };
+        let through: Vec<usize> = (0..rays.len()).filter(|&r| R::ONE - outputs[r].opacity > negligible).collect();
+        if through.is_empty() {
+            return;
+        }
+        let origins: Vec<[R; 3]> = through.iter().map(|&r| rays[r].origin).collect();
+        let directions: Vec<[R; 3]> = through.iter().map(|&r| rays[r].direction).collect();
+        let sh: Vec<[R; 16]> = directions
+            .iter()
+            .map(|d| {
+                let mut sh = [R::ZERO; 16];
+                SphericalHarmonics.forward(&[], d, &mut sh, &mut []);
+                sh
+            })
+            .collect();
+        let pass = model.forward(p_bg, &origins, &directions, &sh);
+        for (&r, c) in through.iter().zip(&pass.colors) {
+            let out = &mut outputs[r];
+            let left = R::ONE - out.opacity;
+            for k in 0..3 {
+                out.color[k] += left * c[k];
+            }
+        }
+    }
+}

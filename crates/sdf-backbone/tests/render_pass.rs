@@ -1,0 +1,115 @@
+//! The forward-only render pass (`Pipeline::render_known`) against the loss pass's outputs, in
+//! f64: equal when nothing is negligible, within the stated bound when something is.
+
+mod common;
+
+use common::random_params;
+use sdf_backbone::*;
+
+/// The pipeline of these tests.
+type Grid = Pipeline<Chain<WithInput<HashGrid>, Mlp>, Mlp>;
+
+/// A small hash-grid pipeline (normals by `normals`), with a learned background or the fixed
+/// grey, its parameters (v set so that s = e^(10 v)), and rays through it.
+fn pipeline(normals: NormalScheme, learned_background: bool, v: f64) -> (Grid, Vec<f64>, Vec<RayInput<f64>>) {
+    let grid = HashGrid::new(HashGridConfig { levels: 3, features: 2, log2_table: 8, base_resolution: 2, finest_resolution: 12 });
+    let mlp = |n_inputs, n_outputs, hidden_activation, output_activation| {
+        Mlp::new(MlpConfig { n_inputs, width: 8, hidden_layers: 1, n_outputs, skip: None, hidden_activation, output_activation })
+    };
+    let mut pipeline = Pipeline {
+        sdf: Chain { a: WithInput { encoding: grid }, b: mlp(3 + 6, 1 + 3, Activation::Softplus { beta: 10.0 }, Activation::Identity) },
+        color: mlp(22 + 3, 3, Activation::Relu, Activation::Sigmoid),
+        background: learned_background.then(|| BackgroundModel::with_view(4, 2, 8, 1, true)),
+        config: PipelineConfig {
+            color_loss: ColorLoss::L2,
+            eikonal_weight: 0.1,
+            mask_weight: 0.0,
+            normal_step: 1e-2,
+            normals: Differences::Central,
+            curvature_weight: 0.0,
+            background: [0.2, 0.4, 0.6],
+            masked_color: false,
+            opacity_entropy: 0.0,
+            normal_smoothness: 0.0,
+        },
+        analytic: None,
+    };
+    pipeline.set_normals(normals);
+    let mut params = random_params(pipeline.n_params::<f64>(), 0.3, 7);
+    let n_sdf = Module::<f64>::n_params(&pipeline.sdf);
+    let n_col = Module::<f64>::n_params(&pipeline.color);
+    params[n_sdf + n_col] = v;
+    let rays = (0..9)
+        .map(|r| {
+            let d = [0.15 * (r % 3) as f64 - 0.15, 0.1 * (r / 3) as f64 - 0.1, 1.0];
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            RayInput {
+                origin: [-0.1, 0.05 * r as f64 - 0.2, -1.0],
+                direction: d.map(|v| v / len),
+                depths: (0..24).map(|i| 0.2 + 0.07 * i as f64 + 0.003 * r as f64).collect(),
+                target: [0.0; 3],
+                mask: None,
+                weight: 1.0,
+            }
+        })
+        .collect();
+    (pipeline, params, rays)
+}
+
+/// The SDF at every depth of every ray.
+fn sdf_at_depths(pipeline: &Grid, params: &[f64], rays: &[RayInput<f64>]) -> Vec<Vec<f64>> {
+    rays.iter()
+        .map(|ray| {
+            let points: Vec<f64> = ray.depths.iter().flat_map(|&t| [0, 1, 2].map(|k| ray.origin[k] + t * ray.direction[k])).collect();
+            pipeline.sdf_values(params, &points)
+        })
+        .collect()
+}
+
+#[test]
+fn the_render_pass_with_nothing_negligible_equals_the_loss_pass() {
+    for normals in [NormalScheme::Analytic, NormalScheme::Central, NormalScheme::Tetrahedral] {
+        for learned_background in [false, true] {
+            let (pipeline, params, rays) = pipeline(normals, learned_background, 0.2);
+            let (_, expected) = pipeline.loss(&params, &rays, None, &NoSampleLoss);
+            let rendered = pipeline.render_known(&params, &rays, &sdf_at_depths(&pipeline, &params, &rays), 0.0);
+            assert!(expected.iter().any(|o| o.opacity > 0.05 && o.opacity < 0.95), "the rays are partly opaque");
+            for (r, (a, b)) in rendered.iter().zip(&expected).enumerate() {
+                let close = |x: f64, y: f64| (x - y).abs() <= 1e-12 * (1.0 + y.abs());
+                let same = (0..3).all(|k| close(a.color[k], b.color[k]) && close(a.normal[k], b.normal[k]))
+                    && close(a.opacity, b.opacity)
+                    && close(a.depth, b.depth);
+                assert!(same, "{normals:?}, learned background {learned_background}, ray {r}: {a:?} against {b:?}");
+            }
+        }
+    }
+}
+
+#[test]
+fn the_render_pass_drops_at_most_the_negligible_weight_and_background() {
+    // A sharper field (s = e^8): most of each ray's intervals carry almost nothing.
+    let negligible = 0.02;
+    for (learned_background, lift) in [(false, 0.0), (true, 0.0), (true, 0.5)] {
+        let (pipeline, params, rays) = pipeline(NormalScheme::Analytic, learned_background, 0.8);
+        // `lift` added to the SDF readout's bias (the last SDF output's bias is 4 from the end of
+        // the SDF network's parameters): the rays then end before the surface.
+        let mut params = params;
+        params[Module::<f64>::n_params(&pipeline.sdf) - 4] += lift;
+        let (_, expected) = pipeline.loss(&params, &rays, None, &NoSampleLoss);
+        let sdf = sdf_at_depths(&pipeline, &params, &rays);
+        let rendered = pipeline.render_known(&params, &rays, &sdf, negligible);
+        let s = 8.0f64.exp();
+        let mut dropped = 0;
+        for (r, (a, b)) in rendered.iter().zip(&expected).enumerate() {
+            let weights = render_ray(&sdf[r], &rays[r].depths, &vec![[0.0; 3]; sdf[r].len() - 1], s).weights;
+            dropped += weights.iter().filter(|&&w| w <= negligible / weights.len() as f64).count();
+            assert!((a.opacity - b.opacity).abs() <= 1e-12 && (a.depth - b.depth).abs() <= 1e-12, "ray {r}: opacity and depth from every interval");
+            for k in 0..3 {
+                assert!((a.color[k] - b.color[k]).abs() <= 2.0 * negligible, "ray {r}, channel {k}: {} against {}", a.color[k], b.color[k]);
+            }
+        }
+        let through = expected.iter().filter(|o| o.opacity < 0.5).count();
+        assert!(lift == 0.0 || through >= 3, "lifted, rays let the background through: {through}");
+        assert!(dropped > 20, "only {dropped} intervals were negligible: the test does not test dropping");
+    }
+}

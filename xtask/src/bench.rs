@@ -53,7 +53,7 @@ fn time_update(field: &Shape, s: f32, cameras: &[PinholeCamera], scene: &SceneGr
 
 fn emit(json: bool, value: serde_json::Value) {
     if json {
-        println!("{value}");
+        println!("{}", crate::machine::tag(value));
     }
 }
 
@@ -69,9 +69,8 @@ pub fn sampler(data: Option<&Path>, json: bool, quick: bool) -> Result<()> {
     let (cameras, rig_name) = dtu_cameras(data);
     let sphere = Shape::Sphere { center: DVec3::ZERO, radius: 0.5 };
     let date = std::process::Command::new("date").arg("+%Y-%m-%d").output().ok().and_then(|o| String::from_utf8(o.stdout).ok()).unwrap_or_default();
-    let threads = rayon::current_num_threads();
     if !json {
-        println!("# sampler benchmark — {rig_name}, analytic sphere r = 0.5, {threads} threads, {}", date.trim());
+        println!("# sampler benchmark — {rig_name}, analytic sphere r = 0.5, {}, {}", crate::machine::Machine::this().line(), date.trim());
     }
     let partitions: &[u32] = if quick { &[1, 2] } else { &[1, 2, 4] };
     let sampler = update_costs(&sphere, &cameras, &rig_name, partitions, json, quick)?;

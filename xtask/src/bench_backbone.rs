@@ -291,7 +291,7 @@ fn preset_figures(preset: Preset, reps: usize, gemm_best: f64, only: Option<Norm
         let t_mlp = time_mlp(&sdf_mlp, &params[layout.sdf_mlp.clone()], sdf_rows)
             + time_mlp(&backbone.color, &params[layout.color.clone()], n_rays * n_samples);
         let mlp_gflops = flop_per_sample * samples / t_mlp / 1e9;
-        out.push(json!({
+        out.push(crate::machine::tag(json!({
             "figure": "backbone_step", "preset": preset.name(), "params": params.len(),
             "levels": grid.as_ref().map(|g| g.levels), "features_per_level": grid.as_ref().map(|g| g.features),
             "log2_table_size": grid.as_ref().map(|g| g.log2_table), "base_resolution": grid.as_ref().map(|g| g.base_resolution),
@@ -305,7 +305,7 @@ fn preset_figures(preset: Preset, reps: usize, gemm_best: f64, only: Option<Norm
             "threads": rayon::current_num_threads(),
             // The trainer's default model: its preset and the normals `model.normals = auto` gives it.
             "default": preset == default_model().preset && normals == default_model().normal_scheme(),
-        }));
+        })));
     }
     let rss = peak_rss_mb();
     for f in &mut out {
@@ -403,12 +403,13 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
     let gemm_best = rates.iter().map(|g| g.1).fold(0.0, f64::max);
     if args.json {
         for (name, gflops) in &rates {
-            println!("{}", json!({"figure": "gemm_rate", "kernel": name, "gflops": gflops, "threads": threads}));
+            println!("{}", crate::machine::tag(json!({"figure": "gemm_rate", "kernel": name, "gflops": gflops, "threads": threads})));
         }
     } else {
         for (name, gflops) in &rates {
             println!("f32 matrix product, {name}, one per thread, {threads} threads: {gflops:.1} GFLOP/s");
         }
+        println!("machine: {}", crate::machine::Machine::this().line());
         println!(
             "| preset | parameters | rays × samples | normals | step (s) | samples/s | FLOP/sample | GFLOP/s (step) | MLP GFLOP/s | MLP / best GEMM | peak RSS (MB) |"
         );
@@ -438,7 +439,9 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
                     }
                 }
             }
-            Err(e) if args.json => println!("{}", json!({"figure": "backbone_step", "preset": preset.name(), "error": format!("{e:#}")})),
+            Err(e) if args.json => {
+                println!("{}", crate::machine::tag(json!({"figure": "backbone_step", "preset": preset.name(), "error": format!("{e:#}")})))
+            }
             Err(e) => println!("| {} | error: {e:#} |", preset.name()),
         }
     }
@@ -456,7 +459,7 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
         let best = steps.iter().filter(|f| f["step_s"].is_number()).min_by(|a, b| number(a, "step_s").total_cmp(&number(b, "step_s")));
         for f in &steps {
             if args.json {
-                println!("{f}");
+                println!("{}", crate::machine::tag((*f).clone()));
             } else {
                 println!(
                     "PyTorch {} {} normals, {}: step {} s (median; min {} s), peak RSS {} MB",
@@ -470,10 +473,11 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
             }
         }
         let best_s = best.map_or(f64::NAN, |b| number(b, "step_s"));
-        let ratio = json!({"figure": "peer_ratio", "ours_step_s": ours, "ours_normals": default_normals, "peer_best_step_s": best_s,
+        let ratio =
+            crate::machine::tag(json!({"figure": "peer_ratio", "ours_step_s": ours, "ours_normals": default_normals, "peer_best_step_s": best_s,
             "peer_best": best.map(|b| format!("{} {}", b["normals"].as_str().unwrap_or("?"), b["mode"].as_str().unwrap_or("?"))),
             "speedup": best_s / ours, "ours_tetrahedral_step_s": ours_tetrahedral, "speedup_tetrahedral": best_s / ours_tetrahedral,
-            "threads": threads});
+            "threads": threads}));
         if args.json {
             println!("{ratio}");
         } else {

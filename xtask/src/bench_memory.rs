@@ -53,8 +53,8 @@ pub fn memory(presets: &[Preset], steps: u64, json_out: bool) -> Result<()> {
         if json_out {
             println!(
                 "{}",
-                json!({"bench": "memory", "preset": preset, "steps": m.steps, "iteration_s": m.iteration_s, "mesh_s": m.mesh_s,
-                    "eval_s": eval_s, "wall_s": wall, "peak_rss_bytes": peak, "memory_estimate_bytes": estimate})
+                crate::machine::tag(json!({"bench": "memory", "preset": preset, "steps": m.steps, "iteration_s": m.iteration_s, "mesh_s": m.mesh_s,
+                    "eval_s": eval_s, "wall_s": wall, "peak_rss_bytes": peak, "memory_estimate_bytes": estimate}))
             );
         } else {
             println!(
@@ -103,8 +103,10 @@ pub fn soak(iterations: u64, every: u64, json_out: bool) -> Result<()> {
     if json_out {
         println!(
             "{}",
-            json!({"bench": "soak", "iterations": iterations, "wall_s": wall, "samples": samples, "after_warmup_min": lo, "after_warmup_max": hi,
+            crate::machine::tag(
+                json!({"bench": "soak", "iterations": iterations, "wall_s": wall, "samples": samples, "after_warmup_min": lo, "after_warmup_max": hi,
                 "slope_bytes_per_1000_iterations": slope * 1000.0, "peak_rss_bytes": m.peak_rss_bytes})
+            )
         );
     } else {
         println!("| iteration | resident (MB) |\n|---|---|");

@@ -48,12 +48,12 @@ pub fn run(run_dir: &Path, iterations: u64, json_out: bool) -> Result<()> {
     // The run's grid updates spread over the iterations it did.
     let per_iteration_update = update_seconds * f64::from(config.guide.updates) / iterations_done as f64;
     let overhead = (t_guided + per_iteration_update) / t_uniform - 1.0;
-    let result = json!({
+    let result = crate::machine::tag(json!({
         "figure": "sampler_overhead", "run": run_dir.display().to_string(), "iterations": iterations,
         "rays": config.render.rays, "samples": config.render.coarse + config.render.fine,
         "uniform_s": t_uniform, "guided_s": t_guided, "grid_update_s": update_seconds, "updates": config.guide.updates,
         "overhead": overhead, "threads": rayon::current_num_threads(),
-    });
+    }));
     if json_out {
         println!("{result}");
     } else {

@@ -288,18 +288,21 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     let result = json!({"run": dir.display().to_string(), "step": trainer.state().step, "views": views, "psnr": mean("psnr"),
         "psnr_masked": mean("psnr_masked"), "ssim": mean("ssim"), "per_view": per_view, "downscale": downscale,
         "render_fine": fine, "render_upsample_rounds": rounds, "render_trim": trim, "render_skip_empty": skip_empty, "seconds": seconds, "pixels_per_s": pixels as f64 / seconds});
+    // A speed figure: it names the machine.
+    let result = crate::machine::tag(result);
     write_atomic(&dir.join("eval.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;
     if args.json {
         println!("{result}");
     } else {
         println!(
-            "mean over {} {} views: PSNR {:.2} dB, masked {:?}, SSIM {:?}; {pixels} pixels rendered in {seconds:.1} s ({:.0} pixels/s) (written to {})",
+            "mean over {} {} views: PSNR {:.2} dB, masked {:?}, SSIM {:?}; {pixels} pixels rendered in {seconds:.1} s ({:.0} pixels/s on {}) (written to {})",
             views.len(),
             if trainer.split().held_out.is_empty() { "training (none held out)" } else { "held-out" },
             mean("psnr").unwrap_or(f64::NAN),
             mean("psnr_masked"),
             mean("ssim"),
             pixels as f64 / seconds,
+            crate::machine::Machine::this().line(),
             dir.join("eval.json").display()
         );
     }

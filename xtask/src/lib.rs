@@ -6,6 +6,7 @@
 //! - [`eval`]: a mesh against ground truth, or a run's held-out views.
 //! - [`trade`]: the speed/accuracy table over budgets, seeds, scenes and settings.
 //! - [`fuzz`]: every parser of user input under mutated bytes.
+//! - [`machine`]: the CPU and instruction set named beside every benchmark figure.
 //! - [`sample`], [`bench`](mod@bench), [`bench_backbone`], [`bench_memory`], [`bench_overhead`]:
 //!   the other commands.
 #![deny(missing_docs)]
@@ -16,6 +17,7 @@ pub mod bench_memory;
 pub mod bench_overhead;
 pub mod eval;
 pub mod fuzz;
+pub mod machine;
 pub mod sample;
 pub mod trade;
 pub mod train;

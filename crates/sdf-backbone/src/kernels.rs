@@ -44,6 +44,27 @@ pub fn wide_tiles() -> bool {
     }
 }
 
+/// The instruction set [`dispatch`] runs on this CPU, as `pulp` detects it: `"AVX-512
+/// (x86-64-v4)"`, `"AVX2 + FMA (x86-64-v3)"`, or the target's baseline.
+pub fn instruction_set() -> &'static str {
+    #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+    {
+        match Arch::new() {
+            Arch::V4(_) => "AVX-512 (x86-64-v4)",
+            Arch::V3(_) => "AVX2 + FMA (x86-64-v3)",
+            _ => "SSE2 (x86-64 baseline)",
+        }
+    }
+    #[cfg(target_arch = "aarch64")]
+    {
+        "NEON (aarch64 baseline)"
+    }
+    #[cfg(not(any(target_arch = "x86", target_arch = "x86_64", target_arch = "aarch64")))]
+    {
+        "the target's baseline"
+    }
+}
+
 /// Runs `f` compiled for the widest instruction set the CPU has. Pass the closure as
 /// `dispatch(#[inline(always)] || …)`: a closure that is not inlined into the dispatched function
 /// is compiled for the baseline instruction set only (measured on a 4 × 64 tile kernel: 0.9

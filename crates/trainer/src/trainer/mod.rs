@@ -115,6 +115,8 @@ pub struct Trainer {
     grads: Vec<f32>,
     timing: Timing,
     last_step_seconds: f64,
+    /// The renders' occupancy and the key of the field it was made of ([`renders`]).
+    render_occupancy: std::sync::Mutex<Option<(u64, std::sync::Arc<prob_grid::Occupancy>)>>,
 }
 
 /// The surface losses as the backbone's per-ray hook.
@@ -210,6 +212,7 @@ impl Trainer {
             grads: Vec::new(),
             timing: Timing::default(),
             last_step_seconds: 0.0,
+            render_occupancy: std::sync::Mutex::new(None),
         })
     }
 

@@ -10,6 +10,8 @@ use datasets::images::RgbImage;
 use prob_grid::{IsoMesh, MarchingCubesConfig, Occupancy, marching_cubes_with_progress};
 use rayon::prelude::*;
 use sdf_backbone::{RayInput, RayOutput};
+use std::hash::Hasher;
+use std::sync::Arc;
 use view_sampler::march_through;
 
 /// Rays per work item of a render.
@@ -58,6 +60,7 @@ impl Trainer {
             .with_context(|| format!("view {:?} ({}×{}) rendered at downscale {downscale}", view.name, c.width, c.height))?;
         let r = &self.config.render;
         let occupancy = if r.render_skip_empty { Some(self.render_occupancy()?) } else { None };
+        let occupancy = occupancy.as_deref();
         let (mut rays, hits): (Vec<RayInput<f32>>, Vec<bool>) = (0..height)
             .into_par_iter()
             .flat_map_iter(|row| (0..width).map(move |col| (col, row)))
@@ -65,7 +68,7 @@ impl Trainer {
                 let ray = camera.ray_through_pixel_index(col, row);
                 let mut depths = Vec::with_capacity(r.coarse + 1);
                 // The render's own occupancy, else the estimator's (training with skipping).
-                let crosses = march_through(occupancy.as_ref().or(self.estimator.occupancy()), ray.origin, ray.direction, r.coarse, 0.5, &mut depths);
+                let crosses = march_through(occupancy.or(self.estimator.occupancy()), ray.origin, ray.direction, r.coarse, 0.5, &mut depths);
                 let empty = occupancy.is_some() && !crosses;
                 if empty {
                     // Nothing along it can carry weight: one interval at its far end.
@@ -121,13 +124,33 @@ impl Trainer {
     }
 
     /// The occupancy of the current field at the current s on the guide's scene grid (dilated by
-    /// `render.occupancy_dilation`, at least one cell), for renders (`render.render_skip_empty`).
-    fn render_occupancy(&self) -> Result<Occupancy> {
+    /// `render.occupancy_dilation`, at least one cell), for renders (`render.render_skip_empty`):
+    /// made once for all the views rendered of one field, keyed by a hash of the parameters'
+    /// bits, the field's Lipschitz bound and the dilation (the scene grid does not change in a
+    /// trainer's life), so that no change of the model can reuse a stale one.
+    fn render_occupancy(&self) -> Result<Arc<Occupancy>> {
+        let key = {
+            let mut h = std::hash::DefaultHasher::new();
+            for p in &self.state.params {
+                h.write_u32(p.to_bits());
+            }
+            h.write_u32(self.config.render.occupancy_dilation);
+            h.write_u32(self.estimator.lipschitz_bound().to_bits());
+            h.finish()
+        };
+        let mut cache = self.render_occupancy.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some((k, occupancy)) = cache.as_ref()
+            && *k == key
+        {
+            return Ok(Arc::clone(occupancy));
+        }
         let mut field = self.backbone.field(&self.state.params);
         field.lipschitz = self.estimator.lipschitz_bound();
         let scene = &self.config.guide.scene;
         let active = prob_grid::evaluate(&field, self.s() as f32, scene).context("the occupancy of a render")?;
-        Ok(Occupancy::from_active(&active, scene, self.config.render.occupancy_dilation.max(1)))
+        let occupancy = Arc::new(Occupancy::from_active(&active, scene, self.config.render.occupancy_dilation.max(1)));
+        *cache = Some((key, Arc::clone(&occupancy)));
+        Ok(occupancy)
     }
 
     /// PSNR (whole image, inside the mask) and SSIM of view `view` rendered at `downscale`.

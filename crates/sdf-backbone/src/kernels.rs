@@ -108,16 +108,20 @@ fn tile<R: Real, const M: usize, const W: usize>(
     k: usize,
 ) {
     let rows: [usize; M] = std::array::from_fn(|i| (m0 + i.min(mr - 1)) * l.sm);
+    // The accumulators in a local copy, and every operand of a step read (and bounds-checked)
+    // before its multiply-adds: so that no panic can come between two of them, and the
+    // accumulators stay in registers (else LLVM stores all of them to the stack every step).
+    let mut c = *acc;
     for kk in 0..k {
-        let brow: &[R; W] = b[kk * bs + n0..kk * bs + n0 + W].try_into().expect("tile width");
+        let brow: [R; W] = *<&[R; W]>::try_from(&b[kk * bs + n0..kk * bs + n0 + W]).expect("tile width");
+        let x: [R; M] = std::array::from_fn(|i| l.data[rows[i] + kk * l.sk]);
         for i in 0..M {
-            let x = l.data[rows[i] + kk * l.sk];
-            let a = &mut acc[i];
             for j in 0..W {
-                a[j] = x.mul_add(brow[j], a[j]);
+                c[i][j] = x[i].mul_add(brow[j], c[i][j]);
             }
         }
     }
+    *acc = c;
 }
 
 /// Runs `$run!(W)` for the tile width `$w` (a multiple of [`LANE`], at most `$wmax`): one arm

@@ -100,7 +100,7 @@ fn upsample_chunk<S: Module<f32>>(
 }
 
 /// Rays per forward pass of the up-sampling.
-const CHUNK: usize = 16;
+const CHUNK: usize = 64;
 
 impl<S, C> Pipeline<S, C> {
     /// NeuS's hierarchical up-sampling: `rounds` rounds, each weighting the intervals of the

@@ -126,8 +126,9 @@ impl Trainer {
     /// The occupancy of the current field at the current s on the guide's scene grid (dilated by
     /// `render.occupancy_dilation`, at least one cell), for renders (`render.render_skip_empty`):
     /// made once for all the views rendered of one field, keyed by a hash of the parameters'
-    /// bits, the field's Lipschitz bound and the dilation (the scene grid does not change in a
-    /// trainer's life), so that no change of the model can reuse a stale one.
+    /// bits, the active hash-grid levels, the field's Lipschitz bound and the dilation (the scene
+    /// grid does not change in a trainer's life), so that no change of the model can reuse a
+    /// stale one.
     fn render_occupancy(&self) -> Result<Arc<Occupancy>> {
         let key = {
             let mut h = std::hash::DefaultHasher::new();
@@ -136,6 +137,9 @@ impl Trainer {
             }
             h.write_u32(self.config.render.occupancy_dilation);
             h.write_u32(self.estimator.lipschitz_bound().to_bits());
+            // The finest active hash-grid level (coarse to fine changes the field, not the
+            // parameters), through the normal step tied to it.
+            h.write_u64(self.backbone.config.normal_step.to_bits());
             h.finish()
         };
         let mut cache = self.render_occupancy.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
@@ -194,5 +198,33 @@ impl Trainer {
             })
             .collect();
         self.render_rays(&rays, None).iter().map(|o| o.color.map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{Budget, TrainConfig};
+    use crate::data::SceneData;
+
+    /// The renders' occupancy is made once per field: reused while nothing changed, made again
+    /// after the parameters or the active hash-grid levels changed.
+    #[test]
+    fn a_renders_occupancy_is_reused_only_for_the_same_field() {
+        let mut config = TrainConfig { budget: Budget::Steps(1), ..TrainConfig::default() };
+        config.data.builtin.width = 48;
+        config.render.rays = 64;
+        let data = SceneData::builtin(&config).unwrap();
+        let mut trainer = Trainer::new(config, data).unwrap();
+        let first = trainer.render_occupancy().unwrap();
+        assert!(Arc::ptr_eq(&first, &trainer.render_occupancy().unwrap()), "the same field reuses its occupancy");
+        let mut params = trainer.state().params.clone();
+        params[0] += 1e-3;
+        trainer.set_parameters(&params).unwrap();
+        let second = trainer.render_occupancy().unwrap();
+        assert!(!Arc::ptr_eq(&first, &second), "new parameters make a new occupancy");
+        let levels = trainer.backbone.levels().expect("the default preset has a hash grid");
+        trainer.backbone.set_active_levels(levels - 1);
+        assert!(!Arc::ptr_eq(&second, &trainer.render_occupancy().unwrap()), "other active levels make a new occupancy");
     }
 }

@@ -18,9 +18,19 @@ pub struct Machine {
 }
 
 impl Machine {
-    /// This machine.
+    /// This machine (`/proc/cpuinfo` read once per process).
     pub fn this() -> Machine {
-        Machine { cpu: cpu_model(), isa: sdf_backbone::kernels::instruction_set(), extensions: extensions(), threads: rayon::current_num_threads() }
+        static CPU: std::sync::OnceLock<(String, Vec<&'static str>)> = std::sync::OnceLock::new();
+        let (cpu, extensions) = CPU.get_or_init(|| {
+            let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+            (cpu_model(&info), extensions(&info))
+        });
+        Machine {
+            cpu: cpu.clone(),
+            isa: sdf_backbone::kernels::instruction_set(),
+            extensions: extensions.clone(),
+            threads: rayon::current_num_threads(),
+        }
     }
 
     /// One line for a table's header: model, instruction set, extensions, threads.
@@ -43,10 +53,10 @@ pub fn tag(mut figure: Value) -> Value {
     figure
 }
 
-/// The CPU's model name from `/proc/cpuinfo` (Linux), else `"unknown CPU"`, with its family and
-/// model numbers where the name alone does not tell the generation (AMD's "AMD EPYC").
-fn cpu_model() -> String {
-    let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+/// The CPU's model name from `/proc/cpuinfo`'s text `info` (Linux), else `"unknown CPU"`, with
+/// its family and model numbers where the name alone does not tell the generation (AMD's "AMD
+/// EPYC").
+fn cpu_model(info: &str) -> String {
     let field = |key: &str| {
         info.lines().find(|l| l.split(':').next().is_some_and(|k| k.trim() == key)).and_then(|l| l.split_once(':')).map(|(_, v)| v.trim().to_string())
     };
@@ -60,11 +70,10 @@ fn cpu_model() -> String {
 }
 
 /// The extensions of this CPU that the kernels could use beyond their instruction set: from
-/// `/proc/cpuinfo`'s flags where there is one (AMX's detection is not stable in Rust), else
+/// `/proc/cpuinfo`'s flags (`info`) where there are any (AMX's detection is not stable in Rust), else
 /// `avx512_bf16` by the standard library's detection.
-fn extensions() -> Vec<&'static str> {
+fn extensions(info: &str) -> Vec<&'static str> {
     const WANTED: [&str; 2] = ["avx512_bf16", "amx_bf16"];
-    let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
     if let Some(flags) = info.lines().find(|l| l.starts_with("flags")) {
         let flags: Vec<&str> = flags.split_whitespace().collect();
         return WANTED.into_iter().filter(|w| flags.contains(w)).collect();

@@ -57,4 +57,4 @@ pub use pipeline::{
 pub use presets::{Preset, architecture, architecture_with_grid, build, build_with_grid};
 pub use real::Real;
 pub use render::{RayGradients, RayRender, merge_sorted, render_ray, render_ray_backward, sample_intervals};
-pub use upsample::{interval_weights, trim_to_weight};
+pub use upsample::{Trim, interval_weights, trim_to_weight};

@@ -17,7 +17,7 @@
 
 use crate::module::Module;
 use crate::pipeline::{Pipeline, RayInput};
-use crate::render::{merge_sorted, render_ray, sample_intervals};
+use crate::render::{merge_sorted, sample_intervals, weights_into};
 use crate::scratch::Buf;
 
 /// `a` and `b` (sorted depths, each with its values) merged as [`merge_sorted`] merges them, the
@@ -99,6 +99,16 @@ fn upsample_chunk<S: Module<f32>>(
     if keep { sdf } else { Vec::new() }
 }
 
+/// How a render trims its rays ([`trim_to_weight`]): at the model's scale `s`, dropping at most
+/// `negligible` of a ray's weight on each side.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Trim {
+    /// The model's logistic scale.
+    pub s: f32,
+    /// The weight a ray may drop on each side.
+    pub negligible: f32,
+}
+
 /// Rays per forward pass of the up-sampling.
 const CHUNK: usize = 64;
 
@@ -118,19 +128,17 @@ impl<S, C> Pipeline<S, C> {
         });
     }
 
-    /// [`Self::upsample`] for a render: each ray then trimmed by [`trim_to_weight`] at the
-    /// model's scale `s`, chunk by chunk (the trimmed depths release their memory). Returns the
-    /// SDF at every ray's final depths, for [`Self::render_known`].
-    #[allow(clippy::too_many_arguments)]
-    pub fn upsample_trimmed(
+    /// [`Self::upsample`] for a render, each depth's SDF kept: each ray then trimmed by
+    /// [`trim_to_weight`] when `trim` is given, chunk by chunk (the trimmed depths release their
+    /// memory). Returns the SDF at every ray's final depths, for [`Self::render_known`].
+    pub fn upsample_for_render(
         &self,
         params: &[f32],
         rays: &mut [RayInput<f32>],
         n_fine: usize,
         rounds: usize,
         base_s: f64,
-        s: f32,
-        negligible: f32,
+        trim: Option<Trim>,
     ) -> Vec<Vec<f32>>
     where
         S: Module<f32> + Sync,
@@ -140,10 +148,12 @@ impl<S, C> Pipeline<S, C> {
         rays.par_chunks_mut(CHUNK)
             .flat_map_iter(|rays| {
                 let mut sdf = upsample_chunk(net, params, rays, n_fine, rounds, base_s, true);
-                for (ray, sdf) in rays.iter_mut().zip(sdf.iter_mut()) {
-                    trim_to_weight(&mut ray.depths, sdf, s, negligible);
-                    ray.depths.shrink_to_fit();
-                    sdf.shrink_to_fit();
+                if let Some(Trim { s, negligible }) = trim {
+                    for (ray, sdf) in rays.iter_mut().zip(sdf.iter_mut()) {
+                        trim_to_weight(&mut ray.depths, sdf, s, negligible);
+                        ray.depths.shrink_to_fit();
+                        sdf.shrink_to_fit();
+                    }
                 }
                 sdf
             })
@@ -169,9 +179,9 @@ impl<S, C> Pipeline<S, C> {
 
 /// Rendering weights of the intervals between samples with SDF values `sdf` at scale `s`.
 pub fn interval_weights(sdf: &[f32], s: f32) -> Vec<f32> {
-    let colors = vec![[0.0f32; 3]; sdf.len().saturating_sub(1)];
-    let t: Vec<f32> = (0..sdf.len()).map(|i| i as f32).collect();
-    render_ray(sdf, &t, &colors, s).weights
+    let mut weights = Vec::with_capacity(sdf.len().saturating_sub(1));
+    weights_into(sdf, s, &mut weights);
+    weights
 }
 
 /// Trims a render's ray (`depths` with the SDF `sdf` at each, rendered at scale `s`) to the
@@ -213,6 +223,7 @@ pub fn trim_to_weight(depths: &mut Vec<f32>, sdf: &mut Vec<f32>, s: f32, negligi
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::render::render_ray;
 
     #[test]
     fn merging_with_values_orders_as_merge_sorted_does() {

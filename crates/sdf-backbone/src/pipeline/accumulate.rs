@@ -115,6 +115,40 @@ struct Scale<R> {
     backward: bool,
 }
 
+/// The derivatives of the SDF network's `n_out` outputs along x, y and z at every row of
+/// `points` (rows × 3 × n_out; the SDF's are ∇ₓS), by its tangent pass from the forward's `ctx`.
+pub(super) fn axis_tangents<S, R: Real>(fns: &TangentFns<S, R>, sdf: &S, p_sdf: &[R], points: &[R], ctx: &[R], n_out: usize) -> Buf<R> {
+    let rows = points.len() / 3;
+    let mut axes = Buf::<R>::zeroed(rows * 9);
+    for row in axes.chunks_exact_mut(9) {
+        (row[0], row[4], row[8]) = (R::ONE, R::ONE, R::ONE);
+    }
+    let mut out = Buf::<R>::zeroed(rows * 3 * n_out);
+    (fns.forward)(sdf, p_sdf, points, ctx, 3, &axes, &mut out);
+    out
+}
+
+/// A normal by differences: `Σⱼ vⱼ wⱼ S(x + h vⱼ) / h` over the probes (offset v, weight w),
+/// `value(j)` the SDF at probe j.
+pub(super) fn probe_normal<R: Real>(probes: &[([f64; 3], f64)], h: R, value: impl Fn(usize) -> R) -> [R; 3] {
+    let mut g = [R::ZERO; 3];
+    for (j, (offset, w)) in probes.iter().enumerate() {
+        let v = value(j);
+        for k in 0..3 {
+            g[k] += R::of(offset[k] * w) * v;
+        }
+    }
+    g.map(|v| v / h)
+}
+
+/// One colour-network input row: `[x, n, SH₄(d), features]`.
+pub(super) fn color_row<R: Real>(row: &mut [R], x: &[R], normal: &[R; 3], sh: &[R; 16], features: &[R]) {
+    row[..3].copy_from_slice(x);
+    row[3..6].copy_from_slice(normal);
+    row[6..COLOR_IN_FIXED].copy_from_slice(sh);
+    row[COLOR_IN_FIXED..].copy_from_slice(features);
+}
+
 impl<S, C> Pipeline<S, C> {
     /// The loss of `rays` (the batch's rays from index `first`) divided by `m` (the whole batch's
     /// ray count; the colour loss by `color_norm`), gradients added to `d_params`, which covers
@@ -200,17 +234,8 @@ impl<S, C> Pipeline<S, C> {
         let mut sdf_out = Buf::<R>::zeroed(rows.sdf * dims.n_out);
         let mut sdf_ctx = Buf::<R>::zeroed(rows.sdf * self.sdf.ctx_per_row());
         self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
-        let gradients = self.analytic.as_ref().map(|analytic| {
-            let mut axes = Buf::<R>::zeroed(rows.sdf * 9);
-            for row in axes.chunks_exact_mut(9) {
-                row[0] = R::ONE;
-                row[4] = R::ONE;
-                row[8] = R::ONE;
-            }
-            let mut out = Buf::<R>::zeroed(rows.sdf * 3 * dims.n_out);
-            (R::tangent_fns(analytic).forward)(&self.sdf, p_sdf, &points, &sdf_ctx, 3, &axes, &mut out);
-            out
-        });
+        let gradients =
+            self.analytic.as_ref().map(|analytic| axis_tangents(R::tangent_fns(analytic), &self.sdf, p_sdf, &points, &sdf_ctx, dims.n_out));
         (points, sdf_out, sdf_ctx, gradients)
     }
 
@@ -245,23 +270,11 @@ impl<S, C> Pipeline<S, C> {
             for i in 0..n {
                 let nrm = match gradients.as_deref() {
                     Some(grad) => [0, 1, 2].map(|k| grad[((b + i) * 3 + k) * n_out]),
-                    None => {
-                        let mut g = [R::ZERO; 3];
-                        for (j, (offset, w)) in dims.probes.iter().enumerate() {
-                            let v = sdf_out[(b + n + 1 + np * i + j) * n_out];
-                            for k in 0..3 {
-                                g[k] += R::of(offset[k] * w) * v;
-                            }
-                        }
-                        g.map(|v| v / h)
-                    }
+                    None => probe_normal(dims.probes, h, |j| sdf_out[(b + n + 1 + np * i + j) * n_out]),
                 };
                 normals.push(nrm);
                 let row = &mut color_in[(c0 + i) * c_in..(c0 + i + 1) * c_in];
-                row[..3].copy_from_slice(&points[3 * (b + i)..3 * (b + i) + 3]);
-                row[3..6].copy_from_slice(&nrm);
-                row[6..COLOR_IN_FIXED].copy_from_slice(&sh_d);
-                row[COLOR_IN_FIXED..].copy_from_slice(&sdf_out[(b + i) * n_out + 1..(b + i + 1) * n_out]);
+                color_row(row, &points[3 * (b + i)..3 * (b + i) + 3], &nrm, &sh_d, &sdf_out[(b + i) * n_out + 1..(b + i + 1) * n_out]);
             }
         }
         let mut colors = Buf::<R>::zeroed(rows.col * 3);

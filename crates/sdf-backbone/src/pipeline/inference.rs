@@ -15,7 +15,7 @@
 //! pass, no loss terms, no allocation per ray, and most rows of the loss pass never evaluated
 //! (a ray's last sample, the samples that carry no weight, the background of opaque rays).
 
-use super::accumulate::COLOR_IN_FIXED;
+use super::accumulate::{COLOR_IN_FIXED, axis_tangents, color_row, probe_normal};
 use super::{Pipeline, RayInput, RayOutput, scale_from_variance};
 use crate::encoding::SphericalHarmonics;
 use crate::module::Module;
@@ -32,7 +32,7 @@ struct Kept<R> {
 
 impl<S, C> Pipeline<S, C> {
     /// Renders `rays` forward only, given `sdf[r]`, the SDF at every depth of ray r (as
-    /// [`Self::upsample_trimmed`] returns them), dropping per ray intervals and background that
+    /// [`Self::upsample_for_render`] returns them), dropping per ray intervals and background that
     /// carry at most `negligible` of its colour (see the module docs; 0 drops only what carries
     /// nothing). Sequential: callers run chunks of rays in parallel.
     pub fn render_known<R: Real>(&self, params: &[R], rays: &[RayInput<R>], sdf: &[Vec<R>], negligible: R) -> Vec<RayOutput<R>>
@@ -63,7 +63,16 @@ impl<S, C> Pipeline<S, C> {
             }
             outputs.push(RayOutput { color: [R::ZERO; 3], opacity, depth, normal: [R::ZERO; 3] });
         }
-        let (colors, normals) = self.kept_colors(p_sdf, p_col, rays, &kept);
+        // SH₄ of each ray's direction, for the colour network and the background.
+        let sh: Vec<[R; 16]> = rays
+            .iter()
+            .map(|ray| {
+                let mut sh = [R::ZERO; 16];
+                SphericalHarmonics.forward(&[], &ray.direction, &mut sh, &mut []);
+                sh
+            })
+            .collect();
+        let (colors, normals) = self.kept_colors(p_sdf, p_col, rays, &sh, &kept);
         for ((k, c), n) in kept.iter().zip(colors.chunks_exact(3)).zip(&normals) {
             let out = &mut outputs[k.ray];
             for j in 0..3 {
@@ -71,13 +80,13 @@ impl<S, C> Pipeline<S, C> {
                 out.normal[j] += k.weight * n[j];
             }
         }
-        self.composite_background(&p_var[1..], rays, &mut outputs, negligible);
+        self.composite_background(&p_var[1..], rays, &sh, &mut outputs, negligible);
         outputs
     }
 
     /// The colour (rows × 3) and normal of every kept interval: the SDF network at its first
     /// sample (and the probes, for normals by differences), then the colour network.
-    fn kept_colors<R: Real>(&self, p_sdf: &[R], p_col: &[R], rays: &[RayInput<R>], kept: &[Kept<R>]) -> (Buf<R>, Vec<[R; 3]>)
+    fn kept_colors<R: Real>(&self, p_sdf: &[R], p_col: &[R], rays: &[RayInput<R>], sh: &[[R; 16]], kept: &[Kept<R>]) -> (Buf<R>, Vec<[R; 3]>)
     where
         S: Module<R>,
         C: Module<R>,
@@ -104,40 +113,17 @@ impl<S, C> Pipeline<S, C> {
         self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
         let normals: Vec<[R; 3]> = match &self.analytic {
             Some(analytic) => {
-                let mut axes = Buf::<R>::zeroed(rows * 9);
-                for row in axes.chunks_exact_mut(9) {
-                    (row[0], row[4], row[8]) = (R::ONE, R::ONE, R::ONE);
-                }
-                let mut grad = Buf::<R>::zeroed(rows * 3 * n_out);
-                (R::tangent_fns(analytic).forward)(&self.sdf, p_sdf, &points, &sdf_ctx, 3, &axes, &mut grad);
+                // The kept samples only: the probes are not among the rows with analytic normals.
+                let grad = axis_tangents(R::tangent_fns(analytic), &self.sdf, p_sdf, &points, &sdf_ctx, n_out);
                 (0..rows).map(|j| [0, 1, 2].map(|a| grad[(j * 3 + a) * n_out])).collect()
             }
-            None => (0..rows)
-                .map(|j| {
-                    let mut g = [R::ZERO; 3];
-                    for (p, (offset, w)) in probes.iter().enumerate() {
-                        let v = sdf_out[(rows + np * j + p) * n_out];
-                        for a in 0..3 {
-                            g[a] += R::of(offset[a] * w) * v;
-                        }
-                    }
-                    g.map(|v| v / h)
-                })
-                .collect(),
+            None => (0..rows).map(|j| probe_normal(probes, h, |p| sdf_out[(rows + np * j + p) * n_out])).collect(),
         };
         let c_in = COLOR_IN_FIXED + n_out - 1;
         let mut color_in = Buf::<R>::zeroed(rows * c_in);
-        let mut sh = (usize::MAX, [R::ZERO; 16]);
         for (j, k) in kept.iter().enumerate() {
-            if sh.0 != k.ray {
-                SphericalHarmonics.forward(&[], &rays[k.ray].direction, &mut sh.1, &mut []);
-                sh.0 = k.ray;
-            }
             let row = &mut color_in[j * c_in..(j + 1) * c_in];
-            row[..3].copy_from_slice(&points[3 * j..3 * j + 3]);
-            row[3..6].copy_from_slice(&normals[j]);
-            row[6..COLOR_IN_FIXED].copy_from_slice(&sh.1);
-            row[COLOR_IN_FIXED..].copy_from_slice(&sdf_out[j * n_out + 1..(j + 1) * n_out]);
+            color_row(row, &points[3 * j..3 * j + 3], &normals[j], &sh[k.ray], &sdf_out[j * n_out + 1..(j + 1) * n_out]);
         }
         let mut colors = Buf::<R>::zeroed(rows * 3);
         let mut color_ctx = Buf::<R>::zeroed(rows * self.color.ctx_per_row());
@@ -147,7 +133,7 @@ impl<S, C> Pipeline<S, C> {
 
     /// Adds `(1 − O) C_bg` to every output: the learned background for the rays that let more
     /// than `negligible` through (the others keep their colour), or the fixed background colour.
-    fn composite_background<R: Real>(&self, p_bg: &[R], rays: &[RayInput<R>], outputs: &mut [RayOutput<R>], negligible: R) {
+    fn composite_background<R: Real>(&self, p_bg: &[R], rays: &[RayInput<R>], sh: &[[R; 16]], outputs: &mut [RayOutput<R>], negligible: R) {
         let Some(model) = &self.background else {
             let background = self.config.background.map(R::of);
             for out in outputs.iter_mut() {
@@ -164,14 +150,7 @@ impl<S, C> Pipeline<S, C> {
         }
         let origins: Vec<[R; 3]> = through.iter().map(|&r| rays[r].origin).collect();
         let directions: Vec<[R; 3]> = through.iter().map(|&r| rays[r].direction).collect();
-        let sh: Vec<[R; 16]> = directions
-            .iter()
-            .map(|d| {
-                let mut sh = [R::ZERO; 16];
-                SphericalHarmonics.forward(&[], d, &mut sh, &mut []);
-                sh
-            })
-            .collect();
+        let sh: Vec<[R; 16]> = through.iter().map(|&r| sh[r]).collect();
         let pass = model.forward(p_bg, &origins, &directions, &sh);
         for (&r, c) in through.iter().zip(&pass.colors) {
             let out = &mut outputs[r];

@@ -9,7 +9,7 @@ use crate::outputs::{ViewRender, filter_components, heat_map};
 use datasets::images::RgbImage;
 use prob_grid::{IsoMesh, MarchingCubesConfig, Occupancy, marching_cubes_with_progress};
 use rayon::prelude::*;
-use sdf_backbone::{RayInput, RayOutput};
+use sdf_backbone::{RayInput, RayOutput, Trim};
 use std::hash::Hasher;
 use std::sync::Arc;
 use view_sampler::march_through;
@@ -84,12 +84,8 @@ impl Trainer {
         let mut crossing: Vec<RayInput<f32>> =
             index.iter().map(|&i| RayInput { depths: std::mem::take(&mut rays[i].depths), ..rays[i].clone() }).collect();
         let (params, fine, rounds) = (&self.state.params, r.render_fine, r.render_upsample_rounds);
-        let values = if r.render_trim > 0.0 {
-            self.backbone.upsample_trimmed(params, &mut crossing, fine, rounds, r.upsample_s, self.s() as f32, r.render_trim as f32)
-        } else {
-            self.backbone.upsample(params, &mut crossing, fine, rounds, r.upsample_s);
-            self.backbone.sdf_along(params, &crossing)
-        };
+        let trim = (r.render_trim > 0.0).then(|| Trim { s: self.s() as f32, negligible: r.render_trim as f32 });
+        let values = self.backbone.upsample_for_render(params, &mut crossing, fine, rounds, r.upsample_s, trim);
         let mut sdf = vec![Vec::new(); rays.len()];
         for ((ray, values), &i) in crossing.into_iter().zip(values).zip(&index) {
             rays[i] = ray;

@@ -39,9 +39,22 @@ pub struct BackboneArgs {
     /// hash-grid gathers and scatters, MLP passes, the pipeline's own work, Adam), as a table.
     #[arg(long, requires = "preset")]
     pub profile: bool,
+    /// With `--preset`: the networks' matrix products, `f32` or `bf16` (the trainer's
+    /// `model.products`).
+    #[arg(long, requires = "preset", value_parser = parse_products, default_value = "f32")]
+    pub products: trainer::config::Products,
     /// With `--profile`: rays per work item (the trainer's `render.chunk`).
     #[arg(long, requires = "profile", default_value_t = trainer::config::RenderConfig::default().chunk)]
     pub chunk: usize,
+}
+
+/// `f32` or `bf16`, as `model.products` spells them.
+fn parse_products(text: &str) -> Result<trainer::config::Products, String> {
+    match text {
+        "f32" => Ok(trainer::config::Products::F32),
+        "bf16" => Ok(trainer::config::Products::Bf16),
+        other => Err(format!("`{other}`: the products are f32 or bf16")),
+    }
 }
 
 /// Multiply-adds of one row through an MLP.
@@ -170,10 +183,11 @@ fn time_step(backbone: &Backbone, params: &mut [f32], rays: &[RayInput<f32>], re
 /// step (summed over threads, mean of `reps` steps after a warm-up), against the step's wall
 /// time × threads, and the MLP stages' rate per thread against the best GEMM's. Printed as a
 /// table.
-fn profile_step(preset: Preset, normals: NormalScheme, reps: usize, chunk: usize, gemm_best: f64) {
+fn profile_step(preset: Preset, normals: NormalScheme, products: sdf_backbone::Products, reps: usize, chunk: usize, gemm_best: f64) {
     use sdf_backbone::profile::{self, Stage};
     let (mut backbone, mut params) = build(preset, 0.5, 1);
     backbone.set_normals(normals);
+    backbone.set_products(products);
     let (n_rays, n_samples) = batch_of(preset);
     let rays = rays(n_rays, n_samples);
     let mut adam = Adam::new(params.len());
@@ -264,8 +278,9 @@ fn batch_of(preset: Preset) -> (usize, usize) {
 }
 
 /// The figures of one preset (every normal scheme it has, or `only`), in this process.
-fn preset_figures(preset: Preset, reps: usize, gemm_best: f64, only: Option<NormalScheme>) -> Vec<Value> {
+fn preset_figures(preset: Preset, reps: usize, gemm_best: f64, only: Option<NormalScheme>, products: sdf_backbone::Products) -> Vec<Value> {
     let (mut backbone, mut params) = build(preset, 0.5, 1);
+    backbone.set_products(products);
     let (n_rays, n_samples) = batch_of(preset);
     let rays = rays(n_rays, n_samples);
     let layout = backbone.layout();
@@ -298,7 +313,7 @@ fn preset_figures(preset: Preset, reps: usize, gemm_best: f64, only: Option<Norm
             "max_resolution": grid.as_ref().map(|g| g.finest_resolution),
             "sdf_hidden": sdf_mlp.config().width, "sdf_layers": sdf_mlp.config().hidden_layers,
             "colour_hidden": backbone.color.config().width, "colour_layers": backbone.color.config().hidden_layers,
-            "normals": normals_name(normals), "rays": n_rays, "samples": n_samples,
+            "normals": normals_name(normals), "products": format!("{products:?}"), "rays": n_rays, "samples": n_samples,
             "step_s": step, "samples_per_s": samples / step, "flop_per_sample": flop_per_sample,
             "step_gflops": flop_per_sample * samples / step / 1e9, "mlp_s": t_mlp, "mlp_gflops": mlp_gflops,
             "mlp_fraction_of_gemm": mlp_gflops / gemm_best, "gemm_gflops": gemm_best,
@@ -387,13 +402,14 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
             profile_step(
                 preset,
                 only.unwrap_or(trainer::config::ModelConfig { preset, ..default_model() }.normal_scheme()),
+                args.products.into(),
                 args.reps,
                 args.chunk,
                 gemm_best,
             );
             return Ok(());
         }
-        for f in preset_figures(preset, args.reps, gemm_best, only) {
+        for f in preset_figures(preset, args.reps, gemm_best, only, args.products.into()) {
             println!("{f}");
         }
         return Ok(());

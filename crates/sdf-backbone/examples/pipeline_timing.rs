@@ -96,7 +96,7 @@ fn breakdown() {
 /// The kernels alone on `ROWS` rows (default 20 512): a 64 → 64 layer with and without softplus.
 #[allow(dead_code)]
 fn kernels() {
-    use sdf_backbone::kernels::{Dense, Strided, dense_forward, dispatch, gemm};
+    use sdf_backbone::kernels::{Dense, Strided, dense_forward, dispatch, gemm, gemm_in};
     let rows = std::env::var("ROWS").ok().and_then(|r| r.parse().ok()).unwrap_or(20512);
     println!("{rows} rows:");
     let a: Vec<f32> = (0..rows * 64).map(|i| ((i * 7919) % 2000) as f32 / 1000.0 - 1.0).collect();
@@ -105,13 +105,19 @@ fn kernels() {
     let mut y = vec![0.0f32; rows * 64];
     let mut d = vec![0.0f32; rows * 64];
     let flop = 2.0 * (rows * 64 * 64) as f64;
-    for act in [Activation::Identity, Activation::Relu, Activation::Softplus { beta: 100.0 }] {
+    let mut right = vec![0u32; 32 * 64];
+    sdf_backbone::kernels::bf16::pack_right(&wt, 64, 64, 64, &mut right);
+    let packed = sdf_backbone::kernels::bf16::Pairs { left: &a, stride: 64, k: 64, right: &right, n: 64 };
+    let in_bf16 = if sdf_backbone::kernels::bf16::available() { vec![None, Some(packed)] } else { vec![None] };
+    for (act, pairs) in
+        [Activation::Identity, Activation::Relu, Activation::Softplus { beta: 100.0 }].into_iter().flat_map(|a| in_bf16.iter().map(move |p| (a, *p)))
+    {
         let t = best(|| {
             dispatch(
                 #[inline(always)]
                 || {
                     dense_forward(
-                        &Dense { a: &a, a_s: 64, n_in: 64, wt: &wt, bias: &bias, n_out_pad: 64, act, scale: 1.0 },
+                        &Dense { a: &a, a_s: 64, n_in: 64, wt: &wt, bias: &bias, n_out_pad: 64, act, scale: 1.0, pairs },
                         &mut y,
                         64,
                         0,
@@ -121,7 +127,8 @@ fn kernels() {
                 },
             )
         });
-        println!("dense_forward 64 → 64, {act:?}: {:.2} ms = {:.1} GFLOP/s", t * 1e3, flop / t / 1e9);
+        let products = if pairs.is_some() { "bf16" } else { "f32" };
+        println!("dense_forward 64 → 64, {act:?}, {products}: {:.2} ms = {:.1} GFLOP/s", t * 1e3, flop / t / 1e9);
     }
     let mut c = vec![0.0f32; rows * 64];
     let t = best(|| {
@@ -139,6 +146,19 @@ fn kernels() {
         )
     });
     println!("gemm (dW) 64 × rows · rows × 64: {:.2} ms = {:.1} GFLOP/s", t * 1e3, flop / t / 1e9);
+    for (name, sm, sk, m, k) in [
+        ("bf16 gemm rows × 64 · 64 × 64 (packing included)", 64, 1, rows, 64),
+        ("bf16 gemm (dW, exact: L column-major) 64 × rows · rows × 64", 1, 64, 64, rows),
+    ] {
+        let (out, b) = if m == rows { (&mut c, &wt[..]) } else { (&mut dw, &a[..]) };
+        let t = best(|| {
+            dispatch(
+                #[inline(always)]
+                || gemm_in(true, out, 64, Strided { data: &a, sm, sk }, b, 64, m, 64, k, false),
+            )
+        });
+        println!("{name}: {:.2} ms = {:.1} GFLOP/s", t * 1e3, flop / t / 1e9);
+    }
 }
 
 /// Softplus alone over an array, inside the dispatch.

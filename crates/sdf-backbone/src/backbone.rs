@@ -181,6 +181,13 @@ impl Backbone {
         crate::pipeline::scale_from_variance(f64::from(params[self.layout().variance]))
     }
 
+    /// Runs the SDF and colour networks' products in `products` ([`crate::Products`]; the
+    /// learned background keeps f32).
+    pub fn set_products(&mut self, products: crate::Products) {
+        self.sdf.b.set_products(products);
+        self.color.set_products(products);
+    }
+
     /// Hash-grid levels (None for positional encoding).
     pub fn levels(&self) -> Option<usize> {
         match &self.sdf.a {

@@ -44,7 +44,7 @@ pub use background::BackgroundModel;
 pub use checkpoint::{CheckpointReader, CheckpointWriter};
 pub use encoding::{PositionalEncoding, SphericalHarmonics, WithInput};
 pub use hashgrid::{HashGrid, HashGridConfig};
-pub use mlp::{Mlp, MlpConfig};
+pub use mlp::{Mlp, MlpConfig, Products};
 pub use module::{
     Activation, Chain, DeferringModule, DeferringTangentModule, Module, ScatterGradient, ScatterTangent, TangentAdjoints, TangentModule,
     batch_gradients,

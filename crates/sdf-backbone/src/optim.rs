@@ -83,7 +83,7 @@ impl<'a> Moments<'a> {
 /// The f32 value of a bf16.
 #[inline(always)]
 pub fn bf16_to_f32(h: u16) -> f32 {
-    f32::from_bits(u32::from(h) << 16)
+    crate::kernels::bf16::from_bf16(u32::from(h))
 }
 
 /// `x` rounded to bf16 away from zero with probability (discarded bits) / 2¹⁶, given 16 uniform

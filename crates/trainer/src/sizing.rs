@@ -125,10 +125,12 @@ pub const MAX_MESH_RESOLUTION: u32 = 2048;
 /// The run's networks without parameters: the preset's, on the grid sized by the footprint when
 /// the configuration asks for one (the memory model's view of the trainer's backbone).
 pub fn architecture(model: &ModelConfig, footprint: Option<f64>) -> Result<Backbone> {
-    Ok(match grid_choice(model, footprint)? {
+    let mut backbone = match grid_choice(model, footprint)? {
         Some(choice) => sdf_backbone::architecture_with_grid(model.preset, choice.grid)?,
         None => sdf_backbone::architecture(model.preset),
-    })
+    };
+    backbone.set_products(model.products.into());
+    Ok(backbone)
 }
 
 #[cfg(test)]

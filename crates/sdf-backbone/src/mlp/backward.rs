@@ -6,7 +6,7 @@
 //! slower measured, `calibrated_init` test).
 
 use super::Mlp;
-use crate::kernels::{Strided, gemm, pad};
+use crate::kernels::{Strided, gemm_in, pad};
 use crate::real::Real;
 use crate::scratch::Buf;
 
@@ -35,7 +35,7 @@ impl Mlp {
                         *g *= *s;
                     }
                     let mut dw = Buf::<R>::zeroed(n_out * ip);
-                    gemm(&mut dw, ip, Strided { data: &dy, sm: 1, sk: op }, a, ip, n_out, ip, rows, false);
+                    gemm_in(self.in_bf16(l), &mut dw, ip, Strided { data: &dy, sm: 1, sk: op }, a, ip, n_out, ip, rows, false);
                     self.add_layer_gradient(l, &dw, &dy, d_params);
                     if l == 0 && d_input.is_none() {
                         break;
@@ -85,7 +85,7 @@ impl Mlp {
         let (n_in, n_out, _) = self.layers[l];
         let (ip, op) = (pad(n_in), pad(n_out));
         let mut da = Buf::<R>::zeroed(rows * ip);
-        gemm(&mut da, ip, Strided { data: dz, sm: op, sk: 1 }, wp, ip, rows, ip, n_out, false);
+        gemm_in(self.in_bf16(l), &mut da, ip, Strided { data: dz, sm: op, sk: 1 }, wp, ip, rows, ip, n_out, false);
         da
     }
 

@@ -1,6 +1,6 @@
 //! Dense layers with activations, an optional skip connection, and NeuS's geometric initialisation.
 
-use crate::kernels::{Dense, dense_forward, pad};
+use crate::kernels::{Dense, bf16, dense_forward, pad};
 use crate::module::{Activation, Module};
 use crate::real::Real;
 use crate::scratch::Buf;
@@ -28,6 +28,20 @@ pub struct MlpConfig {
     pub output_activation: Activation,
 }
 
+/// The precision of an MLP's matrix products (in f32; the f64 gradient checks keep every
+/// product exact).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Products {
+    /// f32 throughout.
+    #[default]
+    F32,
+    /// The hidden-to-hidden layers' products (forward, tangents and backward) in bf16 with f32
+    /// accumulation where the CPU has AVX512_BF16 ([`crate::kernels::bf16`]), f32 elsewhere and
+    /// on other CPUs. The first layer (its input holds the position) and the output layer (the
+    /// SDF value) stay f32: bf16 keeps 8 bits of a value, 2⁻⁹ of it at most lost.
+    Bf16Hidden,
+}
+
 /// A multi-layer perceptron. Parameters per layer: weights (out × in, row-major), then biases.
 #[derive(Debug, Clone)]
 pub struct Mlp {
@@ -35,6 +49,7 @@ pub struct Mlp {
     /// (n_in, n_out, parameter offset) per layer.
     layers: Vec<(usize, usize, usize)>,
     n_params: usize,
+    products: Products,
 }
 
 impl Mlp {
@@ -53,7 +68,23 @@ impl Mlp {
             offset += n_in * n_out + n_out;
             n_in = n_out;
         }
-        Mlp { config, layers, n_params: offset }
+        Mlp { config, layers, n_params: offset, products: Products::F32 }
+    }
+
+    /// Runs this network's products in `products` from now on.
+    pub fn set_products(&mut self, products: Products) {
+        self.products = products;
+    }
+
+    /// The precision asked of the products ([`Mlp::in_bf16`]: where it applies).
+    pub fn products(&self) -> Products {
+        self.products
+    }
+
+    /// Whether layer `l`'s products run in bf16: a hidden-to-hidden layer, [`Products::Bf16Hidden`]
+    /// asked, and the CPU has the instruction.
+    pub(crate) fn in_bf16(&self, l: usize) -> bool {
+        self.products == Products::Bf16Hidden && l >= 1 && l + 1 < self.layers.len() && bf16::available()
     }
 
     /// The configuration.
@@ -135,10 +166,17 @@ impl<R: Real> Module<R> for Mlp {
                     let (d, next) = rest.split_at_mut(rows * op);
                     let a = &*head;
                     let (act, scale) = self.layer_activation::<R>(l);
+                    // In bf16: the weights packed in pairs, the input read as it is.
+                    let packed = self.in_bf16(l).then(|| R::f32s(a).zip(R::f32s(wt))).flatten().map(|(left, wt)| {
+                        let mut right = Buf::<u32>::zeroed(n_in.div_ceil(2) * op);
+                        bf16::pack_right(wt, op, n_in, op, &mut right);
+                        (left, right)
+                    });
+                    let pairs = packed.as_ref().map(|(left, right)| bf16::Pairs { left, stride: ip, k: n_in, right, n: op });
                     if l == last {
                         // Into a padded temporary, then the unpadded output.
                         let mut y = Buf::<R>::zeroed(rows * op);
-                        dense_forward(&Dense { a, a_s: ip, n_in, wt, bias, n_out_pad: op, act, scale }, &mut y, op, 0, d, rows);
+                        dense_forward(&Dense { a, a_s: ip, n_in, wt, bias, n_out_pad: op, act, scale, pairs }, &mut y, op, 0, d, rows);
                         for (o, yr) in output.chunks_exact_mut(n_y).zip(y.chunks_exact(op)) {
                             o.copy_from_slice(&yr[..n_y]);
                         }
@@ -146,7 +184,7 @@ impl<R: Real> Module<R> for Mlp {
                         // Straight into the next layer's input block (its padding stays zero).
                         let next_ip = pad(self.layers[l + 1].0);
                         let y = &mut next[..rows * next_ip];
-                        dense_forward(&Dense { a, a_s: ip, n_in, wt, bias, n_out_pad: op, act, scale }, y, next_ip, 0, d, rows);
+                        dense_forward(&Dense { a, a_s: ip, n_in, wt, bias, n_out_pad: op, act, scale, pairs }, y, next_ip, 0, d, rows);
                         if self.config.skip == Some(l + 1) {
                             // [h, x] / √2: the raw input after the previous layer's output.
                             for (row, x) in y.chunks_exact_mut(next_ip).zip(input.chunks_exact(n_x)) {

@@ -3,7 +3,7 @@
 
 use super::Mlp;
 use super::backward::padded_rows;
-use crate::kernels::{Strided, gemm, pad};
+use crate::kernels::{Strided, gemm_in, pad};
 use crate::module::{TangentAdjoints, TangentModule};
 use crate::real::Real;
 use crate::scratch::Buf;
@@ -52,8 +52,9 @@ impl<R: Real> TangentModule<R> for Mlp {
                         du[i] = slope[i] * u;
                     }
                     let mut dw = Buf::<R>::zeroed(n_out * ip);
-                    gemm(&mut dw, ip, Strided { data: &dy, sm: 1, sk: op }, a, ip, n_out, ip, rows, false);
-                    gemm(&mut dw, ip, Strided { data: &du, sm: 1, sk: op }, a_dot, ip, n_out, ip, rows, true);
+                    let in_bf16 = self.in_bf16(l);
+                    gemm_in(in_bf16, &mut dw, ip, Strided { data: &dy, sm: 1, sk: op }, a, ip, n_out, ip, rows, false);
+                    gemm_in(in_bf16, &mut dw, ip, Strided { data: &du, sm: 1, sk: op }, a_dot, ip, n_out, ip, rows, true);
                     self.add_layer_gradient(l, &dw, &dy, d_params);
                     if l == 0 && d_input.is_none() {
                         break;
@@ -140,7 +141,7 @@ impl Mlp {
                     let (wt, _, _) = self.packed(params, l);
                     // Ż = Ȧ Wᵀ (no bias).
                     let mut z_dot = Buf::<R>::zeroed(t_rows * op);
-                    gemm(&mut z_dot, op, Strided { data: &a_dot, sm: ip, sk: 1 }, &wt, op, t_rows, op, n_in, false);
+                    gemm_in(self.in_bf16(l), &mut z_dot, op, Strided { data: &a_dot, sm: ip, sk: 1 }, &wt, op, t_rows, op, n_in, false);
                     let slope = &ctx[starts[l].1..starts[l].1 + rows * op];
                     let (_, scale) = self.layer_activation::<R>(l);
                     if l == self.layers.len() - 1 {

@@ -64,6 +64,27 @@ pub enum MomentStorage {
     Bf16,
 }
 
+/// The precision of the networks' matrix products (`model.products`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Products {
+    /// f32 throughout.
+    #[default]
+    F32,
+    /// The hidden-to-hidden layers of the SDF and colour networks in bf16 with f32 accumulation
+    /// where the CPU has AVX512_BF16, f32 on other CPUs ([`sdf_backbone::Products::Bf16Hidden`]).
+    Bf16,
+}
+
+impl From<Products> for sdf_backbone::Products {
+    fn from(p: Products) -> sdf_backbone::Products {
+        match p {
+            Products::F32 => sdf_backbone::Products::F32,
+            Products::Bf16 => sdf_backbone::Products::Bf16Hidden,
+        }
+    }
+}
+
 /// How the run takes its normals (`model.normals`): a scheme of `sdf-backbone`, or `auto`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -52,6 +52,7 @@ impl Default for ModelConfig {
             background_frequencies: 8,
             background_view: false,
             opacity_entropy: 0.0,
+            products: Products::F32,
         }
     }
 }

@@ -31,7 +31,7 @@ mod validate;
 pub use annotated::annotated_default;
 use budget::budget_from_short_keys;
 pub use budget::{Budget, parse_duration, positive_duration};
-pub use choices::{BackgroundModel, GridSize, MeshFilter, MeshResolution, MomentStorage, Normals, SamplerKind};
+pub use choices::{BackgroundModel, GridSize, MeshFilter, MeshResolution, MomentStorage, Normals, Products, SamplerKind};
 
 /// The default spacing of the points sampled on meshes for Chamfer (`output.chamfer_spacing`,
 /// normalised units): every table in BENCHMARKS.md so far was measured with it, against the
@@ -161,6 +161,9 @@ pub struct ModelConfig {
     /// surface or miss it; a thin part becomes a surface rather than a haze). Unused with masks,
     /// whose BCE does the same with the truth.
     pub opacity_entropy: f64,
+    /// The networks' matrix products: `f32` (default) or `bf16` (the hidden-to-hidden layers in
+    /// bf16 where the CPU has AVX512_BF16; see BENCHMARKS.md, "bf16 products").
+    pub products: Products,
 }
 
 /// Rays and samples per iteration.

@@ -269,6 +269,16 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, options: &RunOptions, st
     if let Some(choice) = trainer.grid_choice() {
         eprintln!("model: {}", choice.describe());
     }
+    if config.model.products == crate::config::Products::Bf16 {
+        eprintln!(
+            "model.products = bf16: {}",
+            if sdf_backbone::kernels::bf16::available() {
+                "the hidden-to-hidden layers' products in bf16 (AVX512_BF16)"
+            } else {
+                "this CPU has no AVX512_BF16, so the products run in f32"
+            }
+        );
+    }
     let progress = Progress::new(&config);
     progress.set(trainer.state().step, trainer.progress(), trainer.seconds_left(), "");
     let mut history = Vec::new();

@@ -147,6 +147,7 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&Grid
     backbone.config.masked_color = use_masks;
     backbone.config.background = config.model.background;
     backbone.set_normals(config.model.normal_scheme());
+    backbone.set_products(config.model.products.into());
     Ok((backbone, params))
 }
 

@@ -203,6 +203,21 @@ mod tests {
     use crate::config::{Budget, TrainConfig};
     use crate::data::SceneData;
 
+    /// `model.products` reaches the trainer's networks (it once reached only the memory model's).
+    #[test]
+    fn the_trainers_networks_run_the_configured_products() {
+        for (products, expected) in
+            [(crate::config::Products::F32, sdf_backbone::Products::F32), (crate::config::Products::Bf16, sdf_backbone::Products::Bf16Hidden)]
+        {
+            let mut config = TrainConfig { budget: Budget::Steps(1), ..TrainConfig::default() };
+            config.data.builtin.width = 48;
+            config.model.products = products;
+            let data = SceneData::builtin(&config).unwrap();
+            let trainer = Trainer::new(config, data).unwrap();
+            assert_eq!((trainer.backbone.sdf.b.products(), trainer.backbone.color.products()), (expected, expected));
+        }
+    }
+
     /// The renders' occupancy is made once per field: reused while nothing changed, made again
     /// after the parameters or the active hash-grid levels changed.
     #[test]

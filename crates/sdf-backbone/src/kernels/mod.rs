@@ -16,8 +16,13 @@
 //!
 //! Everything is generic over [`Real`], so the f64 gradient checks run the very same code.
 
+// The crate's only `unsafe`: intrinsics with runtime detection, a SAFETY argument per block.
+#[allow(unsafe_code)]
+pub mod bf16;
+
 use crate::module::Activation;
 use crate::real::Real;
+use crate::scratch::Buf;
 use pulp::{Arch, Simd, WithSimd};
 
 /// Column counts are padded to a multiple of this (16 f32 = one AVX-512 register).
@@ -124,6 +129,44 @@ fn tile<R: Real, const M: usize, const W: usize>(
     *acc = c;
 }
 
+/// What a tile adds to its accumulators: `acc[i][0..W] += Σₖ L(m0 + i, k) · B[k][n0..n0 + W]`
+/// for i < `mr` (rows past `mr` repeat the last valid one): exactly ([`Exact`]) or in bf16
+/// ([`bf16::Pairs`]).
+pub trait Product<R> {
+    /// Adds the tile's product to `acc`.
+    fn tile<const M: usize, const W: usize>(&self, acc: &mut [[R; W]; M], m0: usize, mr: usize, n0: usize);
+}
+
+/// The product in the operands' own precision: L through strides, B row-major (stride `bs`),
+/// summed over k < `k`.
+#[derive(Clone, Copy)]
+pub struct Exact<'a, R> {
+    /// The left operand.
+    pub l: Strided<'a, R>,
+    /// The right operand.
+    pub b: &'a [R],
+    /// Row stride of `b`.
+    pub bs: usize,
+    /// Terms of the sum.
+    pub k: usize,
+}
+
+impl<R: Real> Product<R> for Exact<'_, R> {
+    #[inline(always)]
+    fn tile<const M: usize, const W: usize>(&self, acc: &mut [[R; W]; M], m0: usize, mr: usize, n0: usize) {
+        tile::<R, M, W>(acc, self.l, self.b, self.bs, m0, mr, n0, self.k)
+    }
+}
+
+impl<R: Real> Product<R> for bf16::Pairs<'_> {
+    #[inline(always)]
+    fn tile<const M: usize, const W: usize>(&self, acc: &mut [[R; W]; M], m0: usize, mr: usize, n0: usize) {
+        let acc = R::f32s_mut(acc.as_flattened_mut()).expect("bf16 products accumulate in f32");
+        let acc: &mut [[f32; W]; M] = acc.as_chunks_mut::<W>().0.try_into().expect("tile shape");
+        bf16::tile::<M, W>(acc, *self, m0, mr, n0)
+    }
+}
+
 /// Runs `$run!(W)` for the tile width `$w` (a multiple of [`LANE`], at most `$wmax`): one arm
 /// per width, those wider than `$wmax` never taken (and folded away).
 macro_rules! width_arms {
@@ -143,18 +186,16 @@ macro_rules! width_arms {
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 pub fn gemm<R: Real>(c: &mut [R], cs: usize, l: Strided<'_, R>, b: &[R], bs: usize, m: usize, n: usize, k: usize, accumulate: bool) {
-    debug_assert!(n.is_multiple_of(LANE));
-    if wide_tiles() {
-        gemm_tiles::<R, 4, { 4 * LANE }>(c, cs, l, b, bs, m, n, k, accumulate)
-    } else {
-        gemm_tiles::<R, 6, LANE>(c, cs, l, b, bs, m, n, k, accumulate)
-    }
+    gemm_with(c, cs, &Exact { l, b, bs, k }, m, n, accumulate)
 }
 
-/// [`gemm`] with tiles of `M` rows and at most `WMAX` columns.
+/// [`gemm`] with the products in bf16 ([`bf16`]) when `in_bf16`, `R` is f32 and L is row-major
+/// (B packed in pairs first, one pass over it), else exact: so the weight gradients (L = dZᵀ)
+/// stay exact.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn gemm_tiles<R: Real, const M: usize, const WMAX: usize>(
+pub fn gemm_in<R: Real>(
+    in_bf16: bool,
     c: &mut [R],
     cs: usize,
     l: Strided<'_, R>,
@@ -165,6 +206,33 @@ fn gemm_tiles<R: Real, const M: usize, const WMAX: usize>(
     k: usize,
     accumulate: bool,
 ) {
+    if in_bf16
+        && l.sk == 1
+        && k > 0
+        && let (Some(left), Some(b32)) = (R::f32s(l.data), R::f32s(b))
+    {
+        let mut right = Buf::<u32>::zeroed(k.div_ceil(2) * n);
+        bf16::pack_right(b32, bs, k, n, &mut right);
+        gemm_with(c, cs, &bf16::Pairs { left, stride: l.sm, k, right: &right, n }, m, n, accumulate);
+    } else {
+        gemm(c, cs, l, b, bs, m, n, k, accumulate)
+    }
+}
+
+/// [`gemm`] of any [`Product`], with the CPU's tile shape ([`wide_tiles`]).
+#[inline(always)]
+fn gemm_with<R: Real, P: Product<R>>(c: &mut [R], cs: usize, product: &P, m: usize, n: usize, accumulate: bool) {
+    debug_assert!(n.is_multiple_of(LANE));
+    if wide_tiles() {
+        gemm_tiles::<R, P, 4, { 4 * LANE }>(c, cs, product, m, n, accumulate)
+    } else {
+        gemm_tiles::<R, P, 6, LANE>(c, cs, product, m, n, accumulate)
+    }
+}
+
+/// [`gemm_with`] with tiles of `M` rows and at most `WMAX` columns.
+#[inline(always)]
+fn gemm_tiles<R: Real, P: Product<R>, const M: usize, const WMAX: usize>(c: &mut [R], cs: usize, product: &P, m: usize, n: usize, accumulate: bool) {
     let mut m0 = 0;
     while m0 < m {
         let mr = M.min(m - m0);
@@ -179,7 +247,7 @@ fn gemm_tiles<R: Real, const M: usize, const WMAX: usize>(
                             acc[i].copy_from_slice(&c[(m0 + i) * cs + n0..(m0 + i) * cs + n0 + $w]);
                         }
                     }
-                    tile::<R, M, $w>(&mut acc, l, b, bs, m0, mr, n0, k);
+                    product.tile::<M, $w>(&mut acc, m0, mr, n0);
                     for i in 0..mr {
                         c[(m0 + i) * cs + n0..(m0 + i) * cs + n0 + $w].copy_from_slice(&acc[i]);
                     }
@@ -220,13 +288,33 @@ pub struct Dense<'a, R> {
     pub act: Activation,
     /// Factor on the activated output.
     pub scale: R,
+    /// The product in bf16: `a` and `wt` packed in pairs ([`bf16::pack_right`]); `None`: exact.
+    pub pairs: Option<bf16::Pairs<'a>>,
 }
 
 /// [`dense_forward`] with tiles of `M` rows and at most `WMAX` columns.
 #[inline(always)]
 fn dense_tiles<R: Real, const M: usize, const WMAX: usize>(layer: &Dense<'_, R>, y: &mut [R], ys: usize, y0: usize, d: &mut [R], rows: usize) {
-    let &Dense { a, a_s, n_in, wt, bias, n_out_pad, act, scale } = layer;
-    let l = Strided { data: a, sm: a_s, sk: 1 };
+    let exact = Exact { l: Strided { data: layer.a, sm: layer.a_s, sk: 1 }, b: layer.wt, bs: layer.n_out_pad, k: layer.n_in };
+    match &layer.pairs {
+        Some(pairs) => dense_product::<R, _, M, WMAX>(layer, pairs, y, ys, y0, d, rows),
+        None => dense_product::<R, _, M, WMAX>(layer, &exact, y, ys, y0, d, rows),
+    }
+}
+
+/// [`dense_tiles`] with the product `product` (of the layer's operands).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn dense_product<R: Real, P: Product<R>, const M: usize, const WMAX: usize>(
+    layer: &Dense<'_, R>,
+    product: &P,
+    y: &mut [R],
+    ys: usize,
+    y0: usize,
+    d: &mut [R],
+    rows: usize,
+) {
+    let &Dense { bias, n_out_pad, act, scale, .. } = layer;
     let mut m0 = 0;
     while m0 < rows {
         let mr = M.min(rows - m0);
@@ -240,7 +328,7 @@ fn dense_tiles<R: Real, const M: usize, const WMAX: usize>(layer: &Dense<'_, R>,
                     for row in acc.iter_mut() {
                         *row = *b;
                     }
-                    tile::<R, M, $w>(&mut acc, l, wt, n_out_pad, m0, mr, n0, n_in);
+                    product.tile::<M, $w>(&mut acc, m0, mr, n0);
                     for i in 0..mr {
                         let (yr, dr) = (
                             &mut y[(m0 + i) * ys + y0 + n0..(m0 + i) * ys + y0 + n0 + $w],
@@ -310,8 +398,8 @@ mod tests {
                 dispatch(
                     #[inline(always)]
                     || match shape {
-                        0 => gemm_tiles::<f64, 4, { 4 * LANE }>(&mut c, n, l, &b, n, m, n, k, accumulate),
-                        1 => gemm_tiles::<f64, 6, LANE>(&mut c, n, l, &b, n, m, n, k, accumulate),
+                        0 => gemm_tiles::<f64, _, 4, { 4 * LANE }>(&mut c, n, &Exact { l, b: &b, bs: n, k }, m, n, accumulate),
+                        1 => gemm_tiles::<f64, _, 6, LANE>(&mut c, n, &Exact { l, b: &b, bs: n, k }, m, n, accumulate),
                         _ => gemm(&mut c, n, l, &b, n, m, n, k, accumulate),
                     },
                 );

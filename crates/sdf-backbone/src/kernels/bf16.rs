@@ -49,8 +49,8 @@ pub fn available() -> bool {
     }
 }
 
-/// The right operand B[k][0..n] (row stride `bs`) as pairs of rows interleaved: `out[p·n + j]`
-/// holds B[2p][j] and B[2p + 1][j] (zero past `k` rows), ⌈k/2⌉·n values. Element by element,
+/// The right operand `B[k][0..n]` (row stride `bs`) as pairs of rows interleaved: `out[p·n + j]`
+/// holds `B[2p][j]` and `B[2p + 1][j]` (zero past `k` rows), ⌈k/2⌉·n values. Element by element,
 /// so it vectorises.
 #[inline(always)]
 pub fn pack_right(b: &[f32], bs: usize, k: usize, n: usize, out: &mut [u32]) {

@@ -76,7 +76,7 @@ impl Mlp {
         self.products = products;
     }
 
-    /// The precision asked of the products ([`Mlp::in_bf16`]: where it applies).
+    /// The precision asked of the products ([`Products::Bf16Hidden`] says where it applies).
     pub fn products(&self) -> Products {
         self.products
     }

@@ -1,4 +1,4 @@
-//! Dense-layer kernels at the CPU's vector width, without `unsafe`: plain Rust loops over
+//! Dense-layer kernels at the CPU's vector width: plain Rust loops (no `unsafe`) over
 //! fixed-size tiles, compiled once per instruction set and chosen at run time by `pulp`
 //! (AVX-512 where the CPU has it, else AVX2 + FMA, else SSE2). The loops are written so that
 //! LLVM vectorises them: register tiles of `M` rows × `W` columns (`W` a multiple of 16 floats),
@@ -14,7 +14,9 @@
 //! adds the bias and applies the activation (keeping its derivative) on the tile while it is in
 //! registers: one pass over the output.
 //!
-//! Everything is generic over [`Real`], so the f64 gradient checks run the very same code.
+//! Everything is generic over [`Real`], so the f64 gradient checks run the very same code. The
+//! one exception is opt-in: products in bf16 ([`bf16`], `vdpbf16ps` intrinsics — the crate's only
+//! `unsafe` code) for f32 where the CPU has AVX512_BF16, through the same tile loops ([`Product`]).
 
 // The crate's only `unsafe`: intrinsics with runtime detection, a SAFETY argument per block.
 #[allow(unsafe_code)]

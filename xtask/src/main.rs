@@ -144,7 +144,7 @@ enum Command {
         /// Mesh file (OBJ with MTL texture, glTF, GLB).
         #[arg(long)]
         mesh: Option<PathBuf>,
-        /// Camera rig: dtu, sphere, random.
+        /// Camera rig: dtu, sphere, random, ring.
         #[arg(long, default_value = "dtu", value_parser = parse_rig)]
         rig: Rig,
         /// Output folder.
@@ -165,9 +165,14 @@ enum Command {
         /// The mesh file is z-up (default: y-up, the OBJ and glTF convention).
         #[arg(long)]
         mesh_z_up: bool,
-        /// Black background instead of the textured backdrop.
-        #[arg(long)]
-        no_backdrop: bool,
+        /// What lies behind the object: none (black), checker, coarse-checker, gradient, noise
+        /// (environments at infinity), floor, wall (near, crossing the bound).
+        #[arg(long, default_value = "checker", value_parser = golden::Backdrop::from_name)]
+        backdrop: golden::Backdrop,
+        /// The region of interest's radius in the object's units (≥ 1; 1: the object fills the
+        /// bound).
+        #[arg(long, default_value_t = 1.0)]
+        bound: f64,
         /// Also write a thumbnail grid of the views to this PNG.
         #[arg(long)]
         thumbnail: Option<PathBuf>,
@@ -342,7 +347,7 @@ fn main() -> Result<()> {
         Command::Bench { which: BenchKind::Soak { iterations, every, json } } => bench_memory::soak(iterations, every, json),
         Command::Cameras { data, ply } => cameras(&data, ply.as_deref()),
         Command::Inspect { data } => inspect(&data),
-        Command::Golden { shape, mesh, rig, out, views, width, height, seed, mesh_z_up, no_backdrop, thumbnail } => {
+        Command::Golden { shape, mesh, rig, out, views, width, height, seed, mesh_z_up, backdrop, bound, thumbnail } => {
             let mut spec = match (shape, mesh) {
                 (Some(s), None) => GoldenSpec::new(GeometrySource::Shape(s)),
                 (None, Some(m)) => GoldenSpec::new(GeometrySource::Mesh(m)),
@@ -359,7 +364,8 @@ fn main() -> Result<()> {
             spec.rig.width = width;
             spec.rig.height = height;
             spec.rig.seed = seed;
-            spec.backdrop = !no_backdrop;
+            spec.backdrop = backdrop;
+            spec.bound = bound;
             spec.mesh_y_up = !mesh_z_up;
             let start = std::time::Instant::now();
             let scene = golden::generate(&spec)?;
@@ -382,7 +388,7 @@ fn main() -> Result<()> {
 
 /// `--rig`: a camera rig by name.
 fn parse_rig(name: &str) -> Result<Rig, String> {
-    Rig::by_name(name).ok_or_else(|| format!("unknown rig {name:?} (dtu, sphere, random)"))
+    Rig::by_name(name).ok_or_else(|| format!("unknown rig {name:?} (dtu, sphere, random, ring)"))
 }
 
 fn cameras(data: &DataArgs, ply_path: Option<&std::path::Path>) -> Result<()> {

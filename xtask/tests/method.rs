@@ -84,7 +84,7 @@ fn the_surface_loss_hook_changes_the_gradient() {
 #[test]
 fn masked_training_ignores_the_backdrop() {
     let loss = |backdrop: bool| {
-        let config = config(&["render.rays=128", &format!("data.builtin.backdrop={backdrop}")]);
+        let config = config(&["render.rays=128", &format!("data.builtin.backdrop={}", if backdrop { "checker" } else { "none" })]);
         let data = SceneData::builtin(&config).unwrap();
         let mut trainer = Trainer::new(config, data).unwrap();
         trainer.update_grids().unwrap();
@@ -105,7 +105,12 @@ fn masked_training_ignores_the_backdrop() {
 #[test]
 fn masked_backdrop_scene_trains_exactly_as_its_black_backdrop_twin() {
     let params = |backdrop: bool| {
-        let config = config(&["render.rays=64", "steps=6", "guide.updates=3", &format!("data.builtin.backdrop={backdrop}")]);
+        let config = config(&[
+            "render.rays=64",
+            "steps=6",
+            "guide.updates=3",
+            &format!("data.builtin.backdrop={}", if backdrop { "checker" } else { "none" }),
+        ]);
         let data = SceneData::builtin(&config).unwrap();
         let mut trainer = Trainer::new(config, data).unwrap();
         while !trainer.done() {

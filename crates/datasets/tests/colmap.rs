@@ -40,7 +40,7 @@ fn golden_fixture_rig() -> RigOptions {
 fn golden_fixture_spec(mesh: PathBuf) -> GoldenSpec {
     let mut spec = GoldenSpec::new(GeometrySource::Mesh(mesh));
     spec.rig = golden_fixture_rig();
-    spec.backdrop = true;
+    spec.backdrop = golden::Backdrop::Checker;
     spec
 }
 

@@ -242,7 +242,7 @@ fn downscaled_masks_agree_with_rendering_at_the_downscaled_camera() {
     let geometry = &g.geometry;
     for v in &scene.views {
         assert_eq!((v.camera.width, v.camera.height), (24, 18));
-        let r = golden::render::render_view(geometry, &v.camera, false);
+        let r = golden::render::render_view(geometry, &v.camera, golden::Backdrop::None);
         let m = v.mask.as_ref().unwrap();
         let mut agree = 0;
         for row in 0..18 {

@@ -267,6 +267,20 @@ impl Shape {
         }
     }
 
+    /// The shape scaled by `factor` > 0 about the origin: `S'(p) = factor · S(p / factor)`, exact
+    /// where `S` is.
+    pub fn scaled(&self, factor: f64) -> Shape {
+        match self {
+            Shape::Sphere { center, radius } => Shape::Sphere { center: *center * factor, radius: radius * factor },
+            Shape::Torus { center, major_radius, minor_radius } => {
+                Shape::Torus { center: *center * factor, major_radius: major_radius * factor, minor_radius: minor_radius * factor }
+            }
+            Shape::Box { center, half_extents } => Shape::Box { center: *center * factor, half_extents: *half_extents * factor },
+            Shape::Union(parts) => Shape::Union(parts.iter().map(|p| p.scaled(factor)).collect()),
+            Shape::Difference(a, b) => Shape::Difference(std::boxed::Box::new(a.scaled(factor)), std::boxed::Box::new(b.scaled(factor))),
+        }
+    }
+
     /// Sphere tracing along `origin + t·direction` (unit direction) for t in `[t_min, t_max]`:
     /// the first t with S < `epsilon`, or `None`. Safe for Lipschitz-1 bounds (CSG).
     pub fn ray_hit(&self, origin: DVec3, direction: DVec3, t_min: f64, t_max: f64, epsilon: f64) -> Option<f64> {
@@ -338,6 +352,19 @@ mod tests {
         let t = s.ray_hit(DVec3::new(-3.0, 0.0, 0.0), DVec3::X, 0.0, 10.0, 1e-9).unwrap();
         assert!((t - (3.0 - 0.65)).abs() < 1e-8, "{t}");
         assert!(s.ray_hit(DVec3::new(-3.0, 0.0, 0.3), DVec3::X, 0.0, 10.0, 1e-9).is_none());
+    }
+
+    #[test]
+    fn a_scaled_shape_is_the_shape_at_a_scaled_point() {
+        for name in ShapeName::ALL {
+            let (shape, scaled) = (name.shape(), name.shape().scaled(0.625));
+            for i in 0..200 {
+                let p = uniform_direction((i as f64 * 0.618_034) % 1.0, (i as f64 + 0.5) / 200.0) * (0.2 + (i % 7) as f64 * 0.15);
+                assert!((scaled.sdf(p * 0.625) - 0.625 * shape.sdf(p)).abs() < 1e-12, "{name}");
+            }
+            assert!((scaled.area() - 0.625 * 0.625 * shape.area()).abs() < 1e-9 * shape.area());
+            assert!((scaled.bounding_radius() - 0.625 * shape.bounding_radius()).abs() < 1e-12);
+        }
     }
 
     #[test]

@@ -25,6 +25,8 @@ fn builtin_spec(config: &TrainConfig) -> GoldenSpec {
     spec.rig.height = b.width * 3 / 4;
     spec.rig.count = b.views;
     spec.backdrop = b.backdrop;
+    spec.rig.rig = b.rig;
+    spec.bound = b.bound;
     spec
 }
 

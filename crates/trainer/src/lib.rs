@@ -43,4 +43,4 @@ pub mod snapshot;
 pub mod trainer;
 
 pub use error::{Error, Result};
-pub use trainer::Trainer;
+pub use trainer::{SplitStats, Trainer};

@@ -252,7 +252,7 @@ pub fn mesh_picture(mesh: &IsoMesh, cameras: &[camera_geom::PinholeCamera]) -> R
     let mut img = RgbImage::new(w.max(1), h);
     let mut x0 = 0;
     for cam in cameras {
-        let r = datasets::golden::render::render_view(&geometry, cam, false);
+        let r = datasets::golden::render::render_view(&geometry, cam, datasets::golden::Backdrop::None);
         for y in 0..cam.height {
             for x in 0..cam.width {
                 let nrm = r.normal[(y * cam.width + x) as usize];

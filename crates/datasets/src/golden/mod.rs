@@ -10,6 +10,7 @@
 //! (written as `scale_mat`) maps back to the mesh's own units, in which the ground-truth points
 //! and mesh are written.
 
+pub mod backdrop;
 pub mod mesh_io;
 pub mod render;
 pub mod rig;
@@ -18,6 +19,7 @@ use crate::error::{Result, io_err};
 use crate::io::{PlyData, write_atomic};
 use crate::npy::npy_bytes;
 use crate::scene::{Format, Scene, SceneSource, View};
+pub use backdrop::Backdrop;
 use glam::{DMat3, DMat4, DVec3};
 use mesh_io::{TexturedMesh, load_mesh};
 use prob_grid::ShapeName;
@@ -46,10 +48,15 @@ pub struct GoldenSpec {
     pub geometry: GeometrySource,
     /// The cameras.
     pub rig: RigOptions,
-    /// A textured backdrop at infinity (for unmasked training) instead of black.
-    pub backdrop: bool,
+    /// What lies behind the object (black, an environment at infinity, a near floor or wall).
+    pub backdrop: Backdrop,
     /// Number of ground-truth surface points (about; CSG shapes lose the hidden parts).
     pub surface_points: usize,
+    /// The region of interest's radius in the scene's units (≥ 1): the object is rendered as
+    /// always (filling a sphere of radius ≈ 1) and the frame is then shrunk by this factor, so
+    /// that the bound (the unit sphere) holds free space around the object, as a capture's bound
+    /// does (COLMAP's, DTU's). 1: the object fills the bound.
+    pub bound: f64,
     /// Whether a mesh file is y-up (OBJ and glTF convention, the default) or z-up. Golden scenes
     /// are z-up; a y-up mesh is rotated (x, y, z) ↦ (x, −z, y) into them, and the rotation is
     /// part of `world_from_normalized`.
@@ -57,13 +64,15 @@ pub struct GoldenSpec {
 }
 
 impl GoldenSpec {
-    /// A spec with defaults: DTU rig, 49 views of 400×300, backdrop on, 100 000 surface points.
+    /// A spec with defaults: DTU rig, 49 views of 400×300, the checker backdrop, 100 000 surface
+    /// points.
     pub fn new(geometry: GeometrySource) -> GoldenSpec {
         GoldenSpec {
             geometry,
             rig: RigOptions { rig: Rig::Dtu, count: 49, width: 400, height: 300, seed: 0 },
-            backdrop: true,
+            backdrop: Backdrop::Checker,
             surface_points: 100_000,
+            bound: 1.0,
             mesh_y_up: true,
         }
     }
@@ -87,6 +96,14 @@ pub struct GoldenScene {
 }
 
 impl GoldenScene {
+    /// The radius of a sphere about the origin that holds the geometry (normalised frame).
+    pub fn geometry_radius(&self) -> f64 {
+        match &self.geometry {
+            Geometry::Analytic(shape) => shape.bounding_radius(),
+            Geometry::Mesh { mesh, .. } => mesh.mesh.positions.iter().map(|p| f64::from(p.length())).fold(0.0, f64::max),
+        }
+    }
+
     /// The mesh in the normalised frame, if the geometry is a mesh.
     pub fn mesh(&self) -> Option<&TexturedMesh> {
         match &self.geometry {
@@ -158,16 +175,56 @@ pub fn generate(spec: &GoldenSpec) -> Result<GoldenScene> {
     };
     let description = format!(
         "golden scene: {label}, {:?} rig, {} views of {}×{}, seed {}, backdrop {}",
-        spec.rig.rig, spec.rig.count, spec.rig.width, spec.rig.height, spec.rig.seed, spec.backdrop
+        spec.rig.rig,
+        spec.rig.count,
+        spec.rig.width,
+        spec.rig.height,
+        spec.rig.seed,
+        spec.backdrop.name()
     );
-    Ok(GoldenScene {
+    let golden = GoldenScene {
         scene: Scene { views, world_from_normalized, source: SceneSource { format: Format::Generated, path: None, description } },
         depths,
         normals,
         surface_points,
         geometry,
         spec: spec.clone(),
-    })
+    };
+    shrink(golden, spec.bound)
+}
+
+/// The scene in a frame shrunk by `bound` (≥ 1; see [`GoldenSpec::bound`]): the same pixels,
+/// cameras, geometry, truth and depths divided by `bound`; `world_from_normalized` keeps the
+/// scene's own units.
+fn shrink(mut golden: GoldenScene, bound: f64) -> Result<GoldenScene> {
+    if !(bound.is_finite() && bound >= 1.0) {
+        let message = format!("the region of interest's radius must be ≥ 1, the object's own (got {bound})");
+        return Err(crate::DatasetError::InvalidValue { path: "golden scene spec".into(), entry: "bound".into(), message });
+    }
+    if bound == 1.0 {
+        return Ok(golden);
+    }
+    let s = 1.0 / bound;
+    for view in &mut golden.scene.views {
+        view.camera.camera_from_world.translation *= s;
+    }
+    for depth in golden.depths.iter_mut().flatten() {
+        *depth *= s as f32;
+    }
+    for p in &mut golden.surface_points {
+        *p *= s;
+    }
+    golden.geometry = match golden.geometry {
+        Geometry::Analytic(shape) => Geometry::Analytic(shape.scaled(s)),
+        Geometry::Mesh { mut mesh, vertex_normals } => {
+            let positions = mesh.mesh.positions.iter().map(|p| *p * s as f32).collect();
+            mesh.mesh = prob_grid::TriangleMesh::new(positions, std::mem::take(&mut mesh.mesh.triangles));
+            Geometry::Mesh { mesh, vertex_normals }
+        }
+    };
+    golden.scene.world_from_normalized *= DMat4::from_scale(DVec3::splat(bound));
+    golden.scene.source.description += &format!(", bound {bound}");
+    Ok(golden)
 }
 
 impl GoldenSpec {
@@ -297,5 +354,52 @@ mod tests {
         assert_eq!(a.surface_points, b.surface_points);
         spec.rig.seed = 10;
         assert_ne!(generate(&spec).unwrap().scene.views[0].camera, a.scene.views[0].camera);
+    }
+
+    #[test]
+    fn a_looser_bound_shrinks_the_frame_and_keeps_every_pixel() {
+        let mut spec = GoldenSpec::new(GeometrySource::Shape(ShapeName::Composite));
+        spec.rig = RigOptions { rig: Rig::Dtu, count: 4, width: 48, height: 36, seed: 2 };
+        spec.surface_points = 2000;
+        let tight = generate(&spec).unwrap();
+        spec.bound = 1.6;
+        let loose = generate(&spec).unwrap();
+        let Geometry::Analytic(shape) = &loose.geometry else { panic!("analytic") };
+        assert!((shape.bounding_radius() - tight.geometry_radius() / 1.6).abs() < 1e-12);
+        for (v, (a, b)) in tight.scene.views.iter().zip(&loose.scene.views).enumerate() {
+            assert_eq!(a.image, b.image, "view {v}: the same pixels");
+            assert_eq!(a.mask, b.mask);
+            // The truth projects to the same pixel at a depth shrunk by the bound.
+            for p in tight.surface_points.iter().step_by(97) {
+                let (pa, pb) = (a.camera.pixel_space_from_world(*p), b.camera.pixel_space_from_world(*p / 1.6));
+                assert!((pa.truncate() - pb.truncate()).length() < 1e-9 && (pa.z / 1.6 - pb.z).abs() < 1e-9);
+            }
+            for (da, db) in tight.depths[v].iter().zip(&loose.depths[v]) {
+                assert!((da / 1.6 - db).abs() <= 1e-6 * da);
+            }
+        }
+        // World units are the object's own: the truth maps back to the tight scene's.
+        let back = loose.scene.world_from_normalized.transform_point3(loose.surface_points[5]);
+        assert!((back - tight.surface_points[5]).length() < 1e-12);
+        spec.bound = 0.8;
+        assert!(generate(&spec).unwrap_err().to_string().contains("≥ 1"));
+    }
+
+    #[test]
+    fn a_near_backdrop_is_pixels_but_not_object() {
+        let mut spec = GoldenSpec::new(GeometrySource::Shape(ShapeName::Sphere));
+        spec.rig = RigOptions { rig: Rig::Dtu, count: 3, width: 40, height: 30, seed: 0 };
+        spec.surface_points = 100;
+        spec.backdrop = Backdrop::None;
+        let black = generate(&spec).unwrap();
+        spec.backdrop = Backdrop::Wall;
+        let wall = generate(&spec).unwrap();
+        for (a, b) in black.scene.views.iter().zip(&wall.scene.views) {
+            assert_eq!(a.mask, b.mask, "the mask is the object's alone");
+            let mask = a.mask.as_ref().unwrap();
+            let backdrop_pixels = (0..a.camera.height).flat_map(|r| (0..a.camera.width).map(move |c| (c, r))).filter(|&(c, r)| !mask.get(c, r));
+            assert!(backdrop_pixels.into_iter().all(|(c, r)| a.image.get_f32(c, r) == [0.0; 3] && b.image.get_f32(c, r) != [0.0; 3]));
+        }
+        assert_eq!(black.depths, wall.depths);
     }
 }

@@ -3,10 +3,11 @@
 //! Shading is Lambertian under one fixed directional light plus ambient light, with no shadows
 //! and no view dependence, so that colour is a function of the surface point only (what NeuS's
 //! colour network can represent exactly). Albedo comes from the mesh texture or from a
-//! procedural pattern of stripes in 3D. The optional backdrop is a lat-long checker "at infinity"
-//! (a function of the ray direction), the kind of background a NeRF++-style background model
-//! learns; with it off, the background is black, as in DTU with masks.
+//! procedural pattern of stripes in 3D. Behind the object lies a [`Backdrop`]: black (as DTU with
+//! masks), an environment at infinity, or a near floor or wall; masks, depths and normals are the
+//! object's alone.
 
+use super::backdrop::Backdrop;
 use super::mesh_io::TexturedMesh;
 use crate::images::{Mask, RgbImage};
 use camera_geom::{PinholeCamera, ray_sphere};
@@ -71,16 +72,6 @@ fn sample_texture(tex: &RgbImage, uv: Vec2) -> [f32; 3] {
     out
 }
 
-fn backdrop(direction: DVec3) -> [f32; 3] {
-    use std::f64::consts::PI;
-    let theta = direction.y.atan2(direction.x);
-    let phi = direction.z.clamp(-1.0, 1.0).asin();
-    let cell = ((theta * 8.0 / PI).floor() + (phi * 8.0 / PI).floor()) as i64;
-    let shade = (0.85 + 0.15 * (5.0 * theta).sin() * (3.0 * phi).cos()) as f32;
-    let base = if cell.rem_euclid(2) == 0 { [0.62, 0.58, 0.50] } else { [0.28, 0.30, 0.35] };
-    base.map(|c| c * shade)
-}
-
 impl Geometry {
     fn hit(&self, origin: DVec3, direction: DVec3) -> Option<Hit> {
         match self {
@@ -139,16 +130,18 @@ pub struct Render {
 pub const LIGHT_DIRECTION: DVec3 = DVec3::new(0.36, -0.48, 0.8);
 
 /// Renders one camera, one ray through each pixel centre.
-pub fn render_view(geometry: &Geometry, camera: &PinholeCamera, with_backdrop: bool) -> Render {
+pub fn render_view(geometry: &Geometry, camera: &PinholeCamera, backdrop: Backdrop) -> Render {
     let (w, h) = (camera.width, camera.height);
     let light = LIGHT_DIRECTION.normalize();
-    let rows: Vec<Vec<(Option<Hit>, DVec3)>> = (0..h)
+    let rows: Vec<Vec<(Option<Hit>, DVec3, DVec3)>> = (0..h)
         .into_par_iter()
         .map(|row| {
             (0..w)
                 .map(|col| {
                     let ray = camera.ray_through_pixel_index(col, row);
-                    (geometry.hit(ray.origin, ray.direction), ray.direction)
+                    let behind = backdrop.distance(ray.origin, ray.direction);
+                    let hit = geometry.hit(ray.origin, ray.direction).filter(|h| h.t < behind);
+                    (hit, ray.origin, ray.direction)
                 })
                 .collect()
         })
@@ -156,13 +149,11 @@ pub fn render_view(geometry: &Geometry, camera: &PinholeCamera, with_backdrop: b
     let mut out =
         Render { image: RgbImage::new(w, h), mask: Mask::new(w, h), depth: vec![0.0; (w * h) as usize], normal: vec![[0.0; 3]; (w * h) as usize] };
     for (row, line) in rows.into_iter().enumerate() {
-        for (col, (hit, direction)) in line.into_iter().enumerate() {
+        for (col, (hit, origin, direction)) in line.into_iter().enumerate() {
             let i = row * w as usize + col;
             let (col, row) = (col as u32, row as u32);
             let Some(hit) = hit else {
-                if with_backdrop {
-                    out.image.set_f32(col, row, backdrop(direction));
-                }
+                out.image.set_f32(col, row, backdrop.color(origin, direction));
                 continue;
             };
             let diffuse = hit.normal.dot(light).max(0.0) as f32;

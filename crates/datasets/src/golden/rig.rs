@@ -17,15 +17,19 @@ pub enum Rig {
     Sphere,
     /// Random directions, distances in [2.4, 3.4], look-at target jittered by ±0.05, roll ±15°.
     Random,
+    /// A full ring around the object (every azimuth, evenly spaced) at 25° elevation and
+    /// distance 2.8, as a turntable capture is.
+    Ring,
 }
 
 impl Rig {
-    /// Parses `dtu`, `sphere`, `random`.
+    /// Parses `dtu`, `sphere`, `random`, `ring`.
     pub fn by_name(name: &str) -> Option<Rig> {
         match name {
             "dtu" => Some(Rig::Dtu),
             "sphere" => Some(Rig::Sphere),
             "random" => Some(Rig::Random),
+            "ring" => Some(Rig::Ring),
             _ => None,
         }
     }
@@ -77,6 +81,12 @@ pub fn cameras(options: &RigOptions) -> Vec<PinholeCamera> {
                     let phi = golden_angle * i as f64;
                     (3.0 * DVec3::new(r * phi.cos(), r * phi.sin(), z), DVec3::ZERO, DVec3::Z)
                 }
+                Rig::Ring => {
+                    let azimuth = 2.0 * std::f64::consts::PI * i as f64 / count as f64;
+                    let elevation = 25f64.to_radians();
+                    let dir = DVec3::new(elevation.cos() * azimuth.cos(), elevation.cos() * azimuth.sin(), elevation.sin());
+                    (dir * 2.8, DVec3::ZERO, DVec3::Z)
+                }
                 Rig::Random => {
                     let dir = uniform_direction(rng.random(), rng.random());
                     let distance = 2.4 + rng.random::<f64>();
@@ -97,7 +107,7 @@ mod tests {
 
     #[test]
     fn every_rig_sees_the_origin_in_front_near_the_image_centre() {
-        for rig in [Rig::Dtu, Rig::Sphere, Rig::Random] {
+        for rig in [Rig::Dtu, Rig::Sphere, Rig::Random, Rig::Ring] {
             let cams = cameras(&RigOptions { rig, count: 49, width: 160, height: 120, seed: 3 });
             assert_eq!(cams.len(), 49);
             for c in &cams {

@@ -29,7 +29,14 @@ impl Default for DataConfig {
 
 impl Default for BuiltinConfig {
     fn default() -> Self {
-        BuiltinConfig { shape: prob_grid::ShapeName::Composite, width: 200, views: 49, backdrop: true }
+        BuiltinConfig {
+            shape: prob_grid::ShapeName::Composite,
+            width: 200,
+            views: 49,
+            backdrop: datasets::golden::Backdrop::Checker,
+            rig: datasets::golden::rig::Rig::Dtu,
+            bound: 1.0,
+        }
     }
 }
 

@@ -100,10 +100,17 @@ pub struct BuiltinConfig {
     pub shape: prob_grid::ShapeName,
     /// Image width (height = 3/4 of it).
     pub width: u32,
-    /// Number of views (DTU-like rig).
+    /// Number of views.
     pub views: usize,
-    /// A textured backdrop behind the object (as real captures have), or black.
-    pub backdrop: bool,
+    /// What lies behind the object: `none` (black), `checker` (default), `coarse-checker`,
+    /// `gradient`, `noise` (environments at infinity), `floor`, `wall` (near, crossing the bound).
+    pub backdrop: datasets::golden::Backdrop,
+    /// The cameras: `dtu` (default, an arc in front of and above the object), `ring` (a full
+    /// turntable ring), `sphere`, `random`.
+    pub rig: datasets::golden::rig::Rig,
+    /// The region of interest's radius in the object's units (≥ 1; 1: the object fills the
+    /// bound, 1.6: it fills 60 % of it, with free space around it as a capture's bound has).
+    pub bound: f64,
 }
 
 /// The backbone.

@@ -426,13 +426,18 @@ fn log_step(folder: &RunFolder, progress: &Progress, trainer: &Trainer, report: 
     Ok(())
 }
 
-/// The validation panel of the first held-out view (or view 0) and the guide's pdf heat map.
+/// The validation panel of the first held-out view (or view 0) and the guide's pdf heat map;
+/// where the view has a mask, the split between object and backdrop is logged
+/// (`{"split": …}`, [`crate::trainer::SplitStats`]).
 fn validation_pictures(trainer: &Trainer, folder: &RunFolder, step: u64) -> Result<()> {
     let view = trainer.split().evaluation_views()[0];
     let render = trainer.render_view(view, trainer.config().output.validate_downscale)?;
     folder.write_png(&format!("pictures/val_{step:06}.png"), &render.panel())?;
     if let Some(map) = trainer.pdf_heat_map(view) {
         folder.write_png(&format!("pictures/pdf_{step:06}.png"), &map)?;
+    }
+    if let Some(split) = trainer.split_stats(&render, view) {
+        folder.log(&json!({"step": step, "split": split}))?;
     }
     Ok(())
 }

@@ -41,6 +41,8 @@ use surface_losses::{RaySurface, SurfaceLossConfig};
 use view_sampler::{ErrorMap, Estimator, EstimatorConfig, UniformSchedule, UpdateReport};
 
 mod renders;
+mod split;
+pub use split::{SplitStats, WALLED_OPACITY};
 
 /// What a checkpoint holds besides the parameters and Adam's moments.
 #[derive(Debug, Clone)]

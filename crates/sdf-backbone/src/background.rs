@@ -4,7 +4,8 @@
 //!
 //! A point at distance r > 1 from the origin is represented by `(x/r, 1/r)` ∈ the unit 4-ball's
 //! shell × (0, 1]: bounded whatever r. Along each ray, `samples` points beyond the bound are
-//! placed at inverse distances `1/r_k = (k + ½)/K` (far to near reversed: increasing t), the
+//! placed at inverse distances `1/r_k = (1 − (k + ½)/K) / near` (increasing t; `near` = 1 is
+//! NeRF++, [`BackgroundModel::near`]), the
 //! network maps `[PE_L(x/r, 1/r)]` (and `SH₄(d)` when view-dependent) to a density σ (softplus) and a colour (sigmoid),
 //! and the ray's background is rendered by standard volume rendering, the last sample taking
 //! all the transmittance left (the background is opaque at infinity):
@@ -30,6 +31,10 @@ pub struct BackgroundModel {
     pub frequencies: usize,
     /// Whether the colour depends on the view direction (SH₄(d) among the inputs).
     pub view_dependent: bool,
+    /// The radius (in bound radii, ≥ 1) from which the background holds anything: samples at
+    /// `1/r_k = (1 − (k + ½)/K) / near`. NeRF++: 1. Further out, the background cannot paint
+    /// the object on a shell just behind it, whose parallax is close to the object's own.
+    pub near: f64,
 }
 
 /// What the forward pass keeps for the backward pass.
@@ -64,7 +69,7 @@ impl BackgroundModel {
             hidden_activation: Activation::Relu,
             output_activation: Activation::Identity,
         });
-        BackgroundModel { net, samples, frequencies, view_dependent }
+        BackgroundModel { net, samples, frequencies, view_dependent, near: 1.0 }
     }
 
     /// The model a run learns without masks (16 samples per ray, MLP 2 × 64) with `frequencies`
@@ -91,13 +96,15 @@ impl BackgroundModel {
         let rows_n = rays * k_n;
         let mut input = Buf::<R>::zeroed(rows_n * n_in);
         let mut depths = vec![R::ZERO; rows_n];
+        let inv_near = 1.0 / self.near;
         for r in 0..rays {
             let (o, d) = (origins[r], directions[r]);
             let od = o[0] * d[0] + o[1] * d[1] + o[2] * d[2];
             let oo = o[0] * o[0] + o[1] * o[1] + o[2] * o[2];
             for k in 0..k_n {
-                // Far to near in 1/r reversed: sample k has 1/r = 1 − (k + ½)/K (increasing t).
-                let inv_r = R::ONE - R::of((k as f64 + 0.5) / k_n as f64);
+                // Far to near in 1/r reversed: sample k has 1/r = (1 − (k + ½)/K) / near
+                // (increasing t).
+                let inv_r = R::of((1.0 - (k as f64 + 0.5) / k_n as f64) * inv_near);
                 let radius = R::ONE / inv_r;
                 // |o + t d| = radius, the far root (points beyond the bound, in front).
                 let disc = (od * od - oo + radius * radius).max(R::ZERO);

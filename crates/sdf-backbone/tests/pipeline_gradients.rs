@@ -158,6 +158,7 @@ fn whole_pipeline_gradients_match_finite_differences() {
                     output_activation: Activation::Identity,
                 }),
                 samples: 5,
+                near: 1.5,
                 frequencies: 1,
                 view_dependent: false,
             }),

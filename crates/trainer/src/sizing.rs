@@ -30,6 +30,41 @@ pub const MAX_FINEST: u32 = 4096;
 /// The smallest and largest table of a grid sized by the footprint, as log₂ of entries per level.
 const LOG2_TABLE_RANGE: (u32, u32) = (14, 24);
 
+/// The largest radius [`initial_sphere_radius`] gives (NeuS's geometric initialisation).
+pub const MAX_INITIAL_RADIUS: f64 = 0.5;
+
+/// The share of a view's half field of view (towards its nearest image edge) that the initial
+/// sphere may cover.
+pub const INITIAL_SPHERE_SHARE: f64 = 0.5;
+
+/// The radius of the initial sphere (at the region of interest's centre) that leaves every view
+/// room around it: its angular radius from each camera outside the bound at most
+/// [`INITIAL_SPHERE_SHARE`] of the angle from the centre's pixel to the nearest image edge, and
+/// at most [`MAX_INITIAL_RADIUS`]. Without masks a sphere that fills a view is a wall in front of
+/// everything it sees: the network paints the backdrop on it, and carving it away later carves
+/// the object with it (docs/DECISIONS.md §32). `None` when no camera outside the bound sees the
+/// centre.
+pub fn initial_sphere_radius<'a>(cameras: impl IntoIterator<Item = &'a PinholeCamera>) -> Option<f64> {
+    let mut radius: Option<f64> = None;
+    for camera in cameras {
+        let distance = camera.center_in_world().length();
+        let p = camera.pixel_space_from_world(DVec3::ZERO);
+        if distance <= 1.0 || p.z <= 0.0 {
+            continue;
+        }
+        let (w, h) = (f64::from(camera.width), f64::from(camera.height));
+        let margin = p.x.min(w - p.x).min(p.y).min(h - p.y);
+        if margin <= 0.0 {
+            continue;
+        }
+        let k = &camera.intrinsics;
+        let angle = (margin / k.fx.max(k.fy)).atan() * INITIAL_SPHERE_SHARE;
+        let r = distance * angle.sin();
+        radius = Some(radius.map_or(r, |best| best.min(r)));
+    }
+    radius.map(|r| r.min(MAX_INITIAL_RADIUS))
+}
+
 /// Median pixel footprint at the region of interest's centre over the cameras that have it in
 /// front (`None`: no camera does).
 pub fn median_footprint<'a>(cameras: impl IntoIterator<Item = &'a PinholeCamera>) -> Option<f64> {
@@ -141,6 +176,36 @@ mod tests {
     fn camera(eye: DVec3, focal: f64) -> PinholeCamera {
         let k = Intrinsics { fx: focal, fy: focal, cx: 200.0, cy: 150.0, skew: 0.0 };
         PinholeCamera::look_at(eye, DVec3::ZERO, DVec3::Z, k, 400, 300, PixelCenters::Integer).unwrap()
+    }
+
+    #[test]
+    fn the_initial_sphere_leaves_every_view_room_around_it() {
+        // Focal 540 for 300 rows: 150 px to the nearest edge = 15.5° from the centre.
+        let far = [camera(DVec3::new(0.0, -4.0, 0.0), 540.0), camera(DVec3::new(3.0, 3.0, 1.5), 540.0)];
+        assert_eq!(initial_sphere_radius(&far), Some(MAX_INITIAL_RADIUS), "far cameras keep NeuS's 0.5");
+        // A looser bound: the same views 1.6 times closer to the centre.
+        let near: Vec<PinholeCamera> = far.iter().map(|c| camera(c.center_in_world() / 1.6, 540.0)).collect();
+        assert!(initial_sphere_radius(&near).unwrap() < MAX_INITIAL_RADIUS);
+        let r = initial_sphere_radius(&near).unwrap();
+        for c in &near {
+            let d = c.center_in_world().length();
+            let half_view = (150.0f64 / 540.0).atan();
+            assert!((r / d).asin() <= INITIAL_SPHERE_SHARE * half_view + 1e-12, "the sphere covers at most its share of the view");
+        }
+        assert!((0.3..0.35).contains(&r), "{r}");
+        // A camera inside the bound or looking away says nothing.
+        let inside = camera(DVec3::new(0.0, -0.9, 0.0), 540.0);
+        assert_eq!(initial_sphere_radius(std::slice::from_ref(&inside)), None);
+        assert_eq!(initial_sphere_radius(&[inside, far[0]]), Some(MAX_INITIAL_RADIUS));
+    }
+
+    #[test]
+    fn an_automatic_initial_radius_is_neus_own_with_masks() {
+        use crate::config::InitRadius;
+        let near = [camera(DVec3::new(0.0, -1.75, 0.0), 540.0)];
+        assert_eq!(InitRadius::Auto.resolve(&near, true), MAX_INITIAL_RADIUS);
+        assert!(InitRadius::Auto.resolve(&near, false) < 0.25);
+        assert_eq!(InitRadius::Radius(0.4).resolve(&near, false), 0.4);
     }
 
     fn footprint_model() -> ModelConfig {

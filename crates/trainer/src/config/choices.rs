@@ -225,3 +225,53 @@ impl std::fmt::Display for MeshResolution {
         }
     }
 }
+
+/// The radius of the SDF's initial sphere (NeuS's geometric initialisation), in bound radii.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "InitRadiusText", into = "InitRadiusText")]
+pub enum InitRadius {
+    /// 0.5 with masks; without them the largest sphere up to 0.5 that leaves every view room
+    /// around it ([`crate::sizing::initial_sphere_radius`]).
+    Auto,
+    /// This radius, in (0, 1).
+    Radius(f64),
+}
+
+/// How an initial radius is written: `"auto"` or a number.
+#[derive(Serialize, Deserialize)]
+#[serde(untagged)]
+enum InitRadiusText {
+    Name(String),
+    Radius(f64),
+}
+
+impl TryFrom<InitRadiusText> for InitRadius {
+    type Error = String;
+    fn try_from(text: InitRadiusText) -> std::result::Result<Self, String> {
+        match text {
+            InitRadiusText::Radius(r) => Ok(InitRadius::Radius(r)),
+            InitRadiusText::Name(n) if n == "auto" => Ok(InitRadius::Auto),
+            InitRadiusText::Name(other) => Err(format!("unknown initial radius {other:?}: expected auto or a number")),
+        }
+    }
+}
+
+impl From<InitRadius> for InitRadiusText {
+    fn from(radius: InitRadius) -> InitRadiusText {
+        match radius {
+            InitRadius::Auto => InitRadiusText::Name("auto".into()),
+            InitRadius::Radius(r) => InitRadiusText::Radius(r),
+        }
+    }
+}
+
+impl InitRadius {
+    /// The radius for a run on `cameras` that uses masks (`use_masks`) or not.
+    pub fn resolve<'a>(self, cameras: impl IntoIterator<Item = &'a camera_geom::PinholeCamera>, use_masks: bool) -> f64 {
+        match self {
+            InitRadius::Radius(r) => r,
+            InitRadius::Auto if use_masks => crate::sizing::MAX_INITIAL_RADIUS,
+            InitRadius::Auto => crate::sizing::initial_sphere_radius(cameras).unwrap_or(crate::sizing::MAX_INITIAL_RADIUS),
+        }
+    }
+}

@@ -46,7 +46,7 @@ impl Default for ModelConfig {
             preset: Preset::NeuralangeloCpu,
             grid: GridSize::Preset,
             pixels_per_cell: 1.0,
-            init_radius: 0.5,
+            init_radius: InitRadius::Auto,
             initial_levels: 4,
             all_levels_at: 0.25,
             eikonal: 0.1,
@@ -58,6 +58,8 @@ impl Default for ModelConfig {
             background_model: BackgroundModel::Auto,
             background_frequencies: 8,
             background_view: false,
+            background_near: 1.0,
+            s_floor: None,
             opacity_entropy: 0.0,
             products: Products::F32,
         }

@@ -31,7 +31,7 @@ mod validate;
 pub use annotated::annotated_default;
 use budget::budget_from_short_keys;
 pub use budget::{Budget, parse_duration, positive_duration};
-pub use choices::{BackgroundModel, GridSize, MeshFilter, MeshResolution, MomentStorage, Normals, Products, SamplerKind};
+pub use choices::{BackgroundModel, GridSize, InitRadius, MeshFilter, MeshResolution, MomentStorage, Normals, Products, SamplerKind};
 
 /// The default spacing of the points sampled on meshes for Chamfer (`output.chamfer_spacing`,
 /// normalised units): every table in BENCHMARKS.md so far was measured with it, against the
@@ -126,8 +126,10 @@ pub struct ModelConfig {
     /// Training-view pixels per finest cell of a grid sized by the footprint (1: a cell per
     /// pixel at the region of interest's centre; 2: half as fine).
     pub pixels_per_cell: f64,
-    /// Radius of the initial sphere.
-    pub init_radius: f64,
+    /// Radius of the initial sphere (bound radii): `auto` (0.5 with masks; without them the
+    /// largest up to 0.5 that leaves every view room around it, docs/DECISIONS.md §32) or a
+    /// number in (0, 1).
+    pub init_radius: InitRadius,
     /// Hash-grid levels active at the start (coarse-to-fine; Neuralangelo: 4).
     pub initial_levels: usize,
     /// Fraction of the run after which all levels are active.
@@ -164,6 +166,15 @@ pub struct ModelConfig {
     /// by default: with it the background can paint the object itself as a light field and
     /// leave the surface empty (docs/DECISIONS.md §23); surroundings are mostly diffuse.
     pub background_view: bool,
+    /// A floor under the logistic scale s, rising geometrically over the run from the first
+    /// value to the second (`[20, 400]`: 20 at the start, 400 at the end; `[]`: none). Without
+    /// masks nothing else keeps the foreground from settling as a translucent haze that the
+    /// background shows through (docs/DECISIONS.md §32).
+    #[serde(with = "off::empty_is_none")]
+    pub s_floor: Option<[f64; 2]>,
+    /// The radius (in bound radii, ≥ 1) from which the learned background holds anything
+    /// (NeRF++: 1). Further out, it cannot paint the object on a shell just behind it.
+    pub background_near: f64,
     /// Without masks: weight of the opacity entropy of each ray (pushes a ray to hit the
     /// surface or miss it; a thin part becomes a surface rather than a haze). Unused with masks,
     /// whose BCE does the same with the truth.

@@ -21,22 +21,23 @@ pub mod zero_is_none {
     }
 }
 
-/// `Option<[f64; 4]>` as a list: `[]` is `None`, `[x, y, z, radius]` is `Some`.
+/// `Option<[f64; N]>` as a list: `[]` is `None`, N numbers (`[x, y, z, radius]`, …) are `Some`.
 pub mod empty_is_none {
     use super::*;
 
     /// `None` as `[]`.
-    pub fn serialize<S: Serializer>(value: &Option<[f64; 4]>, s: S) -> Result<S::Ok, S::Error> {
+    pub fn serialize<S: Serializer, const N: usize>(value: &Option<[f64; N]>, s: S) -> Result<S::Ok, S::Error> {
         value.as_ref().map_or(&[][..], |v| &v[..]).serialize(s)
     }
 
-    /// `[]` as `None`; another length is an error.
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 4]>, D::Error> {
-        match Vec::<f64>::deserialize(d)?.as_slice() {
-            [] => Ok(None),
-            &[x, y, z, r] => Ok(Some([x, y, z, r])),
-            other => Err(serde::de::Error::custom(format!("{other:?}: expected [] or [x, y, z, radius]"))),
+    /// `[]` as `None`; another length than N is an error.
+    pub fn deserialize<'de, D: Deserializer<'de>, const N: usize>(d: D) -> Result<Option<[f64; N]>, D::Error> {
+        let values = Vec::<f64>::deserialize(d)?;
+        if values.is_empty() {
+            return Ok(None);
         }
+        let names = if N == 4 { "[x, y, z, radius]".to_string() } else { format!("{N} numbers") };
+        <[f64; N]>::try_from(values.as_slice()).map(Some).map_err(|_| serde::de::Error::custom(format!("{values:?}: expected [] or {names}")))
     }
 }
 

@@ -189,3 +189,17 @@ fn mesh_resolution_reads_a_number_or_model_and_round_trips() {
         assert!(err.contains(says), "{bad}: {err}");
     }
 }
+
+#[test]
+fn the_initial_radius_is_auto_or_a_number_in_the_bound() {
+    use super::InitRadius;
+    let radius = |v: &str| TrainConfig::load(None, &[format!("model.init_radius={v}")]).map(|c| c.model.init_radius);
+    assert_eq!(TrainConfig::default().model.init_radius, InitRadius::Auto);
+    assert_eq!(radius("0.3").unwrap(), InitRadius::Radius(0.3));
+    assert_eq!(radius("auto").unwrap(), InitRadius::Auto);
+    assert!(radius("1.2").unwrap_err().chain().contains("model.init_radius"));
+    assert!(radius("big").unwrap_err().chain().contains("auto or a number"));
+    // Written and read back as it was given.
+    let text = toml::to_string(&TrainConfig::load(None, &["model.init_radius=0.3".into()]).unwrap()).unwrap();
+    assert!(text.contains("init_radius = 0.3"), "{text}");
+}

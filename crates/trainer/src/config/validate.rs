@@ -1,7 +1,7 @@
 //! The range checks of a [`TrainConfig`]: every key's allowed values, and the combinations
 //! that cannot run, each error naming the key and what it expects.
 
-use super::{Budget, GridSize, MeshResolution, MomentStorage, Normals, TrainConfig};
+use super::{Budget, GridSize, InitRadius, MeshResolution, MomentStorage, Normals, TrainConfig};
 use crate::bail;
 use crate::error::Result;
 use std::time::Duration;
@@ -47,13 +47,17 @@ impl TrainConfig {
         )?;
         need(self.data.builtin.width >= 16, "data.builtin.width", self.data.builtin.width, "≥ 16")?;
         need(self.data.builtin.views >= 2, "data.builtin.views", self.data.builtin.views, "≥ 2")?;
+        let b = self.data.builtin.bound;
+        need(b.is_finite() && b >= 1.0, "data.builtin.bound", b, "≥ 1 (the object's own radius)")?;
         Ok(())
     }
 
     /// `[model]` and the combinations it takes part in.
     fn validate_model(&self) -> Result<()> {
         let non_neg = |v: f64| v.is_finite() && v >= 0.0;
-        need(self.model.init_radius > 0.0 && self.model.init_radius < 1.0, "model.init_radius", self.model.init_radius, "in (0, 1)")?;
+        if let InitRadius::Radius(r) = self.model.init_radius {
+            need(r > 0.0 && r < 1.0, "model.init_radius", r, "in (0, 1) or auto")?;
+        }
         need(self.model.pixels_per_cell.is_finite() && self.model.pixels_per_cell > 0.0, "model.pixels_per_cell", self.model.pixels_per_cell, "> 0")?;
         need(
             self.model.grid == GridSize::Preset || self.model.preset.has_hash_grid(),
@@ -67,6 +71,12 @@ impl TrainConfig {
         need(non_neg(self.model.mask), "model.mask", self.model.mask, "≥ 0")?;
         need(non_neg(self.model.opacity_entropy), "model.opacity_entropy", self.model.opacity_entropy, "≥ 0")?;
         need((1..=16).contains(&self.model.background_frequencies), "model.background_frequencies", self.model.background_frequencies, "in 1..=16")?;
+        if let Some([from, to]) = self.model.s_floor {
+            let ok = from.is_finite() && to.is_finite() && from > 0.0 && to >= from;
+            need(ok, "model.s_floor", format!("[{from}, {to}]"), "[] or [from, to] with 0 < from ≤ to")?;
+        }
+        let near = self.model.background_near;
+        need(near.is_finite() && near >= 1.0, "model.background_near", near, "≥ 1 (bound radii)")?;
         need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;
         need(non_neg(self.model.normal_smoothness), "model.normal_smoothness", self.model.normal_smoothness, "≥ 0")?;
         if self.model.normals == Normals::Analytic {

@@ -269,6 +269,13 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, options: &RunOptions, st
     if let Some(choice) = trainer.grid_choice() {
         eprintln!("model: {}", choice.describe());
     }
+    if config.model.init_radius == crate::config::InitRadius::Auto && trainer.init_radius() < crate::sizing::MAX_INITIAL_RADIUS {
+        eprintln!(
+            "model.init_radius = auto: {:.3} (without masks, the largest sphere up to {} that leaves every view room around it)",
+            trainer.init_radius(),
+            crate::sizing::MAX_INITIAL_RADIUS
+        );
+    }
     if config.model.products == crate::config::Products::Bf16 {
         eprintln!(
             "model.products = bf16: {}",

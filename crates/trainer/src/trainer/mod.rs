@@ -113,6 +113,8 @@ pub struct Trainer {
     grid: Option<GridChoice>,
     /// The meshes' marching-cubes resolution (`output.mesh_resolution` resolved).
     mesh_resolution: u32,
+    /// The initial sphere's radius (`model.init_radius` resolved).
+    init_radius: f64,
     state: TrainState,
     grads: Vec<f32>,
     timing: Timing,
@@ -134,8 +136,8 @@ impl SampleLoss for SurfaceHook<'_> {
 }
 
 /// The configured backbone with its initial parameters.
-fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&GridChoice>) -> Result<(Backbone, Vec<f32>)> {
-    let (model, radius, seed) = (&config.model, config.model.init_radius, config.seed);
+fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&GridChoice>, radius: f64) -> Result<(Backbone, Vec<f32>)> {
+    let (model, seed) = (&config.model, config.seed);
     let (mut backbone, mut params) = match grid {
         Some(choice) => sdf_backbone::build_with_grid(model.preset, choice.grid.clone(), radius, seed)?,
         None => build(model.preset, radius, seed),
@@ -155,7 +157,9 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&Grid
 
 /// The learned background of a run without masks ([`sdf_backbone::BackgroundModel::cpu`]).
 pub fn background_model(config: &TrainConfig) -> sdf_backbone::BackgroundModel {
-    sdf_backbone::BackgroundModel::cpu(config.model.background_frequencies, config.model.background_view)
+    let mut model = sdf_backbone::BackgroundModel::cpu(config.model.background_frequencies, config.model.background_view);
+    model.near = config.model.background_near;
+    model
 }
 
 /// The estimator's configuration from the trainer's.
@@ -191,7 +195,8 @@ impl Trainer {
         let footprint = crate::sizing::median_footprint(data.scene.views.iter().map(|v| &v.camera));
         let grid = crate::sizing::grid_choice(&config.model, footprint)?;
         let mesh_resolution = crate::sizing::mesh_resolution(config.output.mesh_resolution, &config.model, footprint)?;
-        let (backbone, params) = configured_backbone(&config, use_masks, grid.as_ref())?;
+        let init_radius = config.model.init_radius.resolve(data.scene.views.iter().map(|v| &v.camera), use_masks);
+        let (backbone, params) = configured_backbone(&config, use_masks, grid.as_ref(), init_radius)?;
         let cameras: Vec<_> = split.train.iter().map(|&i| data.scene.views[i].camera).collect();
         let miner = crate::mining::error_map(&config, &cameras);
         let estimator = Estimator::new(cameras, estimator_config(&config)).context("the guide's configuration")?;
@@ -211,6 +216,7 @@ impl Trainer {
             miner,
             grid,
             mesh_resolution,
+            init_radius,
             state,
             grads: Vec::new(),
             timing: Timing::default(),
@@ -227,6 +233,11 @@ impl Trainer {
     /// The hash grid sized by the views (`model.grid = "footprint"`; `None`: the preset's).
     pub fn grid_choice(&self) -> Option<&GridChoice> {
         self.grid.as_ref()
+    }
+
+    /// The initial sphere's radius (`model.init_radius`, `auto` resolved).
+    pub fn init_radius(&self) -> f64 {
+        self.init_radius
     }
 
     /// The meshes' marching-cubes resolution: cells per side of the bound's cube
@@ -370,6 +381,12 @@ impl Trainer {
             self.backbone.train_step(&mut self.state.params, &mut self.state.adam, &batch.rays, self.config.render.chunk, extra, rates);
         if !loss.is_finite() {
             return Err(crate::Error::Diverged { loss: f64::from(loss), step });
+        }
+        if let Some([from, to]) = self.config.model.s_floor {
+            // s = exp(10 v) ≥ from · (to / from)^progress.
+            let floor = from * (to / from).powf(progress_end);
+            let v = &mut self.state.params[self.backbone.layout().variance];
+            *v = v.max((floor.ln() / 10.0) as f32);
         }
         if let Some(map) = &mut self.miner {
             crate::mining::record(map, &batch.drawn, &batch.rays, &outputs);

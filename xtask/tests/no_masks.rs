@@ -1,0 +1,53 @@
+//! Training without masks against the masked twin of the same scene (issue #37): the backdrop
+//! stays out of the geometry.
+
+use std::process::Command;
+
+/// A small scene whose bound holds free space around the object (`data.builtin.bound = 1.6`,
+/// as a capture's bound does) in front of a backdrop at infinity, 16 views of 64 × 48,
+/// 400 iterations (deterministic).
+const SCENE: &[&str] = &[
+    "steps=400",
+    "render.rays=256",
+    "data.builtin.width=64",
+    "data.builtin.views=16",
+    "data.builtin.bound=1.6",
+    "data.builtin.backdrop=coarse-checker",
+    "output.validate_every=0",
+    "output.checkpoint_every=0",
+    "output.mesh_resolution=64",
+    "output.eval_views=1",
+    "output.eval_train_views=0",
+];
+
+/// The run's Chamfer (∞ when the mesh is nowhere near the object) and F-score.
+fn train(extra: &[&str]) -> (f64, f64) {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let mut args = vec!["train", "--json", "--seed", "0", "--out", out.to_str().unwrap()];
+    args.extend_from_slice(SCENE);
+    args.extend_from_slice(extra);
+    let o = Command::new(env!("CARGO_BIN_EXE_xtask")).args(&args).output().expect("xtask runs");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let line = o.stdout.split(|&b| b == b'\n').find(|l| l.starts_with(b"{")).expect("a JSON summary");
+    let summary: serde_json::Value = serde_json::from_slice(line).unwrap();
+    let metrics = &summary["metrics"];
+    (metrics["chamfer"].as_f64().unwrap_or(f64::INFINITY), metrics["f_score"].as_f64().unwrap())
+}
+
+/// Guided and uniform runs without masks land within 3× the masked twin's Chamfer (at this
+/// size and budget the F-score is low: 400 iterations of 64 × 48 views). Measured on the Zen 4 (release build): twin 0.0160
+/// (F 0.56); without masks guided 0.0435 (F 0.04), uniform 0.0408. With the initial sphere of
+/// radius 0.5 (before `model.init_radius = "auto"`) the sphere filled every view, the network
+/// painted the backdrop on it, and carving it away carved the object: no mesh near the object
+/// (Chamfer ∞, F 0) for both samplers.
+#[test]
+fn without_masks_the_object_is_meshed_within_3x_its_masked_twins_chamfer() {
+    let (twin, twin_f) = train(&[]);
+    assert!(twin.is_finite() && twin < 0.03, "masked twin: Chamfer {twin}");
+    for sampler in ["guided", "uniform"] {
+        let (chamfer, f_score) = train(&["data.masks=false", "--sampler", sampler]);
+        eprintln!("{sampler} without masks: Chamfer {chamfer:.4} (F {f_score:.3}) against the twin's {twin:.4} (F {twin_f:.3})");
+        assert!(chamfer <= 3.0 * twin, "{sampler} without masks: Chamfer {chamfer} > 3 × the masked twin's {twin}");
+    }
+}

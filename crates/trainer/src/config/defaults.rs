@@ -46,7 +46,7 @@ impl Default for ModelConfig {
             preset: Preset::NeuralangeloCpu,
             grid: GridSize::Preset,
             pixels_per_cell: 1.0,
-            init_radius: InitRadius::Auto,
+            init_radius: InitRadius::Radius(0.5),
             initial_levels: 4,
             all_levels_at: 0.25,
             eikonal: 0.1,

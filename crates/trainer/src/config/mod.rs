@@ -126,9 +126,10 @@ pub struct ModelConfig {
     /// Training-view pixels per finest cell of a grid sized by the footprint (1: a cell per
     /// pixel at the region of interest's centre; 2: half as fine).
     pub pixels_per_cell: f64,
-    /// Radius of the initial sphere (bound radii): `auto` (0.5 with masks; without them the
-    /// largest up to 0.5 that leaves every view room around it, docs/DECISIONS.md §32) or a
-    /// number in (0, 1).
+    /// Radius of the initial sphere (bound radii): a number in (0, 1) (default 0.5, NeuS's) or
+    /// `auto` (0.5 with masks; without them the largest up to 0.5 that leaves every view room
+    /// around it: mends a loose bound on golden scenes, empties DTU scan 24; docs/DECISIONS.md
+    /// §32).
     pub init_radius: InitRadius,
     /// Hash-grid levels active at the start (coarse-to-fine; Neuralangelo: 4).
     pub initial_levels: usize,

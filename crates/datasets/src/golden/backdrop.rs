@@ -76,11 +76,20 @@ impl Backdrop {
     /// The distance along a ray to the backdrop's nearest surface (∞ for environments at
     /// infinity, and where a near backdrop's ray misses its planes).
     pub fn distance(self, origin: DVec3, direction: DVec3) -> f64 {
-        let plane = |o: f64, d: f64, at: f64| if d.abs() > 1e-12 && (at - o) / d > 0.0 { (at - o) / d } else { f64::INFINITY };
+        self.near_hit(origin, direction).map_or(f64::INFINITY, |(t, _)| t)
+    }
+
+    /// A near backdrop's nearest plane along the ray: its distance and whether it is the floor.
+    fn near_hit(self, origin: DVec3, direction: DVec3) -> Option<(f64, bool)> {
+        let plane = |o: f64, d: f64, at: f64| (d.abs() > 1e-12 && (at - o) / d > 0.0).then(|| (at - o) / d);
+        let floor = || plane(origin.z, direction.z, FLOOR_Z).map(|t| (t, true));
         match self {
-            Backdrop::Floor => plane(origin.z, direction.z, FLOOR_Z),
-            Backdrop::Wall => plane(origin.z, direction.z, FLOOR_Z).min(plane(origin.y, direction.y, WALL_Y)),
-            _ => f64::INFINITY,
+            Backdrop::Floor => floor(),
+            Backdrop::Wall => {
+                let wall = plane(origin.y, direction.y, WALL_Y).map(|t| (t, false));
+                [floor(), wall].into_iter().flatten().min_by(|a, b| a.0.total_cmp(&b.0))
+            }
+            _ => None,
         }
     }
 
@@ -93,14 +102,13 @@ impl Backdrop {
             Backdrop::CoarseChecker => coarse_checker(direction),
             Backdrop::Gradient => gradient(direction),
             Backdrop::Noise => noise_environment(direction),
-            Backdrop::Floor | Backdrop::Wall => {
-                let t = self.distance(origin, direction);
-                if !t.is_finite() {
-                    return gradient(direction);
+            Backdrop::Floor | Backdrop::Wall => match self.near_hit(origin, direction) {
+                None => gradient(direction),
+                Some((t, is_floor)) => {
+                    let p = origin + t * direction;
+                    if is_floor { floor_texture(p.x, p.y) } else { wall_texture(p.x, p.z) }
                 }
-                let p = origin + t * direction;
-                if (p.z - FLOOR_Z).abs() < 1e-9 { floor_texture(p.x, p.y) } else { wall_texture(p.x, p.z) }
-            }
+            },
         }
     }
 }

@@ -102,15 +102,22 @@ impl Trainer {
         Ok(ViewRender { width, height, outputs, target, mask })
     }
 
-    /// The pixel marginal of the guide for the training camera nearest in index to `view`.
-    pub fn pdf_heat_map(&self, view: usize) -> Option<RgbImage> {
+    /// The guide's distribution of the training camera nearest in index to `view`, with that
+    /// camera's view index (`None` before the first guide update or without a guide).
+    pub(super) fn nearest_distribution(&self, view: usize) -> Option<(usize, &view_sampler::CameraDistribution)> {
         let distributions = self.estimator.distributions();
         if distributions.is_empty() {
             return None;
         }
         let i = self.split.train.iter().position(|&v| v >= view).unwrap_or(0).min(distributions.len() - 1);
-        let (ru, rv, _) = distributions[i].resolution();
-        Some(heat_map(&distributions[i].pixel_marginal(), ru, rv, 4))
+        Some((self.split.train[i], &distributions[i]))
+    }
+
+    /// The pixel marginal of the guide for the training camera nearest in index to `view`.
+    pub fn pdf_heat_map(&self, view: usize) -> Option<RgbImage> {
+        let (_, distribution) = self.nearest_distribution(view)?;
+        let (ru, rv, _) = distribution.resolution();
+        Some(heat_map(&distribution.pixel_marginal(), ru, rv, 4))
     }
 
     /// The zero level set of the current SDF (normalised frame) at [`Self::mesh_resolution`],

@@ -51,13 +51,8 @@ impl Trainer {
     /// The guide's pixel mass on the backdrop of the training view whose distribution
     /// [`Self::pdf_heat_map`] shows for `view`, and the backdrop's share of its pixels.
     fn guide_backdrop_mass(&self, view: usize) -> Option<(f64, f64)> {
-        let distributions = self.estimator.distributions();
-        if distributions.is_empty() {
-            return None;
-        }
-        let i = self.split.train.iter().position(|&v| v >= view).unwrap_or(0).min(distributions.len() - 1);
-        let mask = self.data.scene.views[self.split.train[i]].mask.as_ref()?;
-        let distribution = &distributions[i];
+        let (train_view, distribution) = self.nearest_distribution(view)?;
+        let mask = self.data.scene.views[train_view].mask.as_ref()?;
         let camera = distribution.camera();
         let (mut mass, mut total, mut backdrop) = (0.0, 0.0, 0usize);
         for row in 0..camera.height {

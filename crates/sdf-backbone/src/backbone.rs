@@ -154,6 +154,9 @@ pub struct ParamLayout {
     pub variance: usize,
     /// The learned background network (empty without one).
     pub background: Range<usize>,
+    /// The learned background's hash tables, the end of `background` (empty without them):
+    /// they learn at the tables' rate.
+    pub background_tables: Range<usize>,
 }
 
 impl Backbone {
@@ -163,7 +166,10 @@ impl Backbone {
         let n_sdf = n_enc + Module::<f32>::n_params(&self.sdf.b);
         let n_col = n_sdf + Module::<f32>::n_params(&self.color);
         let n_bg = self.background.as_ref().map_or(0, crate::background::BackgroundModel::n_params);
-        ParamLayout { encoding: 0..n_enc, sdf_mlp: n_enc..n_sdf, color: n_sdf..n_col, variance: n_col, background: n_col + 1..n_col + 1 + n_bg }
+        let tables = self.background.as_ref().map_or(n_bg..n_bg, crate::background::BackgroundModel::tables);
+        let background = n_col + 1..n_col + 1 + n_bg;
+        let background_tables = background.start + tables.start..background.start + tables.end;
+        ParamLayout { encoding: 0..n_enc, sdf_mlp: n_enc..n_sdf, color: n_sdf..n_col, variance: n_col, background, background_tables }
     }
 
     /// Adds a learned background `model` (NeRF++'s inverted sphere beyond the bound,
@@ -308,7 +314,12 @@ impl Backbone {
         {
             let _span = crate::profile::span(crate::profile::Stage::Adam);
             step.apply(pe, me, ve, &rest[..enc_rest], rates.tables);
-            step.apply(pr, mr, vr, &rest[enc_rest..], rates.rest);
+            // The learned background's tables, last, at the tables' rate.
+            let bg = layout.background_tables.start - layout.encoding.end;
+            let ((pr, pt), (mr, mt), (vr, vt)) = (pr.split_at_mut(bg), mr.split_at_mut(bg), vr.split_at_mut(bg));
+            let (gr, gt) = rest[enc_rest..].split_at(bg);
+            step.apply(pr, mr, vr, gr, rates.rest);
+            step.apply(pt, mt, vt, gt, rates.tables);
         }
         if n_def > 0 {
             // Each level: its gradient from the records (a scatter that reads no parameter), then
@@ -404,7 +415,21 @@ mod tests {
     /// gradient + Adam, with and without clipping.
     #[test]
     fn train_step_equals_dense_gradient_and_adam() {
-        let (mut backbone, params) = build(Preset::NeuralangeloCpu, 0.5, 2);
+        for background_grid in [false, true] {
+            train_step_equals_dense_gradient_and_adam_with(background_grid);
+        }
+    }
+
+    /// With `background_grid`, a learned background with a hash grid, whose tables learn at the
+    /// tables' rate.
+    fn train_step_equals_dense_gradient_and_adam_with(background_grid: bool) {
+        let (mut backbone, mut params) = build(Preset::NeuralangeloCpu, 0.5, 2);
+        if background_grid {
+            let grid = crate::HashGridConfig { levels: 3, features: 2, log2_table: 10, base_resolution: 4, finest_resolution: 16 };
+            backbone.add_learned_background(&mut params, crate::BackgroundModel::cpu(4, false).with_grid(grid), 5);
+            let layout = backbone.layout();
+            assert!(!layout.background_tables.is_empty() && layout.background_tables.end == layout.background.end);
+        }
         backbone.set_active_levels(6);
         let rays: Vec<crate::pipeline::RayInput<f32>> = (0..40)
             .map(|r| {
@@ -430,10 +455,14 @@ mod tests {
             let (mut dense, mut adam_d) = (params.clone(), adam());
             let mut grads = vec![0.0f32; n];
             let (ld, _) = backbone.loss_parallel(&dense, &rays, &mut grads, 8, &crate::pipeline::NoSampleLoss);
-            adam_step(&mut adam_d, &mut dense, &mut grads, &[(layout.encoding.clone(), 1e-2), (layout.encoding.end..n, 5e-3)], clip);
+            let tables = layout.background_tables.clone();
+            let ranges = [(layout.encoding.clone(), 1e-2), (layout.encoding.end..tables.start, 5e-3), (tables, 1e-2)];
+            adam_step(&mut adam_d, &mut dense, &mut grads, &ranges, clip);
             assert_eq!(lf, ld);
             let worst = fused.iter().zip(&dense).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
-            assert!(worst <= 1e-7, "clip {clip:?}, compact {compact}: parameters differ by {worst}");
+            assert!(worst <= 1e-7, "clip {clip:?}, compact {compact}, background grid {background_grid}: parameters differ by {worst}");
+            let t = layout.background_tables.clone();
+            assert!(!background_grid || fused[t.clone()] != params[t], "the background's tables learn");
             assert_eq!(adam_f.step, adam_d.step);
             assert_eq!(adam_f.compact.as_ref().map(|c| &c.v), adam_d.compact.as_ref().map(|c| &c.v));
         }

@@ -12,9 +12,16 @@
 //! `w_k = T_k (1 − e^{−σ_k δ_k})`, `T_k = Π_{j<k} e^{−σ_j δ_j}`, `C_bg = Σ w_k c_k`.
 //! The pipeline composites `C = C_fg + (1 − O_fg) C_bg`.
 //!
+//! With a hash grid (`grid`, instant-nsr-pl's remedy), the network also reads the features of a
+//! multiresolution hash grid at the contracted point `(x/r)(2 − 1/r)/2` (the shell between radii
+//! ½ and 1 of the grid's cube; infinity on its outer sphere): a backdrop's sharp edges are then
+//! learnt as fast as the object's network learns them, instead of by an MLP's slow high
+//! frequencies. Parameters: the network's, then the grid's tables ([`BackgroundModel::tables`]).
+//!
 //! The backward pass is exact (checked against finite differences in f64 with the pipeline):
 //! `∂C/∂c_k = w_k`, `∂C/∂σ_m = δ_m (T_{m+1} c_m − Σ_{k>m} w_k c_k)`.
 
+use crate::hashgrid::{HashGrid, HashGridConfig};
 use crate::mlp::{Mlp, MlpConfig};
 use crate::module::{Activation, Module};
 use crate::real::Real;
@@ -35,6 +42,8 @@ pub struct BackgroundModel {
     /// `1/r_k = (1 − (k + ½)/K) / near`. NeRF++: 1. Further out, the background cannot paint
     /// the object on a shell just behind it, whose parallax is close to the object's own.
     pub near: f64,
+    /// A hash grid over the contracted background whose features the network also reads.
+    pub grid: Option<HashGrid>,
 }
 
 /// What the forward pass keeps for the backward pass.
@@ -43,6 +52,8 @@ pub struct BackgroundPass<R: Real> {
     input: Buf<R>,
     /// Network context.
     ctx: Buf<R>,
+    /// The grid's inputs (rows × 3; empty without a grid).
+    points: Buf<R>,
     /// Raw outputs (rows × 4).
     raw: Buf<R>,
     /// Per row: σ, dσ/draw, c (3), dc/draw (3), δ, w.
@@ -69,7 +80,22 @@ impl BackgroundModel {
             hidden_activation: Activation::Relu,
             output_activation: Activation::Identity,
         });
-        BackgroundModel { net, samples, frequencies, view_dependent, near: 1.0 }
+        BackgroundModel { net, samples, frequencies, view_dependent, near: 1.0, grid: None }
+    }
+
+    /// This model with the features of a hash grid `config` among its network's inputs (the
+    /// network's shape otherwise kept; initialise the parameters again).
+    pub fn with_grid(self, config: HashGridConfig) -> BackgroundModel {
+        assert!(self.grid.is_none(), "with_grid: the model has a grid already");
+        let grid = HashGrid::new(config);
+        let n_inputs = self.net.config().n_inputs + Module::<f32>::n_outputs(&grid);
+        BackgroundModel { net: Mlp::new(MlpConfig { n_inputs, ..self.net.config().clone() }), grid: Some(grid), ..self }
+    }
+
+    /// The grid the trainer gives a background with one: 8 levels × 2 features from 16 to 512
+    /// cells across the grid's cube (a cell of ≈ 0.2° at infinity), 2¹⁵ entries per level.
+    pub fn cpu_grid() -> HashGridConfig {
+        HashGridConfig { levels: 8, features: 2, log2_table: 15, base_resolution: 16, finest_resolution: 512 }
     }
 
     /// The model a run learns without masks (16 samples per ray, MLP 2 × 64) with `frequencies`
@@ -78,23 +104,38 @@ impl BackgroundModel {
         BackgroundModel::with_view(16, frequencies, 64, 2, view_dependent)
     }
 
-    /// Parameters of the network.
+    /// Parameters: the network's, then the grid's.
     pub fn n_params(&self) -> usize {
-        Module::<f32>::n_params(&self.net)
+        Module::<f32>::n_params(&self.net) + self.grid.as_ref().map_or(0, Module::<f32>::n_params)
     }
 
-    /// Default initialisation (He), deterministic in `seed`.
+    /// Where the grid's tables lie among the model's parameters (empty without a grid): they
+    /// learn at the tables' rate.
+    pub fn tables(&self) -> std::ops::Range<usize> {
+        Module::<f32>::n_params(&self.net)..self.n_params()
+    }
+
+    /// Default initialisation (He; the grid's tables in ±10⁻⁴, Instant-NGP's), deterministic in
+    /// `seed`.
     pub fn init(&self, params: &mut [f32], seed: u64) {
-        self.net.init_default(params, seed);
+        let (net, tables) = params.split_at_mut(self.tables().start);
+        self.net.init_default(net, seed);
+        if let Some(grid) = &self.grid {
+            grid.init(tables, 1e-4, seed ^ 0x9E37_79B9_7F4A_7C15);
+        }
     }
 
     /// The background colour of each ray (`origins`, unit `directions`, `sh` = SH₄ of each
     /// direction), with what the backward pass needs.
     pub fn forward<R: Real>(&self, params: &[R], origins: &[[R; 3]], directions: &[[R; 3]], sh: &[[R; 16]]) -> BackgroundPass<R> {
         let (k_n, n_in) = (self.samples, Module::<R>::n_inputs(&self.net));
+        let (p_net, p_grid) = params.split_at(self.tables().start);
         let rays = origins.len();
         let rows_n = rays * k_n;
         let mut input = Buf::<R>::zeroed(rows_n * n_in);
+        let n_pe = 4 + 8 * self.frequencies;
+        let n_grid = self.grid.as_ref().map_or(0, |g| Module::<R>::n_outputs(g));
+        let mut points = Buf::<R>::zeroed(if n_grid > 0 { rows_n * 3 } else { 0 });
         let mut depths = vec![R::ZERO; rows_n];
         let inv_near = 1.0 / self.near;
         for r in 0..rays {
@@ -123,13 +164,26 @@ impl BackgroundModel {
                     f = f + f;
                 }
                 if self.view_dependent {
-                    row[4 + 8 * self.frequencies..].copy_from_slice(&sh[r]);
+                    row[n_pe + n_grid..].copy_from_slice(&sh[r]);
                 }
+                if n_grid > 0 {
+                    // Contracted: radius (2 − 1/r)/2 ∈ [½, 1) of the grid's cube.
+                    let c = (R::of(2.0) - inv_r) * R::of(0.5);
+                    let i = r * k_n + k;
+                    points[3 * i..3 * i + 3].copy_from_slice(&p.map(|v| v * c));
+                }
+            }
+        }
+        if let Some(grid) = &self.grid {
+            let mut features = Buf::<R>::zeroed(rows_n * n_grid);
+            grid.forward(p_grid, &points, &mut features, &mut []);
+            for (row, f) in input.chunks_exact_mut(n_in).zip(features.chunks_exact(n_grid)) {
+                row[n_pe..n_pe + n_grid].copy_from_slice(f);
             }
         }
         let mut raw = Buf::<R>::zeroed(rows_n * 4);
         let mut ctx = Buf::<R>::zeroed(rows_n * Module::<R>::ctx_per_row(&self.net));
-        self.net.forward(params, &input, &mut raw, &mut ctx);
+        self.net.forward(p_net, &input, &mut raw, &mut ctx);
         let mut rows = vec![[R::ZERO; 10]; rows_n];
         let mut colors = vec![[R::ZERO; 3]; rays];
         for r in 0..rays {
@@ -150,7 +204,7 @@ impl BackgroundModel {
                 transmittance *= R::ONE - alpha;
             }
         }
-        BackgroundPass { input, ctx, raw, rows, colors }
+        BackgroundPass { input, ctx, points, raw, rows, colors }
     }
 
     /// Adds the gradient of the loss into `d_params` from `d_colors` (∂L/∂C_bg per ray).
@@ -174,6 +228,21 @@ impl BackgroundModel {
                 behind_w += w;
             }
         }
-        self.net.backward(params, &pass.input, &pass.ctx, &d_raw, d_params, None);
+        let split = self.tables().start;
+        let (p_net, p_grid) = params.split_at(split);
+        let (d_net, d_grid) = d_params.split_at_mut(split);
+        let Some(grid) = &self.grid else {
+            self.net.backward(p_net, &pass.input, &pass.ctx, &d_raw, d_net, None);
+            return;
+        };
+        let n_in = Module::<R>::n_inputs(&self.net);
+        let (n_pe, n_grid) = (4 + 8 * self.frequencies, Module::<R>::n_outputs(grid));
+        let mut d_input = Buf::<R>::zeroed(pass.input.len());
+        self.net.backward(p_net, &pass.input, &pass.ctx, &d_raw, d_net, Some(&mut d_input));
+        let mut d_features = Buf::<R>::zeroed(d_input.len() / n_in * n_grid);
+        for (d, row) in d_features.chunks_exact_mut(n_grid).zip(d_input.chunks_exact(n_in)) {
+            d.copy_from_slice(&row[n_pe..n_pe + n_grid]);
+        }
+        grid.backward(p_grid, &pass.points, &[], &d_features, d_grid, None);
     }
 }

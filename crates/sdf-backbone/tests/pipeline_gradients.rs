@@ -145,23 +145,33 @@ fn whole_pipeline_gradients_match_finite_differences() {
         let mut pipeline = Pipeline {
             sdf: Chain { a: pe, b: sdf_mlp },
             color,
-            // The learned background (NeRF++) on one of the variants: 5 samples beyond the bound.
-            background: (normals == NormalScheme::Tetrahedral).then(|| BackgroundModel {
-                net: Mlp::new(MlpConfig {
-                    // No view direction: the default model (docs/DECISIONS.md §23).
-                    n_inputs: 4 + 8,
-                    width: 4,
-                    hidden_layers: 1,
-                    n_outputs: 4,
-                    skip: None,
-                    hidden_activation: Activation::Softplus { beta: 10.0 },
-                    output_activation: Activation::Identity,
+            // The learned background (NeRF++) on two of the variants: 5 samples beyond the bound,
+            // on one of them with a hash grid among its inputs.
+            background: (normals == NormalScheme::Tetrahedral || (normals == NormalScheme::Central && !masked_color))
+                .then(|| BackgroundModel {
+                    net: Mlp::new(MlpConfig {
+                        // No view direction: the default model (docs/DECISIONS.md §23).
+                        n_inputs: 4 + 8,
+                        width: 4,
+                        hidden_layers: 1,
+                        n_outputs: 4,
+                        skip: None,
+                        hidden_activation: Activation::Softplus { beta: 10.0 },
+                        output_activation: Activation::Identity,
+                    }),
+                    samples: 5,
+                    near: 1.5,
+                    frequencies: 1,
+                    view_dependent: false,
+                    grid: None,
+                })
+                .map(|model| {
+                    if normals == NormalScheme::Central {
+                        model.with_grid(HashGridConfig { levels: 2, features: 2, log2_table: 6, base_resolution: 2, finest_resolution: 5 })
+                    } else {
+                        model
+                    }
                 }),
-                samples: 5,
-                near: 1.5,
-                frequencies: 1,
-                view_dependent: false,
-            }),
             config: PipelineConfig {
                 // h = 1e-2: the Laplacian divides by h², and with h = 1e-3 the finite differences
                 // of the check itself lose 5 digits to rounding (measured 2e-4 "error").

@@ -58,8 +58,10 @@ impl Default for ModelConfig {
             background_model: BackgroundModel::Auto,
             background_frequencies: 8,
             background_view: false,
+            background_grid: false,
             background_near: 1.0,
             s_floor: None,
+            init_s: None,
             opacity_entropy: 0.0,
             products: Products::F32,
         }

@@ -167,12 +167,22 @@ pub struct ModelConfig {
     /// by default: with it the background can paint the object itself as a light field and
     /// leave the surface empty (docs/DECISIONS.md §23); surroundings are mostly diffuse.
     pub background_view: bool,
+    /// Whether the learned background's network also reads a hash grid over the contracted
+    /// background (instant-nsr-pl's remedy; `sdf_backbone::BackgroundModel::cpu_grid`): a
+    /// backdrop's sharp edges learnt as fast as the object's network learns them, so the object's
+    /// network does not paint them as walls first.
+    pub background_grid: bool,
     /// A floor under the logistic scale s, rising geometrically over the run from the first
     /// value to the second (`[20, 400]`: 20 at the start, 400 at the end; `[]`: none). Without
     /// masks nothing else keeps the foreground from settling as a translucent haze that the
     /// background shows through (docs/DECISIONS.md §32).
     #[serde(with = "off::empty_is_none")]
     pub s_floor: Option<[f64; 2]>,
+    /// The logistic scale s at the start (`s = exp(10 v)` of the variance parameter v; 0: the
+    /// preset's, NeuS's 20). Neuralangelo starts DTU without masks at ≈ 4: a translucent
+    /// foreground lets the learned background see the backdrop through it from the first step.
+    #[serde(with = "off::zero_is_none")]
+    pub init_s: Option<f64>,
     /// The radius (in bound radii, ≥ 1) from which the learned background holds anything
     /// (NeRF++: 1). Further out, it cannot paint the object on a shell just behind it.
     pub background_near: f64,

@@ -203,3 +203,13 @@ fn the_initial_radius_is_auto_or_a_number_in_the_bound() {
     let text = toml::to_string(&TrainConfig::load(None, &["model.init_radius=0.3".into()]).unwrap()).unwrap();
     assert!(text.contains("init_radius = 0.3"), "{text}");
 }
+
+#[test]
+fn the_initial_s_is_the_presets_unless_given() {
+    let init_s = |v: &str| TrainConfig::load(None, &[format!("model.init_s={v}")]).map(|c| c.model.init_s);
+    assert_eq!(TrainConfig::default().model.init_s, None);
+    assert_eq!(init_s("0").unwrap(), None);
+    assert_eq!(init_s("4").unwrap(), Some(4.0));
+    assert!(init_s("0.5").unwrap_err().chain().contains("model.init_s"));
+    assert!(init_s("nan").unwrap_err().chain().contains("model.init_s"));
+}

@@ -75,6 +75,9 @@ impl TrainConfig {
             let ok = from.is_finite() && to.is_finite() && from > 0.0 && to >= from;
             need(ok, "model.s_floor", format!("[{from}, {to}]"), "[] or [from, to] with 0 < from ≤ to")?;
         }
+        if let Some(s) = self.model.init_s {
+            need(s.is_finite() && s >= 1.0, "model.init_s", s, "0 (the preset's) or ≥ 1")?;
+        }
         let near = self.model.background_near;
         need(near.is_finite() && near >= 1.0, "model.background_near", near, "≥ 1 (bound radii)")?;
         need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;

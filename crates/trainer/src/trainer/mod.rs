@@ -145,6 +145,9 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&Grid
     if config.model.background_model.learned(use_masks) {
         backbone.add_learned_background(&mut params, background_model(config), config.seed + 4);
     }
+    if let Some(s) = config.model.init_s {
+        params[backbone.layout().variance] = (s.ln() / 10.0) as f32;
+    }
     backbone.config.eikonal_weight = config.model.eikonal;
     backbone.config.mask_weight = if use_masks { config.model.mask } else { 0.0 };
     backbone.config.opacity_entropy = if use_masks { 0.0 } else { config.model.opacity_entropy };
@@ -159,6 +162,9 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&Grid
 pub fn background_model(config: &TrainConfig) -> sdf_backbone::BackgroundModel {
     let mut model = sdf_backbone::BackgroundModel::cpu(config.model.background_frequencies, config.model.background_view);
     model.near = config.model.background_near;
+    if config.model.background_grid {
+        model = model.with_grid(sdf_backbone::BackgroundModel::cpu_grid());
+    }
     model
 }
 

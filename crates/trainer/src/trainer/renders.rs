@@ -225,6 +225,18 @@ mod tests {
         }
     }
 
+    #[test]
+    fn the_configured_initial_s_is_the_trainers_s() {
+        for (init_s, expected) in [(None, 20.0855), (Some(4.0), 4.0)] {
+            let mut config = TrainConfig { budget: Budget::Steps(1), ..TrainConfig::default() };
+            config.data.builtin.width = 48;
+            config.model.init_s = init_s;
+            let data = SceneData::builtin(&config).unwrap();
+            let trainer = Trainer::new(config, data).unwrap();
+            assert!((trainer.s() - expected).abs() < 1e-3 * expected, "{init_s:?}: s = {}", trainer.s());
+        }
+    }
+
     /// The renders' occupancy is made once per field: reused while nothing changed, made again
     /// after the parameters or the active hash-grid levels changed.
     #[test]

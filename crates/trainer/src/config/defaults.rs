@@ -60,6 +60,8 @@ impl Default for ModelConfig {
             background_view: false,
             background_grid: false,
             background_near: 1.0,
+            background_near_start: None,
+            background_near_until: 0.25,
             s_floor: None,
             init_s: None,
             opacity_entropy: 0.0,

@@ -129,7 +129,7 @@ pub struct ModelConfig {
     /// Radius of the initial sphere (bound radii): a number in (0, 1) (default 0.5, NeuS's) or
     /// `auto` (0.5 with masks; without them the largest up to 0.5 that leaves every view room
     /// around it: mends a loose bound on golden scenes, empties DTU scan 24; docs/DECISIONS.md
-    /// §32).
+    /// §32, §33).
     pub init_radius: InitRadius,
     /// Hash-grid levels active at the start (coarse-to-fine; Neuralangelo: 4).
     pub initial_levels: usize,
@@ -184,8 +184,18 @@ pub struct ModelConfig {
     #[serde(with = "off::zero_is_none")]
     pub init_s: Option<f64>,
     /// The radius (in bound radii, ≥ 1) from which the learned background holds anything
-    /// (NeRF++: 1). Further out, it cannot paint the object on a shell just behind it.
+    /// (NeRF++: 1, the default). Further out, it cannot paint the object on a shell just behind
+    /// it, nor a near backdrop (DTU's table) as background (docs/DECISIONS.md §33).
     pub background_near: f64,
+    /// Where the learned background starts at the beginning of the run (bound radii, ≥
+    /// `background_near`; 0: always at `background_near`), moving in to `background_near` by
+    /// `background_near_until` of the run: far at first, so that the background cannot take the
+    /// object before the foreground has it; near later, so that a near backdrop (a table, a wall)
+    /// can be background.
+    #[serde(with = "off::zero_is_none")]
+    pub background_near_start: Option<f64>,
+    /// The fraction of the run over which the background moves in from `background_near_start`.
+    pub background_near_until: f64,
     /// Without masks: weight of the opacity entropy of each ray (pushes a ray to hit the
     /// surface or miss it; a thin part becomes a surface rather than a haze). Unused with masks,
     /// whose BCE does the same with the truth.

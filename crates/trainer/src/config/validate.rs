@@ -80,6 +80,11 @@ impl TrainConfig {
         }
         let near = self.model.background_near;
         need(near.is_finite() && near >= 1.0, "model.background_near", near, "≥ 1 (bound radii)")?;
+        if let Some(start) = self.model.background_near_start {
+            need(start.is_finite() && start >= near, "model.background_near_start", start, "0 (none) or ≥ model.background_near")?;
+        }
+        let until = self.model.background_near_until;
+        need((0.0..=1.0).contains(&until), "model.background_near_until", until, "in [0, 1]")?;
         need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;
         need(non_neg(self.model.normal_smoothness), "model.normal_smoothness", self.model.normal_smoothness, "≥ 0")?;
         if self.model.normals == Normals::Analytic {

@@ -331,6 +331,28 @@ impl Trainer {
         start + ((levels - start) as f64 * ramp).floor() as usize
     }
 
+    /// Where the learned background starts at `progress`: from `model.background_near_start`
+    /// in to `model.background_near` over the first `model.background_near_until` of the run.
+    fn background_near(&self, progress: f64) -> f64 {
+        let m = &self.config.model;
+        match m.background_near_start {
+            Some(start) if progress < m.background_near_until => start + (m.background_near - start) * progress / m.background_near_until,
+            _ => m.background_near,
+        }
+    }
+
+    /// Sets the schedules that follow the progress: the active hash-grid levels and where the
+    /// learned background starts.
+    fn set_progress_schedules(&mut self, progress: f64) {
+        if let Some(levels) = self.backbone.levels() {
+            self.backbone.set_active_levels(self.active_levels(levels, progress));
+        }
+        let near = self.background_near(progress);
+        if let Some(background) = &mut self.backbone.background {
+            background.near = near;
+        }
+    }
+
     /// The estimator's update from the current parameters when its schedule says so.
     fn update_grids_due(&mut self, progress: f64) -> Result<Option<UpdateReport>> {
         let s = self.backbone.scale(&self.state.params) as f32;
@@ -351,9 +373,7 @@ impl Trainer {
         let start = Instant::now();
         let step = self.state.step;
         let progress = self.progress();
-        if let Some(levels) = self.backbone.levels() {
-            self.backbone.set_active_levels(self.active_levels(levels, progress));
-        }
+        self.set_progress_schedules(progress);
         let warmup = self.config.optim.schedule.warmup;
         let ramp = if warmup > 0.0 { (progress / warmup).min(1.0) } else { 1.0 };
         self.backbone.config.curvature_weight = self.config.model.curvature * ramp;
@@ -569,11 +589,9 @@ impl Trainer {
         reader.restore_state(input, &mut self.state.params, &mut self.state.adam)?;
         self.state.step = step;
         self.state.train_seconds = train_seconds;
-        if let Some(levels) = self.backbone.levels() {
-            // The levels of the last iteration done.
-            let last = self.progress_at(self.state.step.saturating_sub(1), self.state.train_seconds);
-            self.backbone.set_active_levels(self.active_levels(levels, last));
-        }
+        // The levels and the background of the last iteration done.
+        let last = self.progress_at(self.state.step.saturating_sub(1), self.state.train_seconds);
+        self.set_progress_schedules(last);
         self.estimator.restore(&guide).context("the checkpoint's grids")?;
         if let (Some(map), Some(errors)) = (&mut self.miner, errors) {
             map.restore(&errors).context("the checkpoint's error map")?;

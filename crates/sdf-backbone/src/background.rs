@@ -30,7 +30,8 @@ use crate::scratch::Buf;
 /// The background model: its network and how it samples.
 #[derive(Debug, Clone)]
 pub struct BackgroundModel {
-    /// `[PE_L(x/r, 1/r) (4 + 8L), SH₄(d) (16, when view-dependent)]` → `[σ_raw, rgb_raw]`.
+    /// `[PE_L(x/r, 1/r) (4 + 8L), the grid's features (with a grid), SH₄(d) (16, when
+    /// view-dependent)]` → `[σ_raw, rgb_raw]`.
     pub net: Mlp,
     /// Samples per ray beyond the bound.
     pub samples: usize,
@@ -72,7 +73,7 @@ impl BackgroundModel {
     /// [`Self::new`], with the view direction among the inputs or not (`view_dependent`).
     pub fn with_view(samples: usize, frequencies: usize, width: usize, layers: usize, view_dependent: bool) -> BackgroundModel {
         let net = Mlp::new(MlpConfig {
-            n_inputs: 4 + 8 * frequencies + if view_dependent { 16 } else { 0 },
+            n_inputs: encoding_width(frequencies) + if view_dependent { 16 } else { 0 },
             width,
             hidden_layers: layers,
             n_outputs: 4,
@@ -109,6 +110,13 @@ impl BackgroundModel {
         Module::<f32>::n_params(&self.net) + self.grid.as_ref().map_or(0, Module::<f32>::n_params)
     }
 
+    /// The network's input columns that hold the grid's features (after the positional
+    /// encoding, before SH₄(d); empty without a grid).
+    fn grid_columns(&self) -> std::ops::Range<usize> {
+        let start = encoding_width(self.frequencies);
+        start..start + self.grid.as_ref().map_or(0, Module::<f32>::n_outputs)
+    }
+
     /// Where the grid's tables lie among the model's parameters (empty without a grid): they
     /// learn at the tables' rate.
     pub fn tables(&self) -> std::ops::Range<usize> {
@@ -133,9 +141,8 @@ impl BackgroundModel {
         let rays = origins.len();
         let rows_n = rays * k_n;
         let mut input = Buf::<R>::zeroed(rows_n * n_in);
-        let n_pe = 4 + 8 * self.frequencies;
-        let n_grid = self.grid.as_ref().map_or(0, |g| Module::<R>::n_outputs(g));
-        let mut points = Buf::<R>::zeroed(if n_grid > 0 { rows_n * 3 } else { 0 });
+        let columns = self.grid_columns();
+        let mut points = Buf::<R>::zeroed(if columns.is_empty() { 0 } else { rows_n * 3 });
         let mut depths = vec![R::ZERO; rows_n];
         let inv_near = 1.0 / self.near;
         for r in 0..rays {
@@ -164,9 +171,9 @@ impl BackgroundModel {
                     f = f + f;
                 }
                 if self.view_dependent {
-                    row[n_pe + n_grid..].copy_from_slice(&sh[r]);
+                    row[columns.end..].copy_from_slice(&sh[r]);
                 }
-                if n_grid > 0 {
+                if !columns.is_empty() {
                     // Contracted: radius (2 − 1/r)/2 ∈ [½, 1) of the grid's cube.
                     let c = (R::of(2.0) - inv_r) * R::of(0.5);
                     let i = r * k_n + k;
@@ -175,10 +182,10 @@ impl BackgroundModel {
             }
         }
         if let Some(grid) = &self.grid {
-            let mut features = Buf::<R>::zeroed(rows_n * n_grid);
+            let mut features = Buf::<R>::zeroed(rows_n * columns.len());
             grid.forward(p_grid, &points, &mut features, &mut []);
-            for (row, f) in input.chunks_exact_mut(n_in).zip(features.chunks_exact(n_grid)) {
-                row[n_pe..n_pe + n_grid].copy_from_slice(f);
+            for (row, f) in input.chunks_exact_mut(n_in).zip(features.chunks_exact(columns.len())) {
+                row[columns.clone()].copy_from_slice(f);
             }
         }
         let mut raw = Buf::<R>::zeroed(rows_n * 4);
@@ -235,14 +242,18 @@ impl BackgroundModel {
             self.net.backward(p_net, &pass.input, &pass.ctx, &d_raw, d_net, None);
             return;
         };
-        let n_in = Module::<R>::n_inputs(&self.net);
-        let (n_pe, n_grid) = (4 + 8 * self.frequencies, Module::<R>::n_outputs(grid));
+        let (n_in, columns) = (Module::<R>::n_inputs(&self.net), self.grid_columns());
         let mut d_input = Buf::<R>::zeroed(pass.input.len());
         self.net.backward(p_net, &pass.input, &pass.ctx, &d_raw, d_net, Some(&mut d_input));
-        let mut d_features = Buf::<R>::zeroed(d_input.len() / n_in * n_grid);
-        for (d, row) in d_features.chunks_exact_mut(n_grid).zip(d_input.chunks_exact(n_in)) {
-            d.copy_from_slice(&row[n_pe..n_pe + n_grid]);
+        let mut d_features = Buf::<R>::zeroed(d_input.len() / n_in * columns.len());
+        for (d, row) in d_features.chunks_exact_mut(columns.len()).zip(d_input.chunks_exact(n_in)) {
+            d.copy_from_slice(&row[columns.clone()]);
         }
         grid.backward(p_grid, &pass.points, &[], &d_features, d_grid, None);
     }
+}
+
+/// Columns of the positional encoding `PE_L(x/r, 1/r)` with `frequencies` frequencies L.
+fn encoding_width(frequencies: usize) -> usize {
+    4 + 8 * frequencies
 }

@@ -71,6 +71,12 @@ pub fn scale_from_variance<R: Real>(v: R) -> R {
     (R::of(10.0) * v).exp()
 }
 
+/// The variance v whose scale is `s` (the inverse of [`scale_from_variance`]).
+#[inline]
+pub fn variance_from_scale<R: Real>(s: R) -> R {
+    s.ln() / R::of(10.0)
+}
+
 /// ∂s/∂v of [`scale_from_variance`], given s.
 #[inline]
 fn scale_derivative<R: Real>(s: R) -> R {

@@ -146,7 +146,7 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&Grid
         backbone.add_learned_background(&mut params, background_model(config), config.seed + 4);
     }
     if let Some(s) = config.model.init_s {
-        params[backbone.layout().variance] = (s.ln() / 10.0) as f32;
+        params[backbone.layout().variance] = sdf_backbone::variance_from_scale(s) as f32;
     }
     backbone.config.eikonal_weight = config.model.eikonal;
     backbone.config.mask_weight = if use_masks { config.model.mask } else { 0.0 };
@@ -412,7 +412,7 @@ impl Trainer {
             // s = exp(10 v) ≥ from · (to / from)^progress.
             let floor = from * (to / from).powf(progress_end);
             let v = &mut self.state.params[self.backbone.layout().variance];
-            *v = v.max((floor.ln() / 10.0) as f32);
+            *v = v.max(sdf_backbone::variance_from_scale(floor) as f32);
         }
         if let Some(map) = &mut self.miner {
             crate::mining::record(map, &batch.drawn, &batch.rays, &outputs);

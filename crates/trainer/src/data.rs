@@ -86,6 +86,13 @@ pub struct SceneData {
 }
 
 impl SceneData {
+    /// The same scene's frame and source without its views, truth or path: a stand-in while the
+    /// views are lent to another trainer.
+    pub fn without_views(&self) -> SceneData {
+        let scene = Scene { views: Vec::new(), world_from_normalized: self.scene.world_from_normalized, source: self.scene.source.clone() };
+        SceneData { scene, builtin_truth: None, builtin_shape: None, path: None }
+    }
+
     /// The built-in golden scene as `config.data.builtin` describes it (no files).
     pub fn builtin(config: &TrainConfig) -> Result<SceneData> {
         if config.data.bound.is_some() {

@@ -233,6 +233,9 @@ pub enum InitRadius {
     /// 0.5 with masks; without them the largest sphere up to 0.5 that leaves every view room
     /// around it ([`crate::sizing::initial_sphere_radius`]).
     Auto,
+    /// 0.5 with masks; without them the sphere around the object's visual hull, carved from the
+    /// silhouettes of a short first phase (the trainer's `silhouettes` module).
+    Photos,
     /// This radius, in (0, 1).
     Radius(f64),
 }
@@ -251,7 +254,8 @@ impl TryFrom<InitRadiusText> for InitRadius {
         match text {
             InitRadiusText::Radius(r) => Ok(InitRadius::Radius(r)),
             InitRadiusText::Name(n) if n == "auto" => Ok(InitRadius::Auto),
-            InitRadiusText::Name(other) => Err(format!("unknown initial radius {other:?}: expected auto or a number")),
+            InitRadiusText::Name(n) if n == "photos" => Ok(InitRadius::Photos),
+            InitRadiusText::Name(other) => Err(format!("unknown initial radius {other:?}: expected auto, photos or a number")),
         }
     }
 }
@@ -260,17 +264,20 @@ impl From<InitRadius> for InitRadiusText {
     fn from(radius: InitRadius) -> InitRadiusText {
         match radius {
             InitRadius::Auto => InitRadiusText::Name("auto".into()),
+            InitRadius::Photos => InitRadiusText::Name("photos".into()),
             InitRadius::Radius(r) => InitRadiusText::Radius(r),
         }
     }
 }
 
 impl InitRadius {
-    /// The radius for a run on `cameras` that uses masks (`use_masks`) or not.
+    /// The radius for a run on `cameras` that uses masks (`use_masks`) or not; `photos` without
+    /// masks gives 0.5 here, which the first phase replaces (the trainer's `silhouettes` module).
     pub fn resolve<'a>(self, cameras: impl IntoIterator<Item = &'a camera_geom::PinholeCamera>, use_masks: bool) -> f64 {
         match self {
             InitRadius::Radius(r) => r,
             InitRadius::Auto if use_masks => crate::sizing::MAX_INITIAL_RADIUS,
+            InitRadius::Photos => crate::sizing::MAX_INITIAL_RADIUS,
             InitRadius::Auto => crate::sizing::initial_sphere_radius(cameras).unwrap_or(crate::sizing::MAX_INITIAL_RADIUS),
         }
     }

@@ -126,10 +126,11 @@ pub struct ModelConfig {
     /// Training-view pixels per finest cell of a grid sized by the footprint (1: a cell per
     /// pixel at the region of interest's centre; 2: half as fine).
     pub pixels_per_cell: f64,
-    /// Radius of the initial sphere (bound radii): a number in (0, 1) (default 0.5, NeuS's) or
+    /// Radius of the initial sphere (bound radii): a number in (0, 1) (default 0.5, NeuS's),
     /// `auto` (0.5 with masks; without them the largest up to 0.5 that leaves every view room
-    /// around it: mends a loose bound on golden scenes, empties DTU scan 24; docs/DECISIONS.md
-    /// §32, §33).
+    /// around it: mends a loose bound on golden scenes, empties DTU scan 24) or `photos` (0.5
+    /// with masks; without them a first phase of 400 steps finds how far the object reaches in
+    /// the photos and the sphere is 0.6 of that; docs/DECISIONS.md §32–§34).
     pub init_radius: InitRadius,
     /// Hash-grid levels active at the start (coarse-to-fine; Neuralangelo: 4).
     pub initial_levels: usize,

@@ -191,17 +191,22 @@ fn mesh_resolution_reads_a_number_or_model_and_round_trips() {
 }
 
 #[test]
-fn the_initial_radius_is_auto_or_a_number_in_the_bound() {
+fn the_initial_radius_is_auto_photos_or_a_number_in_the_bound() {
     use super::InitRadius;
     let radius = |v: &str| TrainConfig::load(None, &[format!("model.init_radius={v}")]).map(|c| c.model.init_radius);
     assert_eq!(TrainConfig::default().model.init_radius, InitRadius::Radius(0.5));
     assert_eq!(radius("0.3").unwrap(), InitRadius::Radius(0.3));
     assert_eq!(radius("auto").unwrap(), InitRadius::Auto);
+    assert_eq!(radius("photos").unwrap(), InitRadius::Photos);
     assert!(radius("1.2").unwrap_err().chain().contains("model.init_radius"));
-    assert!(radius("big").unwrap_err().chain().contains("auto or a number"));
+    assert!(radius("big").unwrap_err().chain().contains("auto, photos or a number"));
     // Written and read back as it was given.
-    let text = toml::to_string(&TrainConfig::load(None, &["model.init_radius=0.3".into()]).unwrap()).unwrap();
-    assert!(text.contains("init_radius = 0.3"), "{text}");
+    for (given, written) in [("0.3", "init_radius = 0.3"), ("photos", "init_radius = \"photos\"")] {
+        let config = TrainConfig::load(None, &[format!("model.init_radius={given}")]).unwrap();
+        let text = toml::to_string(&config).unwrap();
+        assert!(text.contains(written), "{text}");
+        assert_eq!(TrainConfig::from_toml(&text).unwrap().model.init_radius, config.model.init_radius);
+    }
 }
 
 #[test]

@@ -56,7 +56,7 @@ impl TrainConfig {
     fn validate_model(&self) -> Result<()> {
         let non_neg = |v: f64| v.is_finite() && v >= 0.0;
         if let InitRadius::Radius(r) = self.model.init_radius {
-            need(r > 0.0 && r < 1.0, "model.init_radius", r, "in (0, 1) or auto")?;
+            need(r > 0.0 && r < 1.0, "model.init_radius", r, "in (0, 1), auto or photos")?;
         }
         need(self.model.pixels_per_cell.is_finite() && self.model.pixels_per_cell > 0.0, "model.pixels_per_cell", self.model.pixels_per_cell, "> 0")?;
         need(

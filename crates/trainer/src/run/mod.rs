@@ -295,7 +295,12 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, options: &RunOptions, st
     let mut snapshots = Snapshots::new(&config.output.snapshots, trainer.state().train_seconds);
     let snapshot_views = final_eval_views(&config, &split);
     while !trainer.done() {
+        let first_phase = trainer.sphere_fit().is_none();
         let report = trainer.step()?;
+        if let Some(fit) = trainer.sphere_fit().filter(|_| first_phase) {
+            eprintln!("{}", fit.describe());
+            folder.log(&json!({"step": 0, "sphere_fit": fit}))?;
+        }
         log_step(folder, &progress, &trainer, &report)?;
         let step = report.step;
         let stopping = stop.load(Ordering::SeqCst) || options.stop_at == Some(step);

@@ -41,7 +41,9 @@ use surface_losses::{RaySurface, SurfaceLossConfig};
 use view_sampler::{ErrorMap, Estimator, EstimatorConfig, UniformSchedule, UpdateReport};
 
 mod renders;
+mod silhouettes;
 mod split;
+pub use silhouettes::{Reach, Silhouette, SphereFit, silhouette_reach};
 pub use split::{SplitStats, WALLED_OPACITY};
 
 /// What a checkpoint holds besides the parameters and Adam's moments.
@@ -115,6 +117,10 @@ pub struct Trainer {
     mesh_resolution: u32,
     /// The initial sphere's radius (`model.init_radius` resolved).
     init_radius: f64,
+    /// The first step sizes the initial sphere from the photos first ([`silhouettes`]).
+    sphere_pending: bool,
+    /// How it did.
+    sphere_fit: Option<SphereFit>,
     state: TrainState,
     grads: Vec<f32>,
     timing: Timing,
@@ -212,6 +218,7 @@ impl Trainer {
         };
         adam.epsilon = 1e-15;
         let state = TrainState { step: 0, params, adam, train_seconds: 0.0 };
+        let config_asks_photos = config.model.init_radius == crate::config::InitRadius::Photos && !use_masks;
         Ok(Trainer {
             config,
             data,
@@ -223,6 +230,8 @@ impl Trainer {
             grid,
             mesh_resolution,
             init_radius,
+            sphere_pending: config_asks_photos,
+            sphere_fit: None,
             state,
             grads: Vec::new(),
             timing: Timing::default(),
@@ -370,6 +379,9 @@ impl Trainer {
 
     /// One iteration (see the module docs).
     pub fn step(&mut self) -> Result<StepReport> {
+        if self.sphere_pending {
+            self.fit_sphere_to_photos()?;
+        }
         let start = Instant::now();
         let step = self.state.step;
         let progress = self.progress();
@@ -589,6 +601,8 @@ impl Trainer {
         reader.restore_state(input, &mut self.state.params, &mut self.state.adam)?;
         self.state.step = step;
         self.state.train_seconds = train_seconds;
+        // The first phase's sphere is in the parameters restored.
+        self.sphere_pending = false;
         // The levels and the background of the last iteration done.
         let last = self.progress_at(self.state.step.saturating_sub(1), self.state.train_seconds);
         self.set_progress_schedules(last);

@@ -44,20 +44,27 @@ impl Trainer {
             .collect()
     }
 
-    /// Renders view `view` of the scene at 1/`downscale` resolution (the estimator's coarse
-    /// samples without jitter, up-sampled), with its targets and mask.
-    pub fn render_view(&self, view: usize, downscale: u32) -> Result<ViewRender> {
-        let view = &self.data.scene.views[view];
+    /// The camera of view `index` at 1/`downscale` resolution (each pixel an n × n block of the
+    /// view's, the remainder rows and columns dropped, as the images' own downscale does).
+    pub fn downscaled_camera(&self, index: usize, downscale: u32) -> Result<camera_geom::PinholeCamera> {
+        let view = &self.data.scene.views[index];
         if downscale == 0 {
             bail!(Input, "a render's downscale must be ≥ 1");
         }
-        let k = view.camera.intrinsics.downscaled(downscale, view.camera.pixel_centers);
+        let c = &view.camera;
+        let k = c.intrinsics.downscaled(downscale, c.pixel_centers);
+        camera_geom::PinholeCamera::new(k, c.width / downscale, c.height / downscale, c.camera_from_world, c.pixel_centers)
+            .with_context(|| format!("view {:?} ({}×{}) rendered at downscale {downscale}", view.name, c.width, c.height))
+    }
+
+    /// Renders view `view` of the scene at 1/`downscale` resolution (the estimator's coarse
+    /// samples without jitter, up-sampled), with its targets and mask.
+    pub fn render_view(&self, index: usize, downscale: u32) -> Result<ViewRender> {
+        let camera = self.downscaled_camera(index, downscale)?;
+        let view = &self.data.scene.views[index];
         let image = view.image.downscaled(downscale);
         let mask = view.mask.as_ref().map(|m| m.downscaled(downscale));
         let (width, height) = (image.width, image.height);
-        let c = &view.camera;
-        let camera = camera_geom::PinholeCamera::new(k, width, height, c.camera_from_world, c.pixel_centers)
-            .with_context(|| format!("view {:?} ({}×{}) rendered at downscale {downscale}", view.name, c.width, c.height))?;
         let r = &self.config.render;
         let occupancy = if r.render_skip_empty { Some(self.render_occupancy()?) } else { None };
         let occupancy = occupancy.as_deref();

@@ -150,6 +150,7 @@ fn assemble(preset: Preset, grid: Option<HashGridConfig>) -> Backbone {
             background: [0.0; 3],
             masked_color: false,
             opacity_entropy: 0.0,
+            opacity_sparsity: 0.0,
             normal_smoothness: 0.0,
         },
         analytic: None,

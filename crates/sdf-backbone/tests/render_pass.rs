@@ -30,6 +30,7 @@ fn pipeline(normals: NormalScheme, learned_background: bool, v: f64) -> (Grid, V
             background: [0.2, 0.4, 0.6],
             masked_color: false,
             opacity_entropy: 0.0,
+            opacity_sparsity: 0.0,
             normal_smoothness: 0.0,
         },
         analytic: None,

@@ -144,6 +144,11 @@ pub struct PipelineConfig {
     /// mask (o clamped to [10⁻³, 1 − 10⁻³]): each ray is pushed to hit the surface or miss it,
     /// so that without masks a thin part is a surface rather than a haze (0: off).
     pub opacity_entropy: f64,
+    /// Weight of the opacity itself (an L1 on the foreground's opacity) of rays without a mask:
+    /// where the learned background explains a pixel as well as the foreground, the pixel goes
+    /// to the background; the object, which only the foreground explains from every view,
+    /// stays (0: off).
+    pub opacity_sparsity: f64,
     /// Weight of the normal smoothness `mean |nᵢ₊₁ − nᵢ|²` over neighbouring samples of a ray
     /// (0: off). Rays cross the surface from many directions, so over a batch it penalises
     /// `|H d|²`, the Hessian of S along the rays: zero on a plane, large on bumps. It needs only

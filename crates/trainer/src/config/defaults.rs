@@ -46,7 +46,7 @@ impl Default for ModelConfig {
             preset: Preset::NeuralangeloCpu,
             grid: GridSize::Preset,
             pixels_per_cell: 1.0,
-            init_radius: InitRadius::Radius(0.5),
+            init_radius: InitRadius::Photos,
             initial_levels: 4,
             all_levels_at: 0.25,
             eikonal: 0.1,
@@ -65,6 +65,7 @@ impl Default for ModelConfig {
             s_floor: None,
             init_s: None,
             opacity_entropy: 0.0,
+            opacity_sparsity: 0.0,
             products: Products::F32,
         }
     }

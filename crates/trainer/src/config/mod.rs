@@ -126,11 +126,11 @@ pub struct ModelConfig {
     /// Training-view pixels per finest cell of a grid sized by the footprint (1: a cell per
     /// pixel at the region of interest's centre; 2: half as fine).
     pub pixels_per_cell: f64,
-    /// Radius of the initial sphere (bound radii): a number in (0, 1) (default 0.5, NeuS's),
-    /// `auto` (0.5 with masks; without them the largest up to 0.5 that leaves every view room
-    /// around it: mends a loose bound on golden scenes, empties DTU scan 24) or `photos` (0.5
-    /// with masks; without them a first phase of 400 steps finds how far the object reaches in
-    /// the photos and the sphere is 0.6 of that; docs/DECISIONS.md §32–§34).
+    /// Radius of the initial sphere (bound radii): `photos` (the default: 0.5, NeuS's, with
+    /// masks; without them a first phase of 400 steps finds how far the object reaches in the
+    /// photos and the sphere is 0.6 of that, at most 0.5), `auto` (0.5 with masks; without them
+    /// the largest up to 0.5 that leaves every view room around it: mends a loose bound on
+    /// golden scenes, empties DTU scan 24) or a number in (0, 1); docs/DECISIONS.md §32–§34.
     pub init_radius: InitRadius,
     /// Hash-grid levels active at the start (coarse-to-fine; Neuralangelo: 4).
     pub initial_levels: usize,
@@ -201,6 +201,9 @@ pub struct ModelConfig {
     /// surface or miss it; a thin part becomes a surface rather than a haze). Unused with masks,
     /// whose BCE does the same with the truth.
     pub opacity_entropy: f64,
+    /// Without masks: weight of each ray's foreground opacity (an L1: where the background
+    /// explains a pixel as well as the foreground, it takes it). Unused with masks.
+    pub opacity_sparsity: f64,
     /// The networks' matrix products: `f32` (default) or `bf16` (the hidden-to-hidden layers in
     /// bf16 where the CPU has AVX512_BF16; see BENCHMARKS.md, "bf16 products").
     pub products: Products,

@@ -194,7 +194,7 @@ fn mesh_resolution_reads_a_number_or_model_and_round_trips() {
 fn the_initial_radius_is_auto_photos_or_a_number_in_the_bound() {
     use super::InitRadius;
     let radius = |v: &str| TrainConfig::load(None, &[format!("model.init_radius={v}")]).map(|c| c.model.init_radius);
-    assert_eq!(TrainConfig::default().model.init_radius, InitRadius::Radius(0.5));
+    assert_eq!(TrainConfig::default().model.init_radius, InitRadius::Photos);
     assert_eq!(radius("0.3").unwrap(), InitRadius::Radius(0.3));
     assert_eq!(radius("auto").unwrap(), InitRadius::Auto);
     assert_eq!(radius("photos").unwrap(), InitRadius::Photos);

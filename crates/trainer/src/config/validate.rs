@@ -70,6 +70,7 @@ impl TrainConfig {
         need(non_neg(self.model.eikonal), "model.eikonal", self.model.eikonal, "≥ 0")?;
         need(non_neg(self.model.mask), "model.mask", self.model.mask, "≥ 0")?;
         need(non_neg(self.model.opacity_entropy), "model.opacity_entropy", self.model.opacity_entropy, "≥ 0")?;
+        need(non_neg(self.model.opacity_sparsity), "model.opacity_sparsity", self.model.opacity_sparsity, "≥ 0")?;
         need((1..=16).contains(&self.model.background_frequencies), "model.background_frequencies", self.model.background_frequencies, "in 1..=16")?;
         if let Some([from, to]) = self.model.s_floor {
             let ok = from.is_finite() && to.is_finite() && from > 0.0 && to >= from;

@@ -157,11 +157,22 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&Grid
     backbone.config.eikonal_weight = config.model.eikonal;
     backbone.config.mask_weight = if use_masks { config.model.mask } else { 0.0 };
     backbone.config.opacity_entropy = if use_masks { 0.0 } else { config.model.opacity_entropy };
+    backbone.config.opacity_sparsity = if use_masks { 0.0 } else { config.model.opacity_sparsity };
     backbone.config.masked_color = use_masks;
     backbone.config.background = config.model.background;
     backbone.set_normals(config.model.normal_scheme());
     backbone.set_products(config.model.products.into());
     Ok((backbone, params))
+}
+
+/// Adam's state at the start of a run of `config` with `n` parameters.
+fn fresh_adam(config: &TrainConfig, backbone: &Backbone, n: usize) -> Adam {
+    let mut adam = match config.optim.table_moments {
+        MomentStorage::F32 => Adam::new(n),
+        MomentStorage::Bf16 => Adam::with_compact_prefix(n, backbone.layout().encoding.len()),
+    };
+    adam.epsilon = 1e-15;
+    adam
 }
 
 /// The learned background of a run without masks ([`sdf_backbone::BackgroundModel::cpu`]).
@@ -212,11 +223,7 @@ impl Trainer {
         let cameras: Vec<_> = split.train.iter().map(|&i| data.scene.views[i].camera).collect();
         let miner = crate::mining::error_map(&config, &cameras);
         let estimator = Estimator::new(cameras, estimator_config(&config)).context("the guide's configuration")?;
-        let mut adam = match config.optim.table_moments {
-            MomentStorage::F32 => Adam::new(params.len()),
-            MomentStorage::Bf16 => Adam::with_compact_prefix(params.len(), backbone.layout().encoding.len()),
-        };
-        adam.epsilon = 1e-15;
+        let adam = fresh_adam(&config, &backbone, params.len());
         let state = TrainState { step: 0, params, adam, train_seconds: 0.0 };
         let config_asks_photos = config.model.init_radius == crate::config::InitRadius::Photos && !use_masks;
         Ok(Trainer {

@@ -113,8 +113,9 @@ impl<S, C> Pipeline<S, C> {
         }
     }
 
-    /// The terms on a ray's opacity: the entropy of rays without a mask, the mask's BCE (both
-    /// with the opacity clamped away from 0 and 1, as NeuS clips to [1e-3, 1 − 1e-3]).
+    /// The terms on a ray's opacity: the entropy and the L1 of rays without a mask, the mask's
+    /// BCE (entropy and BCE with the opacity clamped away from 0 and 1, as NeuS clips to
+    /// [1e-3, 1 − 1e-3]).
     pub(super) fn opacity_terms<R: Real>(&self, ray: &RayInput<R>, opacity: R, loss: &mut R, d_opacity: &mut R) {
         let eps = R::of(1e-3);
         let o = opacity.max(eps).min(R::ONE - eps);
@@ -125,6 +126,11 @@ impl<S, C> Pipeline<S, C> {
             if inside {
                 *d_opacity += w * ((R::ONE - o) / o).ln();
             }
+        }
+        if ray.mask.is_none() && self.config.opacity_sparsity > 0.0 {
+            let w = R::of(self.config.opacity_sparsity) * ray.weight;
+            *loss += w * opacity;
+            *d_opacity += w;
         }
         if let Some(mask) = ray.mask {
             let w = R::of(self.config.mask_weight) * ray.weight;

@@ -43,7 +43,7 @@ use view_sampler::{ErrorMap, Estimator, EstimatorConfig, UniformSchedule, Update
 mod renders;
 mod silhouettes;
 mod split;
-pub use silhouettes::{Reach, Silhouette, SphereFit, silhouette_reach};
+pub use silhouettes::{Reach, Silhouette, SphereFit, silhouette_reach, sphere_radius};
 pub use split::{SplitStats, WALLED_OPACITY};
 
 /// What a checkpoint holds besides the parameters and Adam's moments.

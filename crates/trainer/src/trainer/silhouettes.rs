@@ -25,7 +25,10 @@
 //!    explains the backdrop around it from the first step), yet overlaps most of the object's
 //!    pixels (it is not carved away for want of them). Where the object fills the photos (DTU)
 //!    the reach is the image's and the sphere 0.5. A visual hull would not do: from a narrow arc
-//!    of cameras it reaches out to the bound towards them.
+//!    of cameras it reaches out to the bound towards them. When the silhouettes hold nothing (the
+//!    probe's foreground faded everywhere: a ring of cameras over a floor that crosses the bound,
+//!    which neither side can hold while the background is far), the cameras' sphere
+//!    ([`crate::sizing::initial_sphere_radius`], `auto`'s) stands in.
 //!
 //! The run then starts afresh from that sphere with its own settings; the probe's time counts
 //! towards a time budget, its steps are not counted in a step budget (the report says both).
@@ -98,6 +101,16 @@ pub fn silhouette_reach(silhouettes: &[Silhouette]) -> Option<Reach> {
     Some(Reach { median, per_view })
 }
 
+/// The initial sphere's radius from the object's reach: [`REACH_SHARE`] of it within
+/// [[`MIN_PHOTOS_RADIUS`], 0.5]; without one, the sphere `cameras` leave room around
+/// ([`crate::sizing::initial_sphere_radius`]), else 0.5.
+pub fn sphere_radius<'a>(reach: Option<&Reach>, cameras: impl IntoIterator<Item = &'a PinholeCamera>) -> f64 {
+    match reach {
+        Some(r) => (REACH_SHARE * r.median).clamp(MIN_PHOTOS_RADIUS, MAX_INITIAL_RADIUS),
+        None => crate::sizing::initial_sphere_radius(cameras).unwrap_or(MAX_INITIAL_RADIUS),
+    }
+}
+
 /// One view's reach (see [`Reach::per_view`]).
 fn view_reach(s: &Silhouette) -> Option<f64> {
     if s.camera.pixel_space_from_world(DVec3::ZERO).z <= 0.0 {
@@ -121,7 +134,8 @@ fn view_reach(s: &Silhouette) -> Option<f64> {
 pub struct SphereFit {
     /// The radius the run starts from.
     pub radius: f64,
-    /// The object's reach (`None`: the silhouettes held nothing, and the run starts from 0.5).
+    /// The object's reach (`None`: the silhouettes held nothing, and the run starts from the
+    /// cameras' sphere, `model.init_radius = "auto"`'s).
     pub reach: Option<Reach>,
     /// Silhouettes carved.
     pub views: usize,
@@ -144,7 +158,7 @@ impl SphereFit {
                     each.join(" ")
                 )
             }
-            None => format!("the {} views' silhouettes held nothing, so the sphere stays", self.views),
+            None => format!("the {} views' silhouettes held nothing, so the sphere is the cameras' (as `auto`)", self.views),
         };
         format!(
             "model.init_radius = photos: {:.3} — after a first phase of {} steps ({:.1} s, s from {PROBE_INIT_S}, background beyond {PROBE_BACKGROUND_NEAR} bound radii) {how}",
@@ -177,7 +191,7 @@ impl Trainer {
         self.data = probe.data;
         let silhouettes = silhouettes?;
         let reach = silhouette_reach(&silhouettes);
-        let radius = reach.as_ref().map_or(MAX_INITIAL_RADIUS, |r| (REACH_SHARE * r.median).clamp(MIN_PHOTOS_RADIUS, MAX_INITIAL_RADIUS));
+        let radius = sphere_radius(reach.as_ref(), self.data.scene.views.iter().map(|v| &v.camera));
         let (backbone, params) = super::configured_backbone(&self.config, self.use_masks, self.grid.as_ref(), radius)?;
         self.state.adam = super::fresh_adam(&self.config, &backbone, params.len());
         self.backbone = backbone;
@@ -324,6 +338,18 @@ mod tests {
         let mut trainer = Trainer::new(config, data).unwrap();
         trainer.step().unwrap();
         assert_eq!((trainer.sphere_fit(), trainer.init_radius()), (None, MAX_INITIAL_RADIUS));
+    }
+
+    #[test]
+    fn the_sphere_is_a_share_of_the_reach_within_its_range_and_the_cameras_without_one() {
+        let rig = cameras(&RigOptions { rig: Rig::Dtu, count: 16, width: 64, height: 48, seed: 0 });
+        let reach = |median| Reach { median, per_view: vec![Some(median)] };
+        assert!((sphere_radius(Some(&reach(0.37)), &rig) - REACH_SHARE * 0.37).abs() < 1e-12);
+        assert_eq!(sphere_radius(Some(&reach(0.95)), &rig), MAX_INITIAL_RADIUS);
+        assert_eq!(sphere_radius(Some(&reach(0.05)), &rig), MIN_PHOTOS_RADIUS);
+        let cameras_own = crate::sizing::initial_sphere_radius(&rig).unwrap();
+        assert!(cameras_own < MAX_INITIAL_RADIUS);
+        assert_eq!(sphere_radius(None, &rig), cameras_own, "no silhouettes: the cameras' sphere");
     }
 
     #[test]

@@ -41,7 +41,7 @@ use surface_losses::{RaySurface, SurfaceLossConfig};
 use view_sampler::{ErrorMap, Estimator, EstimatorConfig, UniformSchedule, UpdateReport};
 
 mod renders;
-mod silhouettes;
+pub mod silhouettes;
 mod split;
 pub use silhouettes::{Reach, Silhouette, SphereFit, silhouette_reach, sphere_radius};
 pub use split::{SplitStats, WALLED_OPACITY};

@@ -170,9 +170,9 @@ impl SphereFit {
 impl Trainer {
     /// The first phase (see the module's documentation): sizes the initial sphere and restarts
     /// the parameters from it. Called by the first [`Trainer::step`] of a fresh run that asks for
-    /// it; the scene moves into the probe and back.
+    /// it; the scene moves into the probe and back. On an error (the probe diverged) the run is
+    /// left as it was, its first phase still to come.
     pub(super) fn fit_sphere_to_photos(&mut self) -> Result<()> {
-        self.sphere_pending = false;
         let start = Instant::now();
         let mut config = self.config.clone();
         config.budget = Budget::Steps(PROBE_STEPS);
@@ -181,6 +181,9 @@ impl Trainer {
         config.model.init_s = Some(PROBE_INIT_S);
         config.model.background_near = PROBE_BACKGROUND_NEAR;
         config.model.background_near_start = None;
+        // What could refuse the probe's configuration is checked before the views move (the rest
+        // of `Trainer::new` accepted the run's own).
+        config.validate()?;
         // The run's parameters and moments make way for the probe's (its peak is the run's).
         self.state.params = Vec::new();
         self.state.adam = sdf_backbone::Adam::new(0);
@@ -189,18 +192,24 @@ impl Trainer {
         let mut probe = Trainer::new(config, data)?;
         let silhouettes = probe_silhouettes(&mut probe);
         self.data = probe.data;
-        let silhouettes = silhouettes?;
-        let reach = silhouette_reach(&silhouettes);
-        let radius = sphere_radius(reach.as_ref(), self.data.scene.views.iter().map(|v| &v.camera));
+        let (reach, radius) = match &silhouettes {
+            Ok(silhouettes) => {
+                let reach = silhouette_reach(silhouettes);
+                let radius = sphere_radius(reach.as_ref(), self.data.scene.views.iter().map(|v| &v.camera));
+                (reach, radius)
+            }
+            Err(_) => (None, self.init_radius),
+        };
         let (backbone, params) = super::configured_backbone(&self.config, self.use_masks, self.grid.as_ref(), radius)?;
         self.state.adam = super::fresh_adam(&self.config, &backbone, params.len());
         self.backbone = backbone;
         self.state.params = params;
+        let views = silhouettes?.len();
         self.init_radius = radius;
+        self.sphere_pending = false;
         let seconds = start.elapsed().as_secs_f64();
         self.state.train_seconds += seconds;
-        let fit = SphereFit { radius, reach, views: silhouettes.len(), steps: PROBE_STEPS, seconds };
-        self.sphere_fit = Some(fit);
+        self.sphere_fit = Some(SphereFit { radius, reach, views, steps: PROBE_STEPS, seconds });
         Ok(())
     }
 
@@ -330,6 +339,21 @@ mod tests {
         trainer.step().unwrap();
         let fit = trainer.sphere_fit().unwrap();
         assert!(fit.radius > 0.4, "{}", fit.describe());
+    }
+
+    /// A first phase that fails (here: diverges) leaves the run as it was — its views, its
+    /// parameters, its first phase still to come — and says so.
+    #[test]
+    fn a_first_phase_that_fails_leaves_the_run_as_it_was() {
+        let (mut config, data) = loose_bound(false);
+        (config.optim.lr, config.optim.lr_grid) = (1e12, 1e12);
+        let views = data.scene.views.len();
+        let mut trainer = Trainer::new(config, data).unwrap();
+        let params = trainer.state().params.len();
+        assert!(trainer.step().is_err(), "a learning rate of 1e12 diverges");
+        assert_eq!((trainer.data().scene.views.len(), trainer.state().params.len()), (views, params));
+        assert_eq!((trainer.sphere_fit(), trainer.state().step), (None, 0));
+        assert!(trainer.sphere_pending);
     }
 
     #[test]

@@ -121,6 +121,9 @@ pub struct Trainer {
     sphere_pending: bool,
     /// How it did.
     sphere_fit: Option<SphereFit>,
+    /// Seconds of a time budget the first phase spent: the schedules follow the rest of the
+    /// budget, from 0 after the phase (kept in the checkpoint).
+    first_phase_seconds: f64,
     state: TrainState,
     grads: Vec<f32>,
     timing: Timing,
@@ -239,6 +242,7 @@ impl Trainer {
             init_radius,
             sphere_pending: config_asks_photos,
             sphere_fit: None,
+            first_phase_seconds: 0.0,
             state,
             grads: Vec::new(),
             timing: Timing::default(),
@@ -315,7 +319,11 @@ impl Trainer {
 
     fn progress_at(&self, step: u64, seconds: f64) -> f64 {
         match self.config.budget {
-            Budget::Time(budget) => (seconds / budget.as_secs_f64()).min(1.0),
+            Budget::Time(budget) => {
+                // A first phase's seconds count towards the budget but not the schedules.
+                let start = self.first_phase_seconds;
+                ((seconds - start) / (budget.as_secs_f64() - start).max(f64::MIN_POSITIVE)).clamp(0.0, 1.0)
+            }
             Budget::Steps(steps) => (step as f64 / steps as f64).min(1.0),
         }
     }
@@ -570,6 +578,7 @@ impl Trainer {
             .meta("update_part", guide.part.map_or("none".into(), |p| p.to_string()))
             .meta("lipschitz", guide.lipschitz.to_string())
             .meta("train_seconds", self.state.train_seconds.to_string())
+            .meta("first_phase_seconds", self.first_phase_seconds.to_string())
             .meta("config", self.config.to_toml());
         w.write_to(out)
     }
@@ -591,6 +600,11 @@ impl Trainer {
         };
         let lipschitz = meta("lipschitz")?.parse().context("the checkpoint's lipschitz")?;
         let train_seconds = meta("train_seconds")?.parse().context("the checkpoint's train_seconds")?;
+        // Absent from checkpoints written before the first phase existed: none.
+        let first_phase_seconds = match reader.meta("first_phase_seconds") {
+            Ok(text) => text.parse().context("the checkpoint's first_phase_seconds")?,
+            Err(_) => 0.0,
+        };
         let (mut grids, mut occupancy) = (Vec::new(), None);
         if update_part.is_some() {
             while let Some(n) = reader.len(&format!("guide.grid.{}", grids.len())) {
@@ -608,6 +622,7 @@ impl Trainer {
         reader.restore_state(input, &mut self.state.params, &mut self.state.adam)?;
         self.state.step = step;
         self.state.train_seconds = train_seconds;
+        self.first_phase_seconds = first_phase_seconds;
         // The first phase's sphere is in the parameters restored.
         self.sphere_pending = false;
         // The levels and the background of the last iteration done.

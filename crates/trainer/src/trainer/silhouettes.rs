@@ -306,6 +306,17 @@ mod tests {
         (config, data)
     }
 
+    /// A fresh trainer of `config` on `data` restored from `trainer`'s checkpoint.
+    fn resumed_from(trainer: &Trainer, config: TrainConfig, data: SceneData) -> Trainer {
+        let mut bytes = Vec::new();
+        trainer.write_checkpoint(&mut bytes).unwrap();
+        let mut input = std::io::Cursor::new(&bytes);
+        let reader = sdf_backbone::CheckpointReader::open(&mut input, bytes.len() as u64).unwrap();
+        let mut resumed = Trainer::new(config, data).unwrap();
+        resumed.restore(&reader, &mut input).unwrap();
+        resumed
+    }
+
     #[test]
     fn the_first_step_without_masks_sizes_the_sphere_from_the_photos_and_a_resumed_run_does_not() {
         let (config, data) = loose_bound(false);
@@ -319,12 +330,7 @@ mod tests {
         assert_eq!(trainer.init_radius(), fit.radius);
         assert!(trainer.state().train_seconds >= fit.seconds, "the first phase's time counts");
         assert_eq!(trainer.data().scene.views.len(), views, "the views came back from the first phase");
-        let mut bytes = Vec::new();
-        trainer.write_checkpoint(&mut bytes).unwrap();
-        let mut input = std::io::Cursor::new(&bytes);
-        let reader = sdf_backbone::CheckpointReader::open(&mut input, bytes.len() as u64).unwrap();
-        let mut resumed = Trainer::new(config, data).unwrap();
-        resumed.restore(&reader, &mut input).unwrap();
+        let mut resumed = resumed_from(&trainer, config, data);
         resumed.step().unwrap();
         assert_eq!(resumed.sphere_fit(), None, "a resumed run has its sphere in its parameters");
     }
@@ -373,12 +379,7 @@ mod tests {
         let expected = (seconds - phase) / (3600.0 - phase);
         assert!((trainer.progress() - expected).abs() < 1e-12, "{} against {expected}", trainer.progress());
         assert!(trainer.progress() < 0.5 * phase / 3600.0, "the phase is not in the schedules' progress");
-        let mut bytes = Vec::new();
-        trainer.write_checkpoint(&mut bytes).unwrap();
-        let mut input = std::io::Cursor::new(&bytes);
-        let reader = sdf_backbone::CheckpointReader::open(&mut input, bytes.len() as u64).unwrap();
-        let mut resumed = Trainer::new(config, data).unwrap();
-        resumed.restore(&reader, &mut input).unwrap();
+        let resumed = resumed_from(&trainer, config, data);
         assert_eq!(resumed.progress(), trainer.progress());
     }
 

@@ -157,7 +157,7 @@ fn rays(n_rays: usize, n_samples: usize) -> Vec<RayInput<f32>> {
 /// is off; the peer does not clip either).
 fn trainer_rates() -> StepRates {
     let optim = trainer::config::OptimConfig::default();
-    StepRates { tables: optim.lr_grid as f32, rest: optim.lr as f32, clip_norm: optim.clip_norm.map(|c| c as f32) }
+    StepRates { tables: optim.lr_grid as f32, rest: optim.lr as f32, clip_norm: optim.clip_norm.map(|c| c as f32), geometry: 1.0 }
 }
 
 /// Seconds per training step: forward + backward of the whole loss + Adam, as the trainer

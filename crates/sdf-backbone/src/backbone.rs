@@ -251,6 +251,10 @@ pub struct StepRates {
     pub rest: f32,
     /// Clip the gradient's global norm to this (None: off).
     pub clip_norm: Option<f32>,
+    /// Factor on the geometry's rates — the encoding, the SDF network and the variance — (1: as
+    /// above; 0: the geometry holds still while the colour network and the background learn).
+    /// Adam's moments see every step either way.
+    pub geometry: f32,
 }
 
 impl Backbone {
@@ -311,15 +315,29 @@ impl Backbone {
         let (pe, pr) = p_rest.split_at_mut(enc_rest);
         let (me, mr) = m_rest.split_at_mut(enc_rest);
         let (ve, vr) = v_rest.split_at_mut(enc_rest);
+        let (tables, geometry) = (rates.tables * rates.geometry, rates.rest * rates.geometry);
         {
             let _span = crate::profile::span(crate::profile::Stage::Adam);
-            step.apply(pe, me, ve, &rest[..enc_rest], rates.tables);
-            // The learned background's tables, last, at the tables' rate.
-            let bg = layout.background_tables.start - layout.encoding.end;
-            let ((pr, pt), (mr, mt), (vr, vt)) = (pr.split_at_mut(bg), mr.split_at_mut(bg), vr.split_at_mut(bg));
-            let (gr, gt) = rest[enc_rest..].split_at(bg);
-            step.apply(pr, mr, vr, gr, rates.rest);
-            step.apply(pt, mt, vt, gt, rates.tables);
+            step.apply(pe, me, ve, &rest[..enc_rest], tables);
+            // After the encoding, in order: the SDF network and the colour network, the variance,
+            // the learned background and its tables (last, at the tables' rate).
+            let groups = [
+                (layout.sdf_mlp.len(), geometry),
+                (layout.color.len(), rates.rest),
+                (1, geometry),
+                (layout.background_tables.start - layout.background.start, rates.rest),
+                (layout.background_tables.len(), rates.tables),
+            ];
+            let (mut pr, mut mr, mut vr, mut gr) = (pr, mr, vr, &rest[enc_rest..]);
+            for (len, rate) in groups {
+                let (p, pn) = std::mem::take(&mut pr).split_at_mut(len);
+                let (m, mn) = std::mem::take(&mut mr).split_at_mut(len);
+                let (v, vn) = std::mem::take(&mut vr).split_at_mut(len);
+                let (g, gn) = gr.split_at(len);
+                step.apply(p, m, v, g, rate);
+                (pr, mr, vr, gr) = (pn, mn, vn, gn);
+            }
+            debug_assert!(pr.is_empty(), "the groups cover the parameters after the encoding");
         }
         if n_def > 0 {
             // Each level: its gradient from the records (a scatter that reads no parameter), then
@@ -333,7 +351,7 @@ impl Backbone {
                     g.iter_mut().for_each(|x| *x *= scale);
                 }
                 let _span = crate::profile::span(crate::profile::Stage::Adam);
-                step.apply_moments(p, moments, &g, rates.tables, blocks[b].start);
+                step.apply_moments(p, moments, &g, tables, blocks[b].start);
             });
         }
         (loss, outputs)
@@ -447,8 +465,9 @@ mod tests {
         let layout = backbone.layout();
         let n = params.len();
         // bf16 table moments too: the level-by-level update and the dense one round alike.
-        for (clip, compact) in [(None, false), (Some(1e-3), false), (None, true)] {
-            let rates = StepRates { tables: 1e-2, rest: 5e-3, clip_norm: clip };
+        // A geometry factor of 0.5 too: the encoding, the SDF network and the variance at half rate.
+        for (clip, compact, geometry) in [(None, false, 1.0), (Some(1e-3), false, 1.0), (None, true, 1.0), (None, false, 0.5)] {
+            let rates = StepRates { tables: 1e-2, rest: 5e-3, clip_norm: clip, geometry };
             let adam = || if compact { Adam::with_compact_prefix(n, layout.encoding.len()) } else { Adam::new(n) };
             let (mut fused, mut adam_f) = (params.clone(), adam());
             let (lf, _) = backbone.train_step(&mut fused, &mut adam_f, &rays, 8, &crate::pipeline::NoSampleLoss, rates);
@@ -456,11 +475,21 @@ mod tests {
             let mut grads = vec![0.0f32; n];
             let (ld, _) = backbone.loss_parallel(&dense, &rays, &mut grads, 8, &crate::pipeline::NoSampleLoss);
             let tables = layout.background_tables.clone();
-            let ranges = [(layout.encoding.clone(), 1e-2), (layout.encoding.end..tables.start, 5e-3), (tables, 1e-2)];
+            let ranges = [
+                (layout.encoding.clone(), 1e-2 * geometry),
+                (layout.sdf_mlp.clone(), 5e-3 * geometry),
+                (layout.color.clone(), 5e-3),
+                (layout.variance..layout.variance + 1, 5e-3 * geometry),
+                (layout.background.start..tables.start, 5e-3),
+                (tables, 1e-2),
+            ];
             adam_step(&mut adam_d, &mut dense, &mut grads, &ranges, clip);
             assert_eq!(lf, ld);
             let worst = fused.iter().zip(&dense).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
-            assert!(worst <= 1e-7, "clip {clip:?}, compact {compact}, background grid {background_grid}: parameters differ by {worst}");
+            assert!(
+                worst <= 1e-7,
+                "clip {clip:?}, compact {compact}, geometry {geometry}, background grid {background_grid}: parameters differ by {worst}"
+            );
             let t = layout.background_tables.clone();
             assert!(!background_grid || fused[t.clone()] != params[t], "the background's tables learn");
             assert_eq!(adam_f.step, adam_d.step);

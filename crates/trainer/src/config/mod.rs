@@ -197,6 +197,12 @@ pub struct ModelConfig {
     pub background_near_start: Option<f64>,
     /// The fraction of the run over which the background moves in from `background_near_start`.
     pub background_near_until: f64,
+    /// The fraction of the run during which the geometry (the SDF's encoding and network, the
+    /// variance) holds still while the colour network and the learned background learn (0:
+    /// none): without masks, the background explains the backdrop before the foreground's hash
+    /// grid can paint it into the bound (docs/DECISIONS.md §35).
+    #[serde(with = "off::zero_is_none")]
+    pub geometry_after: Option<f64>,
     /// Without masks: weight of the opacity entropy of each ray (pushes a ray to hit the
     /// surface or miss it; a thin part becomes a surface rather than a haze). Unused with masks,
     /// whose BCE does the same with the truth.

@@ -84,6 +84,9 @@ impl TrainConfig {
         if let Some(start) = self.model.background_near_start {
             need(start.is_finite() && start >= near, "model.background_near_start", start, "0 (none) or ≥ model.background_near")?;
         }
+        if let Some(after) = self.model.geometry_after {
+            need(after > 0.0 && after < 1.0, "model.geometry_after", after, "0 (none) or in (0, 1)")?;
+        }
         let until = self.model.background_near_until;
         need((0.0..=1.0).contains(&until), "model.background_near_until", until, "in [0, 1]")?;
         need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;

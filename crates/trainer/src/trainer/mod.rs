@@ -41,6 +41,7 @@ use surface_losses::{RaySurface, SurfaceLossConfig};
 use view_sampler::{ErrorMap, Estimator, EstimatorConfig, UniformSchedule, UpdateReport};
 
 mod renders;
+mod schedules;
 pub mod silhouettes;
 mod split;
 pub use silhouettes::{Reach, Silhouette, SphereFit, silhouette_reach, sphere_radius};
@@ -348,35 +349,6 @@ impl Trainer {
         }
     }
 
-    /// Active hash-grid levels at `progress` (coarse-to-fine).
-    fn active_levels(&self, levels: usize, progress: f64) -> usize {
-        let ramp = if self.config.model.all_levels_at > 0.0 { (progress / self.config.model.all_levels_at).min(1.0) } else { 1.0 };
-        let start = self.config.model.initial_levels.min(levels);
-        start + ((levels - start) as f64 * ramp).floor() as usize
-    }
-
-    /// Where the learned background starts at `progress`: from `model.background_near_start`
-    /// in to `model.background_near` over the first `model.background_near_until` of the run.
-    fn background_near(&self, progress: f64) -> f64 {
-        let m = &self.config.model;
-        match m.background_near_start {
-            Some(start) if progress < m.background_near_until => start + (m.background_near - start) * progress / m.background_near_until,
-            _ => m.background_near,
-        }
-    }
-
-    /// Sets the schedules that follow the progress: the active hash-grid levels and where the
-    /// learned background starts.
-    fn set_progress_schedules(&mut self, progress: f64) {
-        if let Some(levels) = self.backbone.levels() {
-            self.backbone.set_active_levels(self.active_levels(levels, progress));
-        }
-        let near = self.background_near(progress);
-        if let Some(background) = &mut self.backbone.background {
-            background.near = near;
-        }
-    }
-
     /// The estimator's update from the current parameters when its schedule says so.
     fn update_grids_due(&mut self, progress: f64) -> Result<Option<UpdateReport>> {
         let s = self.backbone.scale(&self.state.params) as f32;
@@ -427,6 +399,7 @@ impl Trainer {
             tables: self.config.optim.lr_grid as f32 * factor,
             rest: self.config.optim.lr as f32 * factor,
             clip_norm: self.config.optim.clip_norm.map(|c| c as f32),
+            geometry: self.geometry_rate(progress),
         };
         let hook = SurfaceHook { config: self.config.surface, rays: &batch.surfaces };
         let extra: &dyn SampleLoss = if self.surface_losses_on() { &hook } else { &NoSampleLoss };

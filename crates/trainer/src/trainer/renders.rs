@@ -232,35 +232,6 @@ mod tests {
         }
     }
 
-    #[test]
-    fn the_configured_initial_s_is_the_trainers_s() {
-        for (init_s, expected) in [(None, 20.0855), (Some(4.0), 4.0)] {
-            let mut config = TrainConfig { budget: Budget::Steps(1), ..TrainConfig::default() };
-            config.data.builtin.width = 48;
-            config.model.init_s = init_s;
-            let data = SceneData::builtin(&config).unwrap();
-            let trainer = Trainer::new(config, data).unwrap();
-            assert!((trainer.s() - expected).abs() < 1e-3 * expected, "{init_s:?}: s = {}", trainer.s());
-        }
-    }
-
-    #[test]
-    fn the_learned_background_moves_in_from_its_start_over_its_share_of_the_run() {
-        let mut config = TrainConfig { budget: Budget::Steps(1), ..TrainConfig::default() };
-        config.data.builtin.width = 48;
-        config.data.masks = false;
-        (config.model.background_near, config.model.background_near_start, config.model.background_near_until) = (1.0, Some(3.0), 0.25);
-        let data = SceneData::builtin(&config).unwrap();
-        let mut trainer = Trainer::new(config, data).unwrap();
-        for (progress, near) in [(0.0, 3.0), (0.125, 2.0), (0.25, 1.0), (0.9, 1.0)] {
-            trainer.set_progress_schedules(progress);
-            assert_eq!(trainer.backbone.background.as_ref().unwrap().near, near, "at {progress}");
-        }
-        trainer.config.model.background_near_start = None;
-        trainer.set_progress_schedules(0.0);
-        assert_eq!(trainer.backbone.background.as_ref().unwrap().near, 1.0, "no start: always the near radius");
-    }
-
     /// The renders' occupancy is made once per field: reused while nothing changed, made again
     /// after the parameters or the active hash-grid levels changed.
     #[test]

@@ -183,6 +183,7 @@ impl Trainer {
         config.model.init_s = Some(PROBE_INIT_S);
         config.model.background_near = PROBE_BACKGROUND_NEAR;
         config.model.background_near_start = None;
+        config.model.geometry_after = None;
         // What could refuse the probe's configuration is checked before the views move (the rest
         // of `Trainer::new` accepted the run's own).
         config.validate()?;

@@ -1,0 +1,101 @@
+//! What follows the run's progress: the active hash-grid levels (coarse-to-fine), where the
+//! learned background starts, and whether the geometry learns yet.
+
+use super::Trainer;
+
+impl Trainer {
+    /// Active hash-grid levels at `progress` (coarse-to-fine).
+    pub(super) fn active_levels(&self, levels: usize, progress: f64) -> usize {
+        let ramp = if self.config.model.all_levels_at > 0.0 { (progress / self.config.model.all_levels_at).min(1.0) } else { 1.0 };
+        let start = self.config.model.initial_levels.min(levels);
+        start + ((levels - start) as f64 * ramp).floor() as usize
+    }
+
+    /// Where the learned background starts at `progress`: from `model.background_near_start`
+    /// in to `model.background_near` over the first `model.background_near_until` of the run.
+    fn background_near(&self, progress: f64) -> f64 {
+        let m = &self.config.model;
+        match m.background_near_start {
+            Some(start) if progress < m.background_near_until => start + (m.background_near - start) * progress / m.background_near_until,
+            _ => m.background_near,
+        }
+    }
+
+    /// The factor on the geometry's learning rates at `progress`: 0 before
+    /// `model.geometry_after`, 1 from there on.
+    pub(super) fn geometry_rate(&self, progress: f64) -> f32 {
+        if self.config.model.geometry_after.is_some_and(|after| progress < after) { 0.0 } else { 1.0 }
+    }
+
+    /// Sets the schedules that follow the progress: the active hash-grid levels and where the
+    /// learned background starts.
+    pub(super) fn set_progress_schedules(&mut self, progress: f64) {
+        if let Some(levels) = self.backbone.levels() {
+            self.backbone.set_active_levels(self.active_levels(levels, progress));
+        }
+        let near = self.background_near(progress);
+        if let Some(background) = &mut self.backbone.background {
+            background.near = near;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{Budget, InitRadius, TrainConfig};
+    use crate::data::SceneData;
+
+    fn small(masks: bool, steps: u64) -> (TrainConfig, SceneData) {
+        let mut config = TrainConfig { budget: Budget::Steps(steps), ..TrainConfig::default() };
+        (config.data.builtin.width, config.data.masks, config.render.rays) = (48, masks, 64);
+        config.model.init_radius = InitRadius::Radius(0.5);
+        let data = SceneData::builtin(&config).unwrap();
+        (config, data)
+    }
+
+    #[test]
+    fn the_configured_initial_s_is_the_trainers_s() {
+        for (init_s, expected) in [(None, 20.0855), (Some(4.0), 4.0)] {
+            let (mut config, data) = small(true, 1);
+            config.model.init_s = init_s;
+            let trainer = Trainer::new(config, data).unwrap();
+            assert!((trainer.s() - expected).abs() < 1e-3 * expected, "{init_s:?}: s = {}", trainer.s());
+        }
+    }
+
+    #[test]
+    fn the_learned_background_moves_in_from_its_start_over_its_share_of_the_run() {
+        let (mut config, data) = small(false, 1);
+        (config.model.background_near, config.model.background_near_start, config.model.background_near_until) = (1.0, Some(3.0), 0.25);
+        let mut trainer = Trainer::new(config, data).unwrap();
+        for (progress, near) in [(0.0, 3.0), (0.125, 2.0), (0.25, 1.0), (0.9, 1.0)] {
+            trainer.set_progress_schedules(progress);
+            assert_eq!(trainer.backbone.background.as_ref().unwrap().near, near, "at {progress}");
+        }
+        trainer.config.model.background_near_start = None;
+        trainer.set_progress_schedules(0.0);
+        assert_eq!(trainer.backbone.background.as_ref().unwrap().near, 1.0, "no start: always the near radius");
+    }
+
+    /// With `model.geometry_after` the SDF (encoding, network, variance) holds still over that
+    /// share of the run while the colour network and the background learn; then it learns.
+    #[test]
+    fn the_geometry_holds_still_until_its_share_of_the_run_while_colour_and_background_learn() {
+        let (mut config, data) = small(false, 10);
+        config.model.geometry_after = Some(0.25);
+        let mut trainer = Trainer::new(config, data).unwrap();
+        let layout = trainer.backbone.layout();
+        let geometry = |p: &[f32]| [&p[layout.encoding.clone()], &p[layout.sdf_mlp.clone()], &p[layout.variance..=layout.variance]].concat();
+        let start = trainer.state().params.clone();
+        for _ in 0..3 {
+            trainer.step().unwrap();
+        }
+        let held = trainer.state().params.clone();
+        assert_eq!(geometry(&held), geometry(&start), "the geometry holds still over the first quarter (steps 0, 1, 2)");
+        assert_ne!(held[layout.color.clone()], start[layout.color.clone()], "the colour network learns meanwhile");
+        assert_ne!(held[layout.background.clone()], start[layout.background.clone()], "the background learns meanwhile");
+        trainer.step().unwrap();
+        assert_ne!(geometry(&trainer.state().params), geometry(&held), "the geometry learns from a quarter of the run on");
+    }
+}

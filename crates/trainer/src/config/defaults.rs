@@ -62,7 +62,7 @@ impl Default for ModelConfig {
             background_near: 1.0,
             background_near_start: None,
             background_near_until: 0.25,
-            geometry_after: None,
+            geometry_after: Some(0.05),
             s_floor: None,
             init_s: None,
             opacity_entropy: 0.0,

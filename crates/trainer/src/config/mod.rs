@@ -197,10 +197,10 @@ pub struct ModelConfig {
     pub background_near_start: Option<f64>,
     /// The fraction of the run over which the background moves in from `background_near_start`.
     pub background_near_until: f64,
-    /// The fraction of the run during which the geometry (the SDF's encoding and network, the
-    /// variance) holds still while the colour network and the learned background learn (0:
-    /// none): without masks, the background explains the backdrop before the foreground's hash
-    /// grid can paint it into the bound (docs/DECISIONS.md §35).
+    /// Without masks: the fraction of the run during which the geometry (the SDF's encoding and
+    /// network, the variance) holds still while the colour network and the learned background
+    /// learn (0: none), so that the background explains the backdrop before the foreground's
+    /// hash grid can paint it into the bound (docs/DECISIONS.md §35). Unused with masks.
     #[serde(with = "off::zero_is_none")]
     pub geometry_after: Option<f64>,
     /// Without masks: weight of the opacity entropy of each ray (pushes a ray to hit the

@@ -222,7 +222,7 @@ fn the_initial_s_is_the_presets_unless_given() {
 #[test]
 fn the_geometry_holds_still_for_a_fraction_of_the_run_or_never() {
     let load = |v: &[&str]| TrainConfig::load(None, &v.iter().map(|s| s.to_string()).collect::<Vec<_>>());
-    assert_eq!(TrainConfig::default().model.geometry_after, None);
+    assert_eq!(TrainConfig::default().model.geometry_after, Some(0.05));
     assert_eq!(load(&["model.geometry_after=0.1"]).unwrap().model.geometry_after, Some(0.1));
     assert!(load(&["model.geometry_after=1"]).unwrap_err().chain().contains("model.geometry_after"));
     assert_eq!(load(&["model.geometry_after=0"]).unwrap().model.geometry_after, None);

@@ -21,10 +21,12 @@ impl Trainer {
         }
     }
 
-    /// The factor on the geometry's learning rates at `progress`: 0 before
-    /// `model.geometry_after`, 1 from there on.
+    /// The factor on the geometry's learning rates at `progress`: without masks 0 before
+    /// `model.geometry_after`, 1 from there on; with masks always 1 (the masks say where the
+    /// object is from the first step).
     pub(super) fn geometry_rate(&self, progress: f64) -> f32 {
-        if self.config.model.geometry_after.is_some_and(|after| progress < after) { 0.0 } else { 1.0 }
+        let hold = !self.uses_masks() && self.config.model.geometry_after.is_some_and(|after| progress < after);
+        if hold { 0.0 } else { 1.0 }
     }
 
     /// Sets the schedules that follow the progress: the active hash-grid levels and where the
@@ -97,5 +99,12 @@ mod tests {
         assert_ne!(held[layout.background.clone()], start[layout.background.clone()], "the background learns meanwhile");
         trainer.step().unwrap();
         assert_ne!(geometry(&trainer.state().params), geometry(&held), "the geometry learns from a quarter of the run on");
+        // With masks the key is unused: the geometry learns from the first step.
+        let (mut config, data) = small(true, 10);
+        config.model.geometry_after = Some(0.25);
+        let mut trainer = Trainer::new(config, data).unwrap();
+        let start = trainer.state().params.clone();
+        trainer.step().unwrap();
+        assert_ne!(geometry(&trainer.state().params), geometry(&start), "with masks the geometry learns from the first step");
     }
 }

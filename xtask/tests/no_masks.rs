@@ -35,21 +35,25 @@ fn train(extra: &[&str]) -> (f64, f64) {
     (metrics["chamfer"].as_f64().unwrap_or(f64::INFINITY), metrics["f_score"].as_f64().unwrap())
 }
 
-/// With the default initial sphere (`model.init_radius = "photos"`: 0.22 here, from the first
-/// phase's silhouettes), guided and uniform runs without masks land within 3× the masked twin's
-/// Chamfer (at this size and budget the F-score is low: 400 iterations of 64 × 48 views).
-/// Measured on the Zen 4 (release build): twin 0.0160 (F 0.56); without masks guided 0.0377
-/// (F 0.05), uniform 0.0415 (F 0.02); with `auto` (0.23) 0.0435 and 0.0408. With NeuS's sphere
-/// of radius 0.5 the sphere filled every view, the network painted the backdrop on it, and
-/// carving it away carved the object: no mesh near the object (Chamfer ∞, F 0) for both
-/// samplers; so did a first phase with uniform rays (its silhouettes stayed the start's).
+/// With the defaults without masks — the initial sphere from the photos (`model.init_radius =
+/// "photos"`: 0.22 here, from the first phase's silhouettes), the geometry held still over the
+/// first 5 % while the colour and the background learn (`model.geometry_after`), the background
+/// moving in from 3 bound radii over the first quarter (`model.background_near_start`) — guided
+/// and uniform runs land within 2× the masked twin's Chamfer with an F-score above half the
+/// twin's (issue #37's bounds). Measured on the Zen 4 (release build): twin 0.0160 (F 0.56);
+/// without masks guided 0.0224 (F 0.35), uniform 0.0201 (F 0.41); without the hold and the
+/// moving background 0.0377 (F 0.05) and 0.0415 (F 0.02). With NeuS's sphere of radius 0.5 the
+/// sphere filled every view, the network painted the backdrop on it, and carving it away carved
+/// the object: no mesh near the object (Chamfer ∞, F 0) for both samplers; so did a first phase
+/// with uniform rays (its silhouettes stayed the start's).
 #[test]
-fn without_masks_the_object_is_meshed_within_3x_its_masked_twins_chamfer() {
+fn without_masks_the_object_is_meshed_within_2x_its_masked_twins_chamfer() {
     let (twin, twin_f) = train(&[]);
     assert!(twin.is_finite() && twin < 0.03, "masked twin: Chamfer {twin}");
     for sampler in ["guided", "uniform"] {
         let (chamfer, f_score) = train(&["data.masks=false", "--sampler", sampler]);
         eprintln!("{sampler} without masks: Chamfer {chamfer:.4} (F {f_score:.3}) against the twin's {twin:.4} (F {twin_f:.3})");
-        assert!(chamfer <= 3.0 * twin, "{sampler} without masks: Chamfer {chamfer} > 3 × the masked twin's {twin}");
+        assert!(chamfer <= 2.0 * twin, "{sampler} without masks: Chamfer {chamfer} > 2 × the masked twin's {twin}");
+        assert!(f_score >= 0.5 * twin_f, "{sampler} without masks: F-score {f_score} < half the masked twin's {twin_f}");
     }
 }

@@ -60,7 +60,7 @@ impl Default for ModelConfig {
             background_view: false,
             background_grid: false,
             background_near: 1.0,
-            background_near_start: None,
+            background_near_start: Some(3.0),
             background_near_until: 0.25,
             geometry_after: Some(0.05),
             s_floor: None,

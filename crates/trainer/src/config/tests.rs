@@ -231,7 +231,7 @@ fn the_geometry_holds_still_for_a_fraction_of_the_run_or_never() {
 #[test]
 fn the_backgrounds_start_lies_beyond_its_near_radius() {
     let load = |v: &[&str]| TrainConfig::load(None, &v.iter().map(|s| s.to_string()).collect::<Vec<_>>());
-    assert_eq!(TrainConfig::default().model.background_near_start, None);
+    assert_eq!(TrainConfig::default().model.background_near_start, Some(3.0));
     assert_eq!(load(&["model.background_near_start=3"]).unwrap().model.background_near_start, Some(3.0));
     assert!(load(&["model.background_near=2", "model.background_near_start=1.5"]).unwrap_err().chain().contains("model.background_near_start"));
     assert!(load(&["model.background_near_until=1.5"]).unwrap_err().chain().contains("model.background_near_until"));

@@ -189,7 +189,8 @@ pub struct ModelConfig {
     /// it, nor a near backdrop (DTU's table) as background (docs/DECISIONS.md §33).
     pub background_near: f64,
     /// Where the learned background starts at the beginning of the run (bound radii, ≥
-    /// `background_near`; 0: always at `background_near`), moving in to `background_near` by
+    /// `background_near`; 0: always at `background_near`; the default 3, docs/DECISIONS.md
+    /// §35), moving in to `background_near` by
     /// `background_near_until` of the run: far at first, so that the background cannot take the
     /// object before the foreground has it; near later, so that a near backdrop (a table, a wall)
     /// can be background.

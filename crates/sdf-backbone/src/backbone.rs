@@ -319,25 +319,22 @@ impl Backbone {
         {
             let _span = crate::profile::span(crate::profile::Stage::Adam);
             step.apply(pe, me, ve, &rest[..enc_rest], tables);
-            // After the encoding, in order: the SDF network and the colour network, the variance,
-            // the learned background and its tables (last, at the tables' rate).
+            // The parameters after the encoding, each group at its rate (the layout's ranges,
+            // shifted to start at the encoding's end): the SDF network, the colour network, the
+            // variance, the learned background and its tables.
             let groups = [
-                (layout.sdf_mlp.len(), geometry),
-                (layout.color.len(), rates.rest),
-                (1, geometry),
-                (layout.background_tables.start - layout.background.start, rates.rest),
-                (layout.background_tables.len(), rates.tables),
+                (layout.sdf_mlp.clone(), geometry),
+                (layout.color.clone(), rates.rest),
+                (layout.variance..layout.variance + 1, geometry),
+                (layout.background.start..layout.background_tables.start, rates.rest),
+                (layout.background_tables.clone(), rates.tables),
             ];
-            let (mut pr, mut mr, mut vr, mut gr) = (pr, mr, vr, &rest[enc_rest..]);
-            for (len, rate) in groups {
-                let (p, pn) = std::mem::take(&mut pr).split_at_mut(len);
-                let (m, mn) = std::mem::take(&mut mr).split_at_mut(len);
-                let (v, vn) = std::mem::take(&mut vr).split_at_mut(len);
-                let (g, gn) = gr.split_at(len);
-                step.apply(p, m, v, g, rate);
-                (pr, mr, vr, gr) = (pn, mn, vn, gn);
+            debug_assert_eq!(layout.background.end, n, "the groups cover the parameters after the encoding");
+            let gr = &rest[enc_rest..];
+            for (range, rate) in groups {
+                let r = range.start - layout.encoding.end..range.end - layout.encoding.end;
+                step.apply(&mut pr[r.clone()], &mut mr[r.clone()], &mut vr[r.clone()], &gr[r], rate);
             }
-            debug_assert!(pr.is_empty(), "the groups cover the parameters after the encoding");
         }
         if n_def > 0 {
             // Each level: its gradient from the records (a scatter that reads no parameter), then

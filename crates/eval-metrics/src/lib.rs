@@ -293,9 +293,24 @@ pub struct GeometryMetrics {
     pub n_gt: usize,
 }
 
-fn mean_below(d: &[(f32, usize)], max: f64) -> f64 {
-    let (s, n) = d.iter().filter(|(v, _)| f64::from(*v) < max).fold((0.0, 0usize), |(s, n), (v, _)| (s + f64::from(*v), n + 1));
-    if n == 0 { f64::INFINITY } else { s / n as f64 }
+/// How well a point cloud covers a set of query points (one direction of a Chamfer distance).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Coverage {
+    /// Mean distance from a query to its nearest cloud point, over distances < `max_dist`
+    /// (infinite when none is).
+    pub mean: f64,
+    /// Fraction of the queries within τ of the cloud.
+    pub within: f64,
+}
+
+/// How well `cloud` covers `queries`: [`Coverage`] at `max_dist` and `tau`. `chamfer`'s
+/// completeness and recall are `coverage(pred, gt)`; a subset of the truth (one part of a shape)
+/// gives that part's.
+pub fn coverage(cloud: &PointCloud, queries: &[[f32; 3]], max_dist: f64, tau: f64) -> Coverage {
+    let d = cloud.nearest(queries);
+    let (s, n) = d.iter().filter(|(v, _)| f64::from(*v) < max_dist).fold((0.0, 0usize), |(s, n), (v, _)| (s + f64::from(*v), n + 1));
+    let within = d.iter().filter(|(v, _)| f64::from(*v) < tau).count() as f64 / d.len().max(1) as f64;
+    Coverage { mean: if n == 0 { f64::INFINITY } else { s / n as f64 }, within }
 }
 
 /// The DTU-protocol Chamfer distance and the F-score at `tau` between point sets (sample a mesh
@@ -303,12 +318,8 @@ fn mean_below(d: &[(f32, usize)], max: f64) -> f64 {
 pub fn chamfer(pred: &[[f32; 3]], gt: &[[f32; 3]], max_dist: f64, tau: f64) -> Result<GeometryMetrics, MetricsError> {
     let pred_cloud = PointCloud::new(pred)?;
     let gt_cloud = PointCloud::new(gt)?;
-    let d_pred = gt_cloud.nearest(pred);
-    let d_gt = pred_cloud.nearest(gt);
-    let accuracy = mean_below(&d_pred, max_dist);
-    let completeness = mean_below(&d_gt, max_dist);
-    let within = |d: &[(f32, usize)]| d.iter().filter(|(v, _)| f64::from(*v) < tau).count() as f64 / d.len() as f64;
-    let (precision, recall) = (within(&d_pred), within(&d_gt));
+    let Coverage { mean: accuracy, within: precision } = coverage(&gt_cloud, pred, max_dist, tau);
+    let Coverage { mean: completeness, within: recall } = coverage(&pred_cloud, gt, max_dist, tau);
     let f_score = if precision + recall > 0.0 { 2.0 * precision * recall / (precision + recall) } else { 0.0 };
     Ok(GeometryMetrics {
         accuracy,

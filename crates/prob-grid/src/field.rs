@@ -256,6 +256,32 @@ impl Shape {
         out
     }
 
+    /// The shape's parts: a union's members, or the shape itself. Per-part metrics (the thin
+    /// ring of the built-in scene, the pole of the multipart one) group the truth by these.
+    pub fn parts(&self) -> &[Shape] {
+        match self {
+            Shape::Union(parts) => parts,
+            _ => std::slice::from_ref(self),
+        }
+    }
+
+    /// The index in [`Shape::parts`] of the part whose surface is nearest `p` (smallest |S|).
+    pub fn nearest_part(&self, p: DVec3) -> usize {
+        let distance = |part: &Shape| part.sdf(p).abs();
+        (0..self.parts().len()).min_by(|&a, &b| distance(&self.parts()[a]).total_cmp(&distance(&self.parts()[b]))).unwrap_or(0)
+    }
+
+    /// A short description, e.g. `torus 0.58 × 0.04` or `sphere 0.42 − sphere 0.25`.
+    pub fn describe(&self) -> String {
+        match self {
+            Shape::Sphere { radius, .. } => format!("sphere {radius}"),
+            Shape::Torus { major_radius, minor_radius, .. } => format!("torus {major_radius} × {minor_radius}"),
+            Shape::Box { half_extents: h, .. } => format!("box {} × {} × {}", 2.0 * h.x, 2.0 * h.y, 2.0 * h.z),
+            Shape::Union(parts) => parts.iter().map(|p| p.describe()).collect::<Vec<_>>().join(" ∪ "),
+            Shape::Difference(a, b) => format!("{} − {}", a.describe(), b.describe()),
+        }
+    }
+
     /// Radius of a sphere about the origin that contains the shape.
     pub fn bounding_radius(&self) -> f64 {
         match self {
@@ -335,6 +361,24 @@ mod tests {
         let on_bite = pts.iter().filter(|p| ((**p - DVec3::new(0.22, -0.3, 0.3)).length() - 0.25).abs() < 1e-9).count();
         let on_ring = pts.iter().filter(|p| p.truncate().length() > 0.5).count();
         assert!(on_bite > 50 && on_ring > 100, "bite {on_bite}, ring {on_ring}");
+    }
+
+    #[test]
+    fn the_composites_surface_points_fall_to_their_own_parts() {
+        let s = Shape::composite();
+        assert_eq!(s.parts().len(), 3);
+        assert_eq!(s.parts()[1].describe(), "torus 0.58 × 0.04");
+        assert_eq!(ShapeName::Sphere.shape().parts(), std::slice::from_ref(&ShapeName::Sphere.shape()));
+        let counts = s.sample_surface(2000.0, 7).iter().fold([0usize; 3], |mut c, p| {
+            let part = s.nearest_part(*p);
+            assert!(s.parts()[part].sdf(*p).abs() <= 1e-9, "a surface point falls to a part it lies on");
+            c[part] += 1;
+            c
+        });
+        // The ring lies wholly outside the body and the foot: its share is its area's.
+        let ring_share = counts[1] as f64 / counts.iter().sum::<usize>() as f64;
+        let expected = s.parts()[1].area() / (s.sample_surface(2000.0, 7).len() as f64 / 2000.0);
+        assert!((ring_share - expected).abs() < 0.02, "ring {ring_share} against its area's {expected}");
     }
 
     #[test]

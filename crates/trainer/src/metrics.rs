@@ -16,6 +16,18 @@ pub struct ViewPsnr {
     pub masked: Option<f64>,
 }
 
+/// How well a mesh covers one part of an analytic truth (the built-in scenes): the truth's
+/// surface points nearest that part ([`prob_grid::Shape::nearest_part`]) against the mesh.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct PartMetrics {
+    /// The part ([`prob_grid::Shape::describe`]), e.g. `torus 0.58 × 0.04` (the thin ring).
+    pub part: String,
+    /// Truth → mesh mean distance over the part's points (normalised units; `None`: infinite).
+    pub completeness: Option<f64>,
+    /// Fraction of the part's points within `f_score_tau` of the mesh.
+    pub recall: f64,
+}
+
 /// The metrics of a finished run (`metrics.json`). Optional figures are `None` (JSON `null`)
 /// when the run cannot have them: no ground truth, an empty mesh, no masks, no training views
 /// rendered — and the distances (`chamfer`, `accuracy`, `completeness`) also when they are
@@ -60,6 +72,9 @@ pub struct RunMetrics {
     pub f_score: Option<f64>,
     /// The F-score threshold τ (normalised units).
     pub f_score_tau: f64,
+    /// Completeness and recall per part of an analytic truth (built-in scenes whose shape is a
+    /// union: the composite's body, thin ring and foot); empty otherwise.
+    pub parts: Vec<PartMetrics>,
     /// Length of one normalised unit in the dataset's units.
     pub world_scale: f64,
     /// The mesh's marching-cubes resolution (cells per side of the bound's cube).

@@ -73,6 +73,8 @@ pub struct SnapshotMetrics {
     pub mesh_resolution: u32,
     /// The truth's own mesh at that resolution ([`RunMetrics::mesh_floor`]).
     pub mesh_floor: Option<f64>,
+    /// Per part of an analytic truth ([`RunMetrics::parts`]).
+    pub parts: Vec<crate::metrics::PartMetrics>,
 }
 
 impl SnapshotMetrics {
@@ -122,10 +124,8 @@ pub fn write_snapshot(trainer: &Trainer, folder: &RunFolder, at: f64, views: &[u
         folder.write(&format!("{dir}/mesh.{}", format.extension()), &bytes)?;
     }
     let o = &config.output;
-    let (geometry, floor) = match run_geometry(trainer.data(), o, &mesh, Some(trainer.mesh_resolution()))? {
-        Some((g, floor)) => (Some(g), floor),
-        None => (None, None),
-    };
+    let measured = run_geometry(trainer.data(), o, &mesh, Some(trainer.mesh_resolution()))?;
+    let geometry = measured.as_ref().map(|g| g.metrics);
     let psnr = views.iter().map(|&v| Ok(trainer.render_view(v, o.eval_downscale)?.psnr())).collect::<Result<Vec<_>>>()?;
     let mean = |values: Vec<f64>| (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
     let metrics = SnapshotMetrics {
@@ -142,7 +142,8 @@ pub fn write_snapshot(trainer: &Trainer, folder: &RunFolder, at: f64, views: &[u
         psnr_views: views.to_vec(),
         mesh_triangles: mesh.triangles.len(),
         mesh_resolution: trainer.mesh_resolution(),
-        mesh_floor: floor,
+        mesh_floor: measured.as_ref().and_then(|g| g.floor),
+        parts: measured.map(|g| g.parts).unwrap_or_default(),
     };
     folder.write(&format!("{dir}/metrics.json"), serde_json::to_string_pretty(&metrics)?.as_bytes())?;
     Ok(serde_json::to_value(&metrics)?)

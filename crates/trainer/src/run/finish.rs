@@ -9,10 +9,9 @@ use crate::error::Result;
 use crate::folder::RunFolder;
 use crate::memory::{self, MemoryEstimate};
 use crate::metrics::{RunMetrics, ViewPsnr};
-use crate::outputs::{mesh_files, mesh_picture, run_geometry};
+use crate::outputs::{RunGeometry, mesh_files, mesh_picture, run_geometry};
 use crate::progress::Progress;
 use crate::trainer::Trainer;
-use eval_metrics::GeometryMetrics;
 use prob_grid::IsoMesh;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -142,7 +141,7 @@ fn run_metrics(
     estimate: &MemoryEstimate,
     images: &Images,
     mesh: &Mesh,
-    geometry: Option<(GeometryMetrics, Option<f64>)>,
+    geometry: Option<RunGeometry>,
     geometry_seconds: f64,
 ) -> RunMetrics {
     let config = trainer.config();
@@ -150,7 +149,7 @@ fn run_metrics(
     let timing = trainer.timing();
     let per_step = |x: f64| x / timing.steps.max(1) as f64;
     let (held, fit) = (&images.held, &images.fit);
-    let g = geometry.map(|(g, _)| g);
+    let g = geometry.as_ref().map(|g| g.metrics);
     RunMetrics {
         sampler: config.sampler,
         steps: trainer.state().step,
@@ -170,9 +169,10 @@ fn run_metrics(
         completeness: g.map(|g| g.completeness),
         f_score: g.map(|g| g.f_score),
         f_score_tau: config.output.fscore_tau,
+        parts: geometry.as_ref().map(|g| g.parts.clone()).unwrap_or_default(),
         world_scale,
         mesh_resolution: trainer.mesh_resolution(),
-        mesh_floor: geometry.and_then(|(_, floor)| floor),
+        mesh_floor: geometry.as_ref().and_then(|g| g.floor),
         mesh_vertices: mesh.mesh.vertices.len(),
         mesh_triangles: mesh.mesh.triangles.len(),
         mesh_components: mesh.components,
@@ -228,4 +228,8 @@ fn print_summary(m: &RunMetrics, images: &Images, mesh: &Mesh) {
         if m.psnr_held_out { "held-out" } else { "training (none held out)" },
         m.psnr_train.map_or(String::new(), |p| format!(", {p:.2} dB on {} training view(s)", images.fit_views.len())),
     );
+    if !m.parts.is_empty() {
+        let parts: Vec<String> = m.parts.iter().map(|p| format!("{} {:.2}", p.part, p.recall)).collect();
+        eprintln!("the truth's points within τ of the mesh, per part: {}", parts.join(", "));
+    }
 }

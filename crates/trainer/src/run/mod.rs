@@ -460,7 +460,7 @@ fn interim_metrics(trainer: &Trainer) -> Result<serde_json::Value> {
     let view = trainer.split().evaluation_views()[0];
     let (psnr, masked) = trainer.render_view(view, config.output.eval_downscale)?.psnr();
     let mesh = trainer.extract_mesh(&|_, _| {})?;
-    let geometry = run_geometry(trainer.data(), &config.output, &mesh, None)?.map(|(g, _)| g);
+    let geometry = run_geometry(trainer.data(), &config.output, &mesh, None)?.map(|g| g.metrics);
     let t = trainer.timing();
     Ok(json!({"eval": true, "step": trainer.state().step, "psnr": psnr, "psnr_masked": masked, "chamfer": geometry.map(|g| g.chamfer),
         "f_score": geometry.map(|g| g.f_score), "time_s": t.step_seconds + t.grid_seconds}))

@@ -226,12 +226,17 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         }
     }
     let m = eval_metrics::chamfer(&pred, &gt, max_dist, tau)?;
+    let parts = match &args.gt_shape {
+        Some(shape) => trainer::outputs::part_metrics(shape, &pred, &gt, max_dist, tau)?,
+        None => Vec::new(),
+    };
     let result = json!({
         "mesh": mesh_path.display().to_string(),
         "chamfer": m.chamfer, "accuracy": m.accuracy, "completeness": m.completeness,
         "precision": m.precision, "recall": m.recall, "f_score": m.f_score, "tau": tau,
         "spacing": spacing, "max_dist": max_dist, "pred_points": m.n_pred, "culled": before - pred.len(), "gt_points": m.n_gt,
         "alignment": alignment, "icp": icp, "floor": floor, "floor_resolution": args.floor_resolution,
+        "parts": parts,
     });
     if args.json {
         println!("{result}");
@@ -242,6 +247,9 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         );
         if let (Some(floor), Some(resolution)) = (floor, args.floor_resolution) {
             println!("the shape's own {resolution}³ marching-cubes mesh by the same protocol: Chamfer {floor:.5}");
+        }
+        for p in &parts {
+            println!("part {}: completeness {}, recall {:.3}", p.part, p.completeness.map_or("∞".into(), |c| format!("{c:.5}")), p.recall);
         }
     }
     Ok(())

@@ -47,6 +47,11 @@ fn a_mesh_as_fine_as_the_model_is_measured_against_the_truths_own_mesh() {
     let (floor, chamfer) = (m["mesh_floor"].as_f64().expect("a built-in scene has a floor"), m["chamfer"].as_f64().unwrap());
     assert!(floor > 0.0 && floor < chamfer, "floor {floor}, Chamfer {chamfer}");
     assert!(stderr.contains("the truth's own"), "{stderr}");
+    // The composite's three parts are measured one by one (the thin ring among them).
+    let parts = m["parts"].as_array().expect("per-part figures");
+    assert_eq!(parts.len(), 3, "{m}");
+    assert!(parts.iter().any(|p| p["part"] == "torus 0.58 × 0.04"), "{m}");
+    assert!(parts.iter().all(|p| p["recall"].as_f64().is_some_and(|r| (0.0..=1.0).contains(&r))), "{m}");
 }
 
 #[test]

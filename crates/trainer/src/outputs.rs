@@ -197,8 +197,8 @@ pub fn geometry_metrics(mesh: &IsoMesh, gt: &[[f32; 3]], spacing: f64, max_dist:
 
 /// Completeness and recall of a mesh (`pred`: its surface points) on each part of `shape` (one
 /// entry per part of a union; none for a single primitive): `gt` (the shape's surface points)
-/// grouped by the part nearest.
-pub fn part_metrics(shape: &prob_grid::Shape, pred: &[[f32; 3]], gt: &[[f32; 3]], output: &crate::config::OutputConfig) -> Result<Vec<PartMetrics>> {
+/// grouped by the part nearest, at the protocol's `max_dist` and `tau`.
+pub fn part_metrics(shape: &prob_grid::Shape, pred: &[[f32; 3]], gt: &[[f32; 3]], max_dist: f64, tau: f64) -> Result<Vec<PartMetrics>> {
     let parts = shape.parts();
     if parts.len() < 2 {
         return Ok(Vec::new());
@@ -213,7 +213,7 @@ pub fn part_metrics(shape: &prob_grid::Shape, pred: &[[f32; 3]], gt: &[[f32; 3]]
         .zip(&groups)
         .filter(|(_, group)| !group.is_empty())
         .map(|(part, group)| {
-            let c = eval_metrics::coverage(&cloud, group, output.chamfer_max_dist, output.fscore_tau);
+            let c = eval_metrics::coverage(&cloud, group, max_dist, tau);
             PartMetrics { part: part.describe(), completeness: c.mean.is_finite().then_some(c.mean), recall: c.within }
         })
         .collect())
@@ -250,7 +250,7 @@ pub fn run_geometry(
                 None => None,
             };
             let parts = match &data.builtin_shape {
-                Some(shape) => part_metrics(shape, &pred, &gt, output)?,
+                Some(shape) => part_metrics(shape, &pred, &gt, output.chamfer_max_dist, output.fscore_tau)?,
                 None => Vec::new(),
             };
             Ok(Some(RunGeometry { metrics, floor, parts }))
@@ -327,17 +327,17 @@ mod tests {
     #[test]
     fn part_metrics_see_a_missing_thin_ring() {
         let composite = Shape::composite();
-        let output = crate::config::OutputConfig::default();
+        let (max_dist, tau) = (0.1, 0.01);
         let gt = crate::data::analytic_truth(&composite, 0.004);
-        let whole = part_metrics(&composite, &surface_points(&composite, 160), &gt, &output).unwrap();
+        let whole = part_metrics(&composite, &surface_points(&composite, 160), &gt, max_dist, tau).unwrap();
         assert_eq!(whole.len(), 3);
         assert!(whole.iter().all(|p| p.recall > 0.95), "{whole:?}");
         let parts = composite.parts();
         let ringless = Shape::Union(vec![parts[0].clone(), parts[2].clone()]);
-        let without = part_metrics(&composite, &surface_points(&ringless, 160), &gt, &output).unwrap();
+        let without = part_metrics(&composite, &surface_points(&ringless, 160), &gt, max_dist, tau).unwrap();
         assert_eq!(without[1].part, "torus 0.58 × 0.04");
         assert!(without[1].recall < 0.05, "{without:?}");
         assert!(without[0].recall > 0.95 && without[2].recall > 0.9, "{without:?}");
-        assert!(part_metrics(&parts[1], &surface_points(&composite, 64), &gt, &output).unwrap().is_empty(), "one primitive: no parts");
+        assert!(part_metrics(&parts[1], &surface_points(&composite, 64), &gt, max_dist, tau).unwrap().is_empty(), "one primitive: no parts");
     }
 }

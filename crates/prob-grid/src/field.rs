@@ -271,12 +271,17 @@ impl Shape {
         (0..self.parts().len()).min_by(|&a, &b| distance(&self.parts()[a]).total_cmp(&distance(&self.parts()[b]))).unwrap_or(0)
     }
 
-    /// A short description, e.g. `torus 0.58 × 0.04` or `sphere 0.42 − sphere 0.25`.
+    /// A short description, e.g. `torus 0.58 × 0.04` or `sphere 0.42 − sphere 0.25` (sizes to
+    /// four decimals, so that a scaled shape reads as plainly).
     pub fn describe(&self) -> String {
+        let n = |x: f64| {
+            let s = format!("{x:.4}");
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        };
         match self {
-            Shape::Sphere { radius, .. } => format!("sphere {radius}"),
-            Shape::Torus { major_radius, minor_radius, .. } => format!("torus {major_radius} × {minor_radius}"),
-            Shape::Box { half_extents: h, .. } => format!("box {} × {} × {}", 2.0 * h.x, 2.0 * h.y, 2.0 * h.z),
+            Shape::Sphere { radius, .. } => format!("sphere {}", n(*radius)),
+            Shape::Torus { major_radius, minor_radius, .. } => format!("torus {} × {}", n(*major_radius), n(*minor_radius)),
+            Shape::Box { half_extents: h, .. } => format!("box {} × {} × {}", n(2.0 * h.x), n(2.0 * h.y), n(2.0 * h.z)),
             Shape::Union(parts) => parts.iter().map(|p| p.describe()).collect::<Vec<_>>().join(" ∪ "),
             Shape::Difference(a, b) => format!("{} − {}", a.describe(), b.describe()),
         }
@@ -368,6 +373,8 @@ mod tests {
         let s = Shape::composite();
         assert_eq!(s.parts().len(), 3);
         assert_eq!(s.parts()[1].describe(), "torus 0.58 × 0.04");
+        assert_eq!(s.scaled(1.0 / 1.6).parts()[1].describe(), "torus 0.3625 × 0.025");
+        assert_eq!(s.parts()[2].describe(), "box 0.44 × 0.44 × 0.16");
         assert_eq!(ShapeName::Sphere.shape().parts(), std::slice::from_ref(&ShapeName::Sphere.shape()));
         let counts = s.sample_surface(2000.0, 7).iter().fold([0usize; 3], |mut c, p| {
             let part = s.nearest_part(*p);

@@ -267,8 +267,7 @@ impl Shape {
 
     /// The index in [`Shape::parts`] of the part whose surface is nearest `p` (smallest |S|).
     pub fn nearest_part(&self, p: DVec3) -> usize {
-        let distance = |part: &Shape| part.sdf(p).abs();
-        (0..self.parts().len()).min_by(|&a, &b| distance(&self.parts()[a]).total_cmp(&distance(&self.parts()[b]))).unwrap_or(0)
+        self.parts().iter().map(|part| part.sdf(p).abs()).enumerate().min_by(|a, b| a.1.total_cmp(&b.1)).map_or(0, |(i, _)| i)
     }
 
     /// A short description, e.g. `torus 0.58 × 0.04` or `sphere 0.42 − sphere 0.25` (sizes to

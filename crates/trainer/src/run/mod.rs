@@ -454,14 +454,16 @@ fn validation_pictures(trainer: &Trainer, folder: &RunFolder, step: u64) -> Resu
     Ok(())
 }
 
-/// Chamfer of the current mesh and PSNR of the first held-out view (not counted as training).
+/// Chamfer (and per part of an analytic truth) of the current mesh and PSNR of the first held-out
+/// view (not counted as training).
 fn interim_metrics(trainer: &Trainer) -> Result<serde_json::Value> {
     let config = trainer.config();
     let view = trainer.split().evaluation_views()[0];
     let (psnr, masked) = trainer.render_view(view, config.output.eval_downscale)?.psnr();
     let mesh = trainer.extract_mesh(&|_, _| {})?;
-    let geometry = run_geometry(trainer.data(), &config.output, &mesh, None)?.map(|g| g.metrics);
+    let geometry = run_geometry(trainer.data(), &config.output, &mesh, None)?;
     let t = trainer.timing();
-    Ok(json!({"eval": true, "step": trainer.state().step, "psnr": psnr, "psnr_masked": masked, "chamfer": geometry.map(|g| g.chamfer),
-        "f_score": geometry.map(|g| g.f_score), "time_s": t.step_seconds + t.grid_seconds}))
+    Ok(json!({"eval": true, "step": trainer.state().step, "psnr": psnr, "psnr_masked": masked,
+        "chamfer": geometry.as_ref().map(|g| g.metrics.chamfer), "f_score": geometry.as_ref().map(|g| g.metrics.f_score),
+        "parts": geometry.map(|g| g.parts).unwrap_or_default(), "time_s": t.step_seconds + t.grid_seconds}))
 }

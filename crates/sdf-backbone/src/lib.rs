@@ -51,8 +51,8 @@ pub use module::{
 };
 pub use optim::{Adam, AdamStep, CompactMoments, Decay, LrSchedule, Moments, WarmupCosine, WarmupStep};
 pub use pipeline::{
-    AnalyticNormals, ColorLoss, DeferredGradient, Differences, NoSampleLoss, NormalScheme, Pipeline, PipelineConfig, RayInput, RayOutput, SampleLoss,
-    scale_from_variance, variance_from_scale,
+    AnalyticNormals, ColorLoss, DeferredGradient, Differences, NoSampleLoss, NormalScheme, OpacityGuard, Pipeline, PipelineConfig, RayInput,
+    RayOutput, SampleLoss, scale_from_variance, variance_from_scale,
 };
 pub use presets::{Preset, architecture, architecture_with_grid, build, build_with_grid};
 pub use real::Real;

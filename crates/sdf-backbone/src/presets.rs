@@ -151,6 +151,7 @@ fn assemble(preset: Preset, grid: Option<HashGridConfig>) -> Backbone {
             masked_color: false,
             opacity_entropy: 0.0,
             opacity_sparsity: 0.0,
+            opacity_guard: None,
             normal_smoothness: 0.0,
         },
         analytic: None,

@@ -149,12 +149,29 @@ pub struct PipelineConfig {
     /// to the background; the object, which only the foreground explains from every view,
     /// stays (0: off).
     pub opacity_sparsity: f64,
+    /// The guard on the foreground (None: off); see [`OpacityGuard`].
+    pub opacity_guard: Option<OpacityGuard>,
     /// Weight of the normal smoothness `mean |nᵢ₊₁ − nᵢ|²` over neighbouring samples of a ray
     /// (0: off). Rays cross the surface from many directions, so over a batch it penalises
     /// `|H d|²`, the Hessian of S along the rays: zero on a plane, large on bumps. It needs only
     /// the normals the pipeline has, so it works with analytic normals, where the curvature
     /// term's Laplacian (from probes) is not available.
     pub normal_smoothness: f64,
+}
+
+/// The guard on the foreground: an L1 on the foreground's opacity of the rays without a mask
+/// whose learned background alone paints the pixel — within `tolerance` (RMS per channel) of
+/// the target and at least as close as the composite (a constant of the step, no gradient
+/// through the comparison). Foreground mass in front of what the background paints — a floater
+/// where a near wall is painted inside the bound — is taken back; the object, whose colour the
+/// background behind it does not learn (it sees the object only through the foreground's
+/// transmittance), is not. Needs a learned background.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OpacityGuard {
+    /// Weight of the L1 on a guarded ray's opacity.
+    pub weight: f64,
+    /// How close (RMS colour error per channel) the background alone must come to the target.
+    pub tolerance: f64,
 }
 
 /// SDF network + colour network + learnt variance (+ an optional learned background),

@@ -1,5 +1,6 @@
 //! Helpers shared by the gradient checks: a module's finite-difference check, random
-//! parameters, and a loss on the samples that touches what the surface losses touch.
+//! parameters, a loss on the samples that touches what the surface losses touch, and a small
+//! hash-grid pipeline with rays through it.
 #![allow(dead_code)] // each test crate uses a subset
 
 use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
@@ -67,4 +68,56 @@ impl SampleLoss for TestSampleLoss {
         }
         loss
     }
+}
+
+/// The small hash-grid pipeline of the render-pass and guard tests.
+pub type Grid = Pipeline<Chain<WithInput<HashGrid>, Mlp>, Mlp>;
+
+/// A small hash-grid pipeline (normals by `normals`), with a learned background or the fixed
+/// grey, its parameters (v set so that s = e^(10 v)), and rays through it.
+pub fn small_grid_pipeline(normals: NormalScheme, learned_background: bool, v: f64) -> (Grid, Vec<f64>, Vec<RayInput<f64>>) {
+    let grid = HashGrid::new(HashGridConfig { levels: 3, features: 2, log2_table: 8, base_resolution: 2, finest_resolution: 12 });
+    let mlp = |n_inputs, n_outputs, hidden_activation, output_activation| {
+        Mlp::new(MlpConfig { n_inputs, width: 8, hidden_layers: 1, n_outputs, skip: None, hidden_activation, output_activation })
+    };
+    let mut pipeline = Pipeline {
+        sdf: Chain { a: WithInput { encoding: grid }, b: mlp(3 + 6, 1 + 3, Activation::Softplus { beta: 10.0 }, Activation::Identity) },
+        color: mlp(22 + 3, 3, Activation::Relu, Activation::Sigmoid),
+        background: learned_background.then(|| BackgroundModel::with_view(4, 2, 8, 1, true)),
+        config: PipelineConfig {
+            color_loss: ColorLoss::L2,
+            eikonal_weight: 0.1,
+            mask_weight: 0.0,
+            normal_step: 1e-2,
+            normals: Differences::Central,
+            curvature_weight: 0.0,
+            background: [0.2, 0.4, 0.6],
+            masked_color: false,
+            opacity_entropy: 0.0,
+            opacity_sparsity: 0.0,
+            opacity_guard: None,
+            normal_smoothness: 0.0,
+        },
+        analytic: None,
+    };
+    pipeline.set_normals(normals);
+    let mut params = random_params(pipeline.n_params::<f64>(), 0.3, 7);
+    let n_sdf = Module::<f64>::n_params(&pipeline.sdf);
+    let n_col = Module::<f64>::n_params(&pipeline.color);
+    params[n_sdf + n_col] = v;
+    let rays = (0..9)
+        .map(|r| {
+            let d = [0.15 * (r % 3) as f64 - 0.15, 0.1 * (r / 3) as f64 - 0.1, 1.0];
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            RayInput {
+                origin: [-0.1, 0.05 * r as f64 - 0.2, -1.0],
+                direction: d.map(|v| v / len),
+                depths: (0..24).map(|i| 0.2 + 0.07 * i as f64 + 0.003 * r as f64).collect(),
+                target: [0.0; 3],
+                mask: None,
+                weight: 1.0,
+            }
+        })
+        .collect();
+    (pipeline, params, rays)
 }

@@ -67,6 +67,10 @@ impl Default for ModelConfig {
             init_s: None,
             opacity_entropy: 0.0,
             opacity_sparsity: 0.0,
+            opacity_guard: None,
+            opacity_guard_tolerance: 0.05,
+            opacity_guard_after: None,
+            opacity_guard_until: None,
             products: Products::F32,
         }
     }

@@ -211,6 +211,22 @@ pub struct ModelConfig {
     /// Without masks: weight of each ray's foreground opacity (an L1: where the background
     /// explains a pixel as well as the foreground, it takes it). Unused with masks.
     pub opacity_sparsity: f64,
+    /// Without masks: weight of the guard on the foreground, an L1 on the foreground's opacity
+    /// of the rays whose learned background alone paints the pixel (within
+    /// `opacity_guard_tolerance` and at least as close as the composite): a floater in front of
+    /// a backdrop the background paints is taken back; the object, whose colour the background
+    /// does not learn, is not (0: off). Unused with masks.
+    #[serde(with = "off::zero_is_none")]
+    pub opacity_guard: Option<f64>,
+    /// How close (RMS colour error per channel) the background alone must come to a pixel for
+    /// the guard to take the foreground's opacity there.
+    pub opacity_guard_tolerance: f64,
+    /// The fraction of the run from which the guard works (0: from the start).
+    #[serde(with = "off::zero_is_none")]
+    pub opacity_guard_after: Option<f64>,
+    /// The fraction of the run after which the guard stops (0: never).
+    #[serde(with = "off::zero_is_none")]
+    pub opacity_guard_until: Option<f64>,
     /// The networks' matrix products: `f32` (default) or `bf16` (the hidden-to-hidden layers in
     /// bf16 where the CPU has AVX512_BF16; see BENCHMARKS.md, "bf16 products").
     pub products: Products,

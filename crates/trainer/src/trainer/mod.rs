@@ -162,11 +162,18 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&Grid
     backbone.config.mask_weight = if use_masks { config.model.mask } else { 0.0 };
     backbone.config.opacity_entropy = if use_masks { 0.0 } else { config.model.opacity_entropy };
     backbone.config.opacity_sparsity = if use_masks { 0.0 } else { config.model.opacity_sparsity };
+    backbone.config.opacity_guard = opacity_guard(config, use_masks);
     backbone.config.masked_color = use_masks;
     backbone.config.background = config.model.background;
     backbone.set_normals(config.model.normal_scheme());
     backbone.set_products(config.model.products.into());
     Ok((backbone, params))
+}
+
+/// The guard on the foreground of a run of `config` (`model.opacity_guard`): only without masks.
+fn opacity_guard(config: &TrainConfig, use_masks: bool) -> Option<sdf_backbone::OpacityGuard> {
+    let m = &config.model;
+    m.opacity_guard.filter(|_| !use_masks).map(|weight| sdf_backbone::OpacityGuard { weight, tolerance: m.opacity_guard_tolerance })
 }
 
 /// Adam's state at the start of a run of `config` with `n` parameters.

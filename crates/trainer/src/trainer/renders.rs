@@ -232,6 +232,23 @@ mod tests {
         }
     }
 
+    /// The guard on the foreground (`model.opacity_guard`) reaches the trainer's pipeline
+    /// without masks, where a learned background exists to compare with, and not with masks.
+    #[test]
+    fn the_guard_on_the_foreground_runs_only_without_masks() {
+        for masks in [false, true] {
+            let mut config = TrainConfig { budget: Budget::Steps(1), ..TrainConfig::default() };
+            config.data.builtin.width = 48;
+            config.data.masks = masks;
+            config.model.opacity_guard = Some(0.07);
+            let data = SceneData::builtin(&config).unwrap();
+            let trainer = Trainer::new(config, data).unwrap();
+            let expected = (!masks).then_some(sdf_backbone::OpacityGuard { weight: 0.07, tolerance: 0.05 });
+            assert_eq!(trainer.backbone.config.opacity_guard, expected, "masks {masks}");
+            assert_eq!(trainer.backbone.background.is_some(), !masks, "masks {masks}: the learned background");
+        }
+    }
+
     /// The renders' occupancy is made once per field: reused while nothing changed, made again
     /// after the parameters or the active hash-grid levels changed.
     #[test]

@@ -39,6 +39,9 @@ impl Trainer {
         if let Some(background) = &mut self.backbone.background {
             background.near = near;
         }
+        let m = &self.config.model;
+        let guard_on = m.opacity_guard_after.is_none_or(|after| progress >= after) && m.opacity_guard_until.is_none_or(|until| progress < until);
+        self.backbone.config.opacity_guard = super::opacity_guard(&self.config, self.uses_masks()).filter(|_| guard_on);
     }
 }
 
@@ -78,6 +81,26 @@ mod tests {
         trainer.config.model.background_near_start = None;
         trainer.set_progress_schedules(0.0);
         assert_eq!(trainer.backbone.background.as_ref().unwrap().near, 1.0, "no start: always the near radius");
+    }
+
+    #[test]
+    fn the_guard_on_the_foreground_works_only_inside_its_share_of_the_run() {
+        let (mut config, data) = small(false, 1);
+        config.model.opacity_guard = Some(0.1);
+        (config.model.opacity_guard_after, config.model.opacity_guard_until) = (Some(0.25), Some(0.5));
+        let mut trainer = Trainer::new(config, data).unwrap();
+        for (progress, on) in [(0.0, false), (0.2, false), (0.25, true), (0.4, true), (0.5, false), (0.9, false)] {
+            trainer.set_progress_schedules(progress);
+            assert_eq!(trainer.backbone.config.opacity_guard.is_some(), on, "at {progress}");
+        }
+        (trainer.config.model.opacity_guard_after, trainer.config.model.opacity_guard_until) = (None, None);
+        trainer.set_progress_schedules(0.9);
+        assert_eq!(trainer.backbone.config.opacity_guard.map(|g| g.weight), Some(0.1), "no window: the whole run");
+        let (mut config, data) = small(true, 1);
+        config.model.opacity_guard = Some(0.1);
+        let mut trainer = Trainer::new(config, data).unwrap();
+        trainer.set_progress_schedules(0.5);
+        assert_eq!(trainer.backbone.config.opacity_guard, None, "with masks: never");
     }
 
     /// With `model.geometry_after` the SDF (encoding, network, variance) holds still over that

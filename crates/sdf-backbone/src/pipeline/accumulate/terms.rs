@@ -113,10 +113,11 @@ impl<S, C> Pipeline<S, C> {
         }
     }
 
-    /// The terms on a ray's opacity: the entropy and the L1 of rays without a mask, the mask's
-    /// BCE (entropy and BCE with the opacity clamped away from 0 and 1, as NeuS clips to
-    /// [1e-3, 1 − 1e-3]).
-    pub(super) fn opacity_terms<R: Real>(&self, ray: &RayInput<R>, opacity: R, loss: &mut R, d_opacity: &mut R) {
+    /// The terms on a ray's opacity: the entropy, the L1 and the guard's L1 of rays without a
+    /// mask, the mask's BCE (entropy and BCE with the opacity clamped away from 0 and 1, as NeuS
+    /// clips to [1e-3, 1 − 1e-3]). `background_explains`: the learned background alone explains
+    /// the ray's pixel at least as well as the composite ([`Self::background_explains`]).
+    pub(super) fn opacity_terms<R: Real>(&self, ray: &RayInput<R>, opacity: R, background_explains: bool, loss: &mut R, d_opacity: &mut R) {
         let eps = R::of(1e-3);
         let o = opacity.max(eps).min(R::ONE - eps);
         let inside = opacity > eps && opacity < R::ONE - eps;
@@ -132,6 +133,11 @@ impl<S, C> Pipeline<S, C> {
             *loss += w * opacity;
             *d_opacity += w;
         }
+        if let Some(guard) = self.config.opacity_guard.filter(|_| ray.mask.is_none() && background_explains) {
+            let w = R::of(guard.weight) * ray.weight;
+            *loss += w * opacity;
+            *d_opacity += w;
+        }
         if let Some(mask) = ray.mask {
             let w = R::of(self.config.mask_weight) * ray.weight;
             *loss += -w * (mask * o.ln() + (R::ONE - mask) * (R::ONE - o).ln());
@@ -139,6 +145,20 @@ impl<S, C> Pipeline<S, C> {
                 *d_opacity += -w * (mask / o - (R::ONE - mask) / (R::ONE - o));
             }
         }
+    }
+}
+
+impl<S, C> Pipeline<S, C> {
+    /// Whether a ray's learned background alone (`background`, `None` without one) paints its
+    /// pixel: within `tolerance` (RMS per channel) of the target and at least as close as the
+    /// composite, by squared error — the foreground adds nothing there that the background does
+    /// not paint. A constant of the step for the guard.
+    pub(super) fn background_explains<R: Real>(ray: &RayInput<R>, composited: [R; 3], background: Option<[R; 3]>, tolerance: f64) -> bool {
+        background.is_some_and(|b| {
+            let err = |c: [R; 3]| (0..3).fold(R::ZERO, |acc, k| acc + (c[k] - ray.target[k]) * (c[k] - ray.target[k]));
+            let own = err(b);
+            own <= R::of(3.0 * tolerance * tolerance) && own <= err(composited)
+        })
     }
 }
 

@@ -67,10 +67,11 @@ impl Default for ModelConfig {
             init_s: None,
             opacity_entropy: 0.0,
             opacity_sparsity: 0.0,
-            opacity_guard: None,
+            // docs/DECISIONS.md §36.
+            opacity_guard: Some(0.1),
             opacity_guard_tolerance: 0.05,
             opacity_guard_after: None,
-            opacity_guard_until: None,
+            opacity_guard_until: Some(0.25),
             products: Products::F32,
         }
     }

@@ -215,7 +215,8 @@ pub struct ModelConfig {
     /// of the rays whose learned background alone paints the pixel (within
     /// `opacity_guard_tolerance` and at least as close as the composite): a floater in front of
     /// a backdrop the background paints is taken back; the object, whose colour the background
-    /// does not learn, is not (0: off). Unused with masks.
+    /// does not learn, is not (0: off). Default 0.1 over the first quarter of the run, while the
+    /// background moves in (docs/DECISIONS.md §36). Unused with masks.
     #[serde(with = "off::zero_is_none")]
     pub opacity_guard: Option<f64>,
     /// How close (RMS colour error per channel) the background alone must come to a pixel for
@@ -224,7 +225,7 @@ pub struct ModelConfig {
     /// The fraction of the run from which the guard works (0: from the start).
     #[serde(with = "off::zero_is_none")]
     pub opacity_guard_after: Option<f64>,
-    /// The fraction of the run after which the guard stops (0: never).
+    /// The fraction of the run after which the guard stops (0: never; default 0.25).
     #[serde(with = "off::zero_is_none")]
     pub opacity_guard_until: Option<f64>,
     /// The networks' matrix products: `f32` (default) or `bf16` (the hidden-to-hidden layers in

@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{Grid, TestSampleLoss, small_grid_pipeline};
+use common::{Grid, TestSampleLoss, pipeline_gradient_error, small_grid_pipeline};
 use sdf_backbone::*;
 
 /// The learned background's colour along `ray`: the same ray through a foreground interval of
@@ -70,18 +70,7 @@ fn the_guards_gradients_match_finite_differences() {
         let (mut pipeline, params, _) = small_grid_pipeline(normals, true, 0.2);
         let (rays, _) = guarded_and_needed(&pipeline, &params);
         pipeline.config.opacity_guard = Some(GUARD);
-        let n = params.len();
-        let mut grads = vec![0.0; n];
-        pipeline.loss(&params, &rays, Some(&mut grads), &TestSampleLoss);
-        let h = 1e-6;
-        let mut worst = 0.0f64;
-        for i in 0..n {
-            let (mut p, mut m) = (params.clone(), params.clone());
-            p[i] += h;
-            m[i] -= h;
-            let numeric = (pipeline.loss(&p, &rays, None, &TestSampleLoss).0 - pipeline.loss(&m, &rays, None, &TestSampleLoss).0) / (2.0 * h);
-            worst = worst.max((grads[i] - numeric).abs() / grads[i].abs().max(numeric.abs()).max(1e-4));
-        }
+        let worst = pipeline_gradient_error(&pipeline, &params, &rays);
         assert!(worst <= 1e-5, "{normals:?}: relative error {worst:e}");
     }
 }

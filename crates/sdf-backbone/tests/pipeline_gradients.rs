@@ -211,22 +211,7 @@ fn whole_pipeline_gradients_match_finite_differences() {
                 }
             })
             .collect();
-        let mut grads = vec![0.0; n];
-        let (loss, out) = pipeline.loss(&params, &rays, Some(&mut grads), &TestSampleLoss);
-        assert!(loss.is_finite() && out.len() == 3);
-        let h = 1e-6;
-        let mut worst = 0.0f64;
-        for i in 0..n {
-            let (mut p, mut m) = (params.clone(), params.clone());
-            p[i] += h;
-            m[i] -= h;
-            let numeric = (pipeline.loss(&p, &rays, None, &TestSampleLoss).0 - pipeline.loss(&m, &rays, None, &TestSampleLoss).0) / (2.0 * h);
-            let rel = (grads[i] - numeric).abs() / grads[i].abs().max(numeric.abs()).max(1e-4);
-            if rel > 1e-5 {
-                eprintln!("{normals:?} param {i}/{n}: analytic {:e} numeric {numeric:e}", grads[i]);
-            }
-            worst = worst.max(rel);
-        }
+        let worst = pipeline_gradient_error(&pipeline, &params, &rays);
         assert!(worst <= 1e-5, "{normals:?}, masked colour {masked_color}: relative error {worst:e}");
     }
 }

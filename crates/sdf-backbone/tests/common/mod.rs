@@ -121,3 +121,27 @@ pub fn small_grid_pipeline(normals: NormalScheme, learned_background: bool, v: f
         .collect();
     (pipeline, params, rays)
 }
+
+/// The largest relative error (|a − n| / max(|a|, |n|, 1e-4)) of `pipeline`'s loss gradient
+/// over `rays` against central differences (h = 1e-6) in every parameter; each parameter off by
+/// more than 1e-5 is printed.
+pub fn pipeline_gradient_error<S: DeferringModule<f64>, C: Module<f64>>(pipeline: &Pipeline<S, C>, params: &[f64], rays: &[RayInput<f64>]) -> f64 {
+    let n = params.len();
+    let mut grads = vec![0.0; n];
+    let (loss, out) = pipeline.loss(params, rays, Some(&mut grads), &TestSampleLoss);
+    assert!(loss.is_finite() && out.len() == rays.len());
+    let h = 1e-6;
+    let mut worst = 0.0f64;
+    for i in 0..n {
+        let (mut p, mut m) = (params.to_vec(), params.to_vec());
+        p[i] += h;
+        m[i] -= h;
+        let numeric = (pipeline.loss(&p, rays, None, &TestSampleLoss).0 - pipeline.loss(&m, rays, None, &TestSampleLoss).0) / (2.0 * h);
+        let rel = (grads[i] - numeric).abs() / grads[i].abs().max(numeric.abs()).max(1e-4);
+        if rel > 1e-5 {
+            eprintln!("param {i}/{n}: analytic {:e} numeric {numeric:e}", grads[i]);
+        }
+        worst = worst.max(rel);
+    }
+    worst
+}

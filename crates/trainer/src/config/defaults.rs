@@ -68,7 +68,7 @@ impl Default for ModelConfig {
             opacity_entropy: 0.0,
             opacity_sparsity: 0.0,
             // docs/DECISIONS.md §36.
-            opacity_guard: Some(0.1),
+            opacity_guard: GuardWeight::Auto,
             opacity_guard_tolerance: 0.05,
             opacity_guard_after: None,
             opacity_guard_until: Some(0.25),

@@ -31,7 +31,7 @@ mod validate;
 pub use annotated::annotated_default;
 use budget::budget_from_short_keys;
 pub use budget::{Budget, parse_duration, positive_duration};
-pub use choices::{BackgroundModel, GridSize, InitRadius, MeshFilter, MeshResolution, MomentStorage, Normals, Products, SamplerKind};
+pub use choices::{BackgroundModel, GridSize, GuardWeight, InitRadius, MeshFilter, MeshResolution, MomentStorage, Normals, Products, SamplerKind};
 
 /// The default spacing of the points sampled on meshes for Chamfer (`output.chamfer_spacing`,
 /// normalised units): every table in BENCHMARKS.md so far was measured with it, against the
@@ -215,10 +215,10 @@ pub struct ModelConfig {
     /// of the rays whose learned background alone paints the pixel (within
     /// `opacity_guard_tolerance` and at least as close as the composite): a floater in front of
     /// a backdrop the background paints is taken back; the object, whose colour the background
-    /// does not learn, is not (0: off). Default 0.1 over the first quarter of the run, while the
-    /// background moves in (docs/DECISIONS.md §36). Unused with masks.
-    #[serde(with = "off::zero_is_none")]
-    pub opacity_guard: Option<f64>,
+    /// does not learn, is not. `"auto"` (default): 0.1 with the uniform sampler, off with the
+    /// others; `0`: off; or a weight (docs/DECISIONS.md §36). Unused with masks and in the first
+    /// phase of `init_radius = "photos"`.
+    pub opacity_guard: GuardWeight,
     /// How close (RMS colour error per channel) the background alone must come to a pixel for
     /// the guard to take the foreground's opacity there.
     pub opacity_guard_tolerance: f64,

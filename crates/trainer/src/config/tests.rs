@@ -210,6 +210,25 @@ fn the_initial_radius_is_auto_photos_or_a_number_in_the_bound() {
 }
 
 #[test]
+fn the_guards_weight_is_auto_off_or_a_positive_number() {
+    use super::GuardWeight;
+    let weight = |v: &str| TrainConfig::load(None, &[format!("model.opacity_guard={v}")]).map(|c| c.model.opacity_guard);
+    assert_eq!(TrainConfig::default().model.opacity_guard, GuardWeight::Auto);
+    assert_eq!(weight("0.2").unwrap(), GuardWeight::Weight(0.2));
+    assert_eq!(weight("0").unwrap(), GuardWeight::Off);
+    assert_eq!(weight("off").unwrap(), GuardWeight::Off);
+    assert_eq!(weight("auto").unwrap(), GuardWeight::Auto);
+    assert!(weight("-0.1").unwrap_err().chain().contains("model.opacity_guard"));
+    assert!(weight("strong").unwrap_err().chain().contains("auto, off or a number"));
+    let tolerance = TrainConfig::load(None, &["model.opacity_guard_tolerance=0".to_string()]).unwrap_err().chain();
+    assert!(tolerance.contains("model.opacity_guard_tolerance"), "{tolerance}");
+    for given in ["0.2", "auto", "off"] {
+        let config = TrainConfig::load(None, &[format!("model.opacity_guard={given}")]).unwrap();
+        assert_eq!(TrainConfig::from_toml(&config.to_toml()).unwrap().model.opacity_guard, config.model.opacity_guard, "{given}");
+    }
+}
+
+#[test]
 fn the_initial_s_is_the_presets_unless_given() {
     let init_s = |v: &str| TrainConfig::load(None, &[format!("model.init_s={v}")]).map(|c| c.model.init_s);
     assert_eq!(TrainConfig::default().model.init_s, None);

@@ -1,7 +1,7 @@
 //! The range checks of a [`TrainConfig`]: every key's allowed values, and the combinations
 //! that cannot run, each error naming the key and what it expects.
 
-use super::{Budget, GridSize, InitRadius, MeshResolution, MomentStorage, Normals, TrainConfig};
+use super::{Budget, GridSize, GuardWeight, InitRadius, MeshResolution, MomentStorage, Normals, TrainConfig};
 use crate::bail;
 use crate::error::Result;
 use std::time::Duration;
@@ -71,8 +71,8 @@ impl TrainConfig {
         need(non_neg(self.model.mask), "model.mask", self.model.mask, "≥ 0")?;
         need(non_neg(self.model.opacity_entropy), "model.opacity_entropy", self.model.opacity_entropy, "≥ 0")?;
         need(non_neg(self.model.opacity_sparsity), "model.opacity_sparsity", self.model.opacity_sparsity, "≥ 0")?;
-        if let Some(w) = self.model.opacity_guard {
-            need(w > 0.0 && w.is_finite(), "model.opacity_guard", w, "> 0 (0: off)")?;
+        if let GuardWeight::Weight(w) = self.model.opacity_guard {
+            need(w > 0.0 && w.is_finite(), "model.opacity_guard", w, "> 0, auto or off")?;
         }
         need(
             self.model.opacity_guard_tolerance > 0.0 && self.model.opacity_guard_tolerance.is_finite(),

@@ -38,11 +38,10 @@ fn train(extra: &[&str]) -> (f64, f64) {
 /// With the defaults without masks — the initial sphere from the photos (`model.init_radius =
 /// "photos"`: 0.22 here, from the first phase's silhouettes), the geometry held still over the
 /// first 5 % while the colour and the background learn (`model.geometry_after`), the background
-/// moving in from 3 bound radii over the first quarter (`model.background_near_start`), for
-/// uniform rays the guard on the foreground over that quarter (`model.opacity_guard = "auto"`) —
-/// guided and uniform runs land within 2× the masked twin's Chamfer with an F-score above half
-/// the twin's (issue #37's bounds). Measured on the Zen 4: twin 0.0160 (F 0.56); without masks
-/// guided 0.0224 (F 0.35), uniform 0.0230 (F 0.36; without the guard 0.0201, F 0.41); without the hold and the
+/// moving in from 3 bound radii over the first quarter (`model.background_near_start`) — guided
+/// and uniform runs land within 2× the masked twin's Chamfer with an F-score above half the
+/// twin's (issue #37's bounds). Measured on the Zen 4 (release build): twin 0.0160 (F 0.56);
+/// without masks guided 0.0224 (F 0.35), uniform 0.0201 (F 0.41); without the hold and the
 /// moving background 0.0377 (F 0.05) and 0.0415 (F 0.02). With NeuS's sphere of radius 0.5 the
 /// sphere filled every view, the network painted the backdrop on it, and carving it away carved
 /// the object: no mesh near the object (Chamfer ∞, F 0) for both samplers; so did a first phase

@@ -39,7 +39,7 @@ fn guarded_and_needed(pipeline: &Grid, params: &[f64]) -> (Vec<RayInput<f64>>, [
     (rays, opacity)
 }
 
-const GUARD: OpacityGuard = OpacityGuard { weight: 0.3, tolerance: 0.05 };
+const GUARD: OpacityGuard = OpacityGuard { weight: 0.3, tolerance: Some(0.05) };
 
 #[test]
 fn the_guard_takes_opacity_only_where_the_background_paints_the_pixel() {
@@ -52,6 +52,13 @@ fn the_guard_takes_opacity_only_where_the_background_paints_the_pixel() {
     // first ray only.
     let expected = 0.3 * 1.0 * opacity[0] / 3.0;
     assert!((with - without - expected).abs() < 1e-12, "guard added {} (expected {expected})", with - without);
+    // Without a tolerance the third ray, closer to its background than to the composite, is
+    // guarded too.
+    pipeline.config.opacity_guard = Some(OpacityGuard { tolerance: None, ..GUARD });
+    let unbounded = pipeline.loss(&params, &rays, None, &TestSampleLoss).0;
+    let expected = 0.3 * (opacity[0] + opacity[2]) / 3.0;
+    assert!((unbounded - without - expected).abs() < 1e-12, "guard added {} (expected {expected})", unbounded - without);
+    pipeline.config.opacity_guard = Some(GUARD);
     // Without a learned background there is nothing to compare with: no guard.
     let (mut fixed, fixed_params, _) = small_grid_pipeline(NormalScheme::Analytic, false, 0.2);
     let base = fixed.loss(&fixed_params, &rays, None, &TestSampleLoss).0;

@@ -160,9 +160,9 @@ pub struct PipelineConfig {
 }
 
 /// The guard on the foreground: an L1 on the foreground's opacity of the rays without a mask
-/// whose learned background alone paints the pixel — within `tolerance` (RMS per channel) of
-/// the target and at least as close as the composite (a constant of the step, no gradient
-/// through the comparison). Foreground mass in front of what the background paints — a floater
+/// whose learned background alone paints the pixel — at least as close to the target as the
+/// composite, and within `tolerance` (RMS per channel) of it where one is given (a constant of
+/// the step, no gradient through the comparison). Foreground mass in front of what the background paints — a floater
 /// where a near wall is painted inside the bound — is taken back; the object, whose colour the
 /// background behind it does not learn (it sees the object only through the foreground's
 /// transmittance), is not. Needs a learned background.
@@ -170,8 +170,9 @@ pub struct PipelineConfig {
 pub struct OpacityGuard {
     /// Weight of the L1 on a guarded ray's opacity.
     pub weight: f64,
-    /// How close (RMS colour error per channel) the background alone must come to the target.
-    pub tolerance: f64,
+    /// How close (RMS colour error per channel) the background alone must come to the target
+    /// (None: no bound beyond the composite's error).
+    pub tolerance: Option<f64>,
 }
 
 /// SDF network + colour network + learnt variance (+ an optional learned background),

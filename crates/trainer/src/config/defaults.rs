@@ -67,11 +67,10 @@ impl Default for ModelConfig {
             init_s: None,
             opacity_entropy: 0.0,
             opacity_sparsity: 0.0,
-            // docs/DECISIONS.md §36.
-            opacity_guard: GuardWeight::Auto,
-            opacity_guard_tolerance: 0.05,
+            opacity_guard: None,
+            opacity_guard_tolerance: None,
             opacity_guard_after: None,
-            opacity_guard_until: Some(0.25),
+            opacity_guard_until: None,
             products: Products::F32,
         }
     }

@@ -31,7 +31,7 @@ mod validate;
 pub use annotated::annotated_default;
 use budget::budget_from_short_keys;
 pub use budget::{Budget, parse_duration, positive_duration};
-pub use choices::{BackgroundModel, GridSize, GuardWeight, InitRadius, MeshFilter, MeshResolution, MomentStorage, Normals, Products, SamplerKind};
+pub use choices::{BackgroundModel, GridSize, InitRadius, MeshFilter, MeshResolution, MomentStorage, Normals, Products, SamplerKind};
 
 /// The default spacing of the points sampled on meshes for Chamfer (`output.chamfer_spacing`,
 /// normalised units): every table in BENCHMARKS.md so far was measured with it, against the
@@ -212,20 +212,22 @@ pub struct ModelConfig {
     /// explains a pixel as well as the foreground, it takes it). Unused with masks.
     pub opacity_sparsity: f64,
     /// Without masks: weight of the guard on the foreground, an L1 on the foreground's opacity
-    /// of the rays whose learned background alone paints the pixel (within
-    /// `opacity_guard_tolerance` and at least as close as the composite): a floater in front of
-    /// a backdrop the background paints is taken back; the object, whose colour the background
-    /// does not learn, is not. `"auto"` (default): 0.1 with the uniform sampler, off with the
-    /// others; `0`: off; or a weight (docs/DECISIONS.md §36). Unused with masks and in the first
-    /// phase of `init_radius = "photos"`.
-    pub opacity_guard: GuardWeight,
+    /// of the rays whose learned background alone paints the pixel at least as well as the
+    /// composite (and within `opacity_guard_tolerance`, where given): a floater in front of a
+    /// backdrop the background paints is taken back (0: off, the default; docs/DECISIONS.md §36:
+    /// it mends uniform rays' floaters before a near wall and takes thin parts). Unused with masks
+    /// and in the first phase of `init_radius = "photos"`.
+    #[serde(with = "off::zero_is_none")]
+    pub opacity_guard: Option<f64>,
     /// How close (RMS colour error per channel) the background alone must come to a pixel for
-    /// the guard to take the foreground's opacity there.
-    pub opacity_guard_tolerance: f64,
+    /// the guard to take the foreground's opacity there, beyond being at least as close as the
+    /// composite (0: no such bound, the default).
+    #[serde(with = "off::zero_is_none")]
+    pub opacity_guard_tolerance: Option<f64>,
     /// The fraction of the run from which the guard works (0: from the start).
     #[serde(with = "off::zero_is_none")]
     pub opacity_guard_after: Option<f64>,
-    /// The fraction of the run after which the guard stops (0: never; default 0.25).
+    /// The fraction of the run after which the guard stops (0: never, the default).
     #[serde(with = "off::zero_is_none")]
     pub opacity_guard_until: Option<f64>,
     /// The networks' matrix products: `f32` (default) or `bf16` (the hidden-to-hidden layers in

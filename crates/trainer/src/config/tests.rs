@@ -210,22 +210,18 @@ fn the_initial_radius_is_auto_photos_or_a_number_in_the_bound() {
 }
 
 #[test]
-fn the_guards_weight_is_auto_off_or_a_positive_number() {
-    use super::GuardWeight;
-    let weight = |v: &str| TrainConfig::load(None, &[format!("model.opacity_guard={v}")]).map(|c| c.model.opacity_guard);
-    assert_eq!(TrainConfig::default().model.opacity_guard, GuardWeight::Auto);
-    assert_eq!(weight("0.2").unwrap(), GuardWeight::Weight(0.2));
-    assert_eq!(weight("0").unwrap(), GuardWeight::Off);
-    assert_eq!(weight("off").unwrap(), GuardWeight::Off);
-    assert_eq!(weight("auto").unwrap(), GuardWeight::Auto);
-    assert!(weight("-0.1").unwrap_err().chain().contains("model.opacity_guard"));
-    assert!(weight("strong").unwrap_err().chain().contains("auto, off or a number"));
-    let tolerance = TrainConfig::load(None, &["model.opacity_guard_tolerance=0".to_string()]).unwrap_err().chain();
-    assert!(tolerance.contains("model.opacity_guard_tolerance"), "{tolerance}");
-    for given in ["0.2", "auto", "off"] {
-        let config = TrainConfig::load(None, &[format!("model.opacity_guard={given}")]).unwrap();
-        assert_eq!(TrainConfig::from_toml(&config.to_toml()).unwrap().model.opacity_guard, config.model.opacity_guard, "{given}");
+fn the_guard_is_off_unless_given_a_positive_weight() {
+    let load = |kv: &str| TrainConfig::load(None, &[kv.to_string()]).map(|c| (c.model.opacity_guard, c.model.opacity_guard_tolerance));
+    assert_eq!(TrainConfig::default().model.opacity_guard, None);
+    assert_eq!(load("model.opacity_guard=0.2").unwrap().0, Some(0.2));
+    assert_eq!(load("model.opacity_guard=0").unwrap().0, None);
+    assert_eq!(load("model.opacity_guard_tolerance=0.05").unwrap().1, Some(0.05));
+    for bad in ["model.opacity_guard=-0.1", "model.opacity_guard_tolerance=-1"] {
+        let err = load(bad).unwrap_err().chain();
+        assert!(err.contains(bad.split('=').next().unwrap()), "{bad}: {err}");
     }
+    let config = TrainConfig::load(None, &["model.opacity_guard=0.2".to_string()]).unwrap();
+    assert_eq!(TrainConfig::from_toml(&config.to_toml()).unwrap(), config);
 }
 
 #[test]

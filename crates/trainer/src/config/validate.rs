@@ -1,7 +1,7 @@
 //! The range checks of a [`TrainConfig`]: every key's allowed values, and the combinations
 //! that cannot run, each error naming the key and what it expects.
 
-use super::{Budget, GridSize, GuardWeight, InitRadius, MeshResolution, MomentStorage, Normals, TrainConfig};
+use super::{Budget, GridSize, InitRadius, MeshResolution, MomentStorage, Normals, TrainConfig};
 use crate::bail;
 use crate::error::Result;
 use std::time::Duration;
@@ -71,15 +71,12 @@ impl TrainConfig {
         need(non_neg(self.model.mask), "model.mask", self.model.mask, "≥ 0")?;
         need(non_neg(self.model.opacity_entropy), "model.opacity_entropy", self.model.opacity_entropy, "≥ 0")?;
         need(non_neg(self.model.opacity_sparsity), "model.opacity_sparsity", self.model.opacity_sparsity, "≥ 0")?;
-        if let GuardWeight::Weight(w) = self.model.opacity_guard {
-            need(w > 0.0 && w.is_finite(), "model.opacity_guard", w, "> 0, auto or off")?;
+        if let Some(w) = self.model.opacity_guard {
+            need(w > 0.0 && w.is_finite(), "model.opacity_guard", w, "> 0 (0: off)")?;
         }
-        need(
-            self.model.opacity_guard_tolerance > 0.0 && self.model.opacity_guard_tolerance.is_finite(),
-            "model.opacity_guard_tolerance",
-            self.model.opacity_guard_tolerance,
-            "> 0",
-        )?;
+        if let Some(t) = self.model.opacity_guard_tolerance {
+            need(t > 0.0 && t.is_finite(), "model.opacity_guard_tolerance", t, "> 0 (0: none)")?;
+        }
         need((1..=16).contains(&self.model.background_frequencies), "model.background_frequencies", self.model.background_frequencies, "in 1..=16")?;
         if let Some([from, to]) = self.model.s_floor {
             let ok = from.is_finite() && to.is_finite() && from > 0.0 && to >= from;

@@ -170,11 +170,10 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&Grid
     Ok((backbone, params))
 }
 
-/// The guard on the foreground of a run of `config` (`model.opacity_guard`, resolved for its
-/// sampler): only without masks.
+/// The guard on the foreground of a run of `config` (`model.opacity_guard`): only without masks.
 fn opacity_guard(config: &TrainConfig, use_masks: bool) -> Option<sdf_backbone::OpacityGuard> {
     let m = &config.model;
-    let weight = m.opacity_guard.resolve(config.sampler).filter(|_| !use_masks)?;
+    let weight = m.opacity_guard.filter(|_| !use_masks)?;
     Some(sdf_backbone::OpacityGuard { weight, tolerance: m.opacity_guard_tolerance })
 }
 

@@ -234,25 +234,18 @@ mod tests {
 
     /// The guard on the foreground (`model.opacity_guard`) reaches the trainer's pipeline
     /// without masks, where a learned background exists to compare with, and not with masks;
-    /// `auto` is on for the uniform sampler only.
+    /// off by default.
     #[test]
-    fn the_guard_on_the_foreground_runs_only_without_masks_and_auto_only_for_uniform_rays() {
-        use crate::config::{GuardWeight, SamplerKind};
-        let guard = |weight| Some(sdf_backbone::OpacityGuard { weight, tolerance: 0.05 });
-        for (masks, setting, sampler, expected) in [
-            (false, GuardWeight::Weight(0.07), SamplerKind::Guided, guard(0.07)),
-            (true, GuardWeight::Weight(0.07), SamplerKind::Guided, None),
-            (false, GuardWeight::Auto, SamplerKind::Uniform, guard(GuardWeight::AUTO)),
-            (false, GuardWeight::Auto, SamplerKind::Guided, None),
-            (false, GuardWeight::Off, SamplerKind::Uniform, None),
-        ] {
-            let mut config = TrainConfig { budget: Budget::Steps(1), sampler, ..TrainConfig::default() };
+    fn the_guard_on_the_foreground_runs_only_without_masks() {
+        let guard = |weight| Some(sdf_backbone::OpacityGuard { weight, tolerance: None });
+        for (masks, setting, expected) in [(false, Some(0.07), guard(0.07)), (true, Some(0.07), None), (false, None, None)] {
+            let mut config = TrainConfig { budget: Budget::Steps(1), ..TrainConfig::default() };
             config.data.builtin.width = 48;
             config.data.masks = masks;
             config.model.opacity_guard = setting;
             let data = SceneData::builtin(&config).unwrap();
             let trainer = Trainer::new(config, data).unwrap();
-            assert_eq!(trainer.backbone.config.opacity_guard, expected, "masks {masks}, {setting:?}, {sampler:?}");
+            assert_eq!(trainer.backbone.config.opacity_guard, expected, "masks {masks}, {setting:?}");
             assert_eq!(trainer.backbone.background.is_some(), !masks, "masks {masks}: the learned background");
         }
     }

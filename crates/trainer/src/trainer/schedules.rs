@@ -86,7 +86,7 @@ mod tests {
     #[test]
     fn the_guard_on_the_foreground_works_only_inside_its_share_of_the_run() {
         let (mut config, data) = small(false, 1);
-        config.model.opacity_guard = crate::config::GuardWeight::Weight(0.1);
+        config.model.opacity_guard = Some(0.1);
         (config.model.opacity_guard_after, config.model.opacity_guard_until) = (Some(0.25), Some(0.5));
         let mut trainer = Trainer::new(config, data).unwrap();
         for (progress, on) in [(0.0, false), (0.2, false), (0.25, true), (0.4, true), (0.5, false), (0.9, false)] {
@@ -97,7 +97,7 @@ mod tests {
         trainer.set_progress_schedules(0.9);
         assert_eq!(trainer.backbone.config.opacity_guard.map(|g| g.weight), Some(0.1), "no window: the whole run");
         let (mut config, data) = small(true, 1);
-        config.model.opacity_guard = crate::config::GuardWeight::Weight(0.1);
+        config.model.opacity_guard = Some(0.1);
         let mut trainer = Trainer::new(config, data).unwrap();
         trainer.set_progress_schedules(0.5);
         assert_eq!(trainer.backbone.config.opacity_guard, None, "with masks: never");

@@ -38,7 +38,7 @@
 //! large), so the phase's memory is the run's.
 
 use super::Trainer;
-use crate::config::{Budget, GuardWeight, InitRadius, SamplerKind};
+use crate::config::{Budget, InitRadius, SamplerKind};
 use crate::error::Result;
 use crate::sizing::MAX_INITIAL_RADIUS;
 use camera_geom::PinholeCamera;
@@ -184,7 +184,7 @@ impl Trainer {
         config.model.background_near = PROBE_BACKGROUND_NEAR;
         config.model.background_near_start = None;
         config.model.geometry_after = None;
-        config.model.opacity_guard = GuardWeight::Off;
+        config.model.opacity_guard = None;
         // What could refuse the probe's configuration is checked before the views move (the rest
         // of `Trainer::new` accepted the run's own).
         config.validate()?;

@@ -150,14 +150,14 @@ impl<S, C> Pipeline<S, C> {
 
 impl<S, C> Pipeline<S, C> {
     /// Whether a ray's learned background alone (`background`, `None` without one) paints its
-    /// pixel: within `tolerance` (RMS per channel) of the target and at least as close as the
-    /// composite, by squared error — the foreground adds nothing there that the background does
-    /// not paint. A constant of the step for the guard.
-    pub(super) fn background_explains<R: Real>(ray: &RayInput<R>, composited: [R; 3], background: Option<[R; 3]>, tolerance: f64) -> bool {
+    /// pixel: at least as close to the target as the composite, by squared error, and within
+    /// `tolerance` (RMS per channel) of it where one is given — the foreground adds nothing there
+    /// that the background does not paint. A constant of the step for the guard.
+    pub(super) fn background_explains<R: Real>(ray: &RayInput<R>, composited: [R; 3], background: Option<[R; 3]>, tolerance: Option<f64>) -> bool {
         background.is_some_and(|b| {
             let err = |c: [R; 3]| (0..3).fold(R::ZERO, |acc, k| acc + (c[k] - ray.target[k]) * (c[k] - ray.target[k]));
             let own = err(b);
-            own <= R::of(3.0 * tolerance * tolerance) && own <= err(composited)
+            tolerance.is_none_or(|t| own <= R::of(3.0 * t * t)) && own <= err(composited)
         })
     }
 }

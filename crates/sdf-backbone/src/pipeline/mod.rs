@@ -162,10 +162,11 @@ pub struct PipelineConfig {
 /// The guard on the foreground: an L1 on the foreground's opacity of the rays without a mask
 /// whose learned background alone paints the pixel — at least as close to the target as the
 /// composite, and within `tolerance` (RMS per channel) of it where one is given (a constant of
-/// the step, no gradient through the comparison). Foreground mass in front of what the background paints — a floater
-/// where a near wall is painted inside the bound — is taken back; the object, whose colour the
-/// background behind it does not learn (it sees the object only through the foreground's
-/// transmittance), is not. Needs a learned background.
+/// the step, no gradient through the comparison). Foreground mass in front of what the
+/// background paints — a floater where a near wall is painted inside the bound — is taken back;
+/// a solid object, whose colour the background behind it does not learn (it sees the object only
+/// through the foreground's transmittance), is not; a thin part's few pixels can be (the
+/// trainer's docs/DECISIONS.md §36). Needs a learned background.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct OpacityGuard {
     /// Weight of the L1 on a guarded ray's opacity.

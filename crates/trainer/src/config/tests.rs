@@ -216,7 +216,7 @@ fn the_guard_is_off_unless_given_a_positive_weight() {
     assert_eq!(load("model.opacity_guard=0.2").unwrap().0, Some(0.2));
     assert_eq!(load("model.opacity_guard=0").unwrap().0, None);
     assert_eq!(load("model.opacity_guard_tolerance=0.05").unwrap().1, Some(0.05));
-    for bad in ["model.opacity_guard=-0.1", "model.opacity_guard_tolerance=-1"] {
+    for bad in ["model.opacity_guard=-0.1", "model.opacity_guard_tolerance=-1", "model.opacity_guard_until=1.5", "model.opacity_guard_after=-0.2"] {
         let err = load(bad).unwrap_err().chain();
         assert!(err.contains(bad.split('=').next().unwrap()), "{bad}: {err}");
     }

@@ -77,6 +77,13 @@ impl TrainConfig {
         if let Some(t) = self.model.opacity_guard_tolerance {
             need(t > 0.0 && t.is_finite(), "model.opacity_guard_tolerance", t, "> 0 (0: none)")?;
         }
+        for (key, fraction) in
+            [("model.opacity_guard_after", self.model.opacity_guard_after), ("model.opacity_guard_until", self.model.opacity_guard_until)]
+        {
+            if let Some(f) = fraction {
+                need(f > 0.0 && f <= 1.0, key, f, "a fraction of the run in (0, 1] (0: none)")?;
+            }
+        }
         need((1..=16).contains(&self.model.background_frequencies), "model.background_frequencies", self.model.background_frequencies, "in 1..=16")?;
         if let Some([from, to]) = self.model.s_floor {
             let ok = from.is_finite() && to.is_finite() && from > 0.0 && to >= from;

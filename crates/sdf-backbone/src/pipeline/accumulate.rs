@@ -323,8 +323,8 @@ impl<S, C> Pipeline<S, C> {
         let d_normals = scale.backward.then(|| &mut adj.normals[c0..c0 + n]);
         self.normal_terms(nrms, d_normals, inv_m, &mut loss);
         let learned = fwd.background.as_ref().map(|pass| pass.colors[r]);
-        let background_explains = self.config.opacity_guard.is_some_and(|g| Self::background_explains(ray, composited, learned, g.tolerance));
-        self.opacity_terms(ray, r_out.opacity, background_explains, &mut loss, &mut d_opacity);
+        let guard = self.config.opacity_guard.filter(|g| Self::background_explains(ray, composited, learned, g.tolerance));
+        self.opacity_terms(ray, r_out.opacity, guard.map_or(0.0, |g| g.weight), &mut loss, &mut d_opacity);
         // The caller's loss on the samples (f64).
         let t64: Vec<f64> = ray.depths.iter().map(|v| v.to_f64()).collect();
         let sdf64: Vec<f64> = sdf_values.iter().map(|v| v.to_f64()).collect();

@@ -113,11 +113,11 @@ impl<S, C> Pipeline<S, C> {
         }
     }
 
-    /// The terms on a ray's opacity: the entropy, the L1 and the guard's L1 of rays without a
-    /// mask, the mask's BCE (entropy and BCE with the opacity clamped away from 0 and 1, as NeuS
-    /// clips to [1e-3, 1 − 1e-3]). `background_explains`: the learned background alone explains
-    /// the ray's pixel at least as well as the composite ([`Self::background_explains`]).
-    pub(super) fn opacity_terms<R: Real>(&self, ray: &RayInput<R>, opacity: R, background_explains: bool, loss: &mut R, d_opacity: &mut R) {
+    /// The terms on a ray's opacity: the entropy and the L1 of rays without a mask — the L1's
+    /// weight the sparsity's plus `guard`, the guard's weight where it applies to this ray
+    /// ([`Self::background_explains`]; 0 where not) —, the mask's BCE (entropy and BCE with the
+    /// opacity clamped away from 0 and 1, as NeuS clips to [1e-3, 1 − 1e-3]).
+    pub(super) fn opacity_terms<R: Real>(&self, ray: &RayInput<R>, opacity: R, guard: f64, loss: &mut R, d_opacity: &mut R) {
         let eps = R::of(1e-3);
         let o = opacity.max(eps).min(R::ONE - eps);
         let inside = opacity > eps && opacity < R::ONE - eps;
@@ -128,13 +128,9 @@ impl<S, C> Pipeline<S, C> {
                 *d_opacity += w * ((R::ONE - o) / o).ln();
             }
         }
-        if ray.mask.is_none() && self.config.opacity_sparsity > 0.0 {
-            let w = R::of(self.config.opacity_sparsity) * ray.weight;
-            *loss += w * opacity;
-            *d_opacity += w;
-        }
-        if let Some(guard) = self.config.opacity_guard.filter(|_| ray.mask.is_none() && background_explains) {
-            let w = R::of(guard.weight) * ray.weight;
+        let l1 = self.config.opacity_sparsity + guard;
+        if ray.mask.is_none() && l1 > 0.0 {
+            let w = R::of(l1) * ray.weight;
             *loss += w * opacity;
             *d_opacity += w;
         }

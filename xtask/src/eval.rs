@@ -42,6 +42,11 @@ pub struct EvalArgs {
     /// resolution cannot beat.
     #[arg(long, requires = "gt_shape", value_parser = clap::value_parser!(u32).range(8..=2048))]
     pub floor_resolution: Option<u32>,
+    /// With --gt-shape: also measure over what the training views of this run folder observe
+    /// (the DTU evaluation's observation mask): the truth's points no training view sees and the
+    /// mesh's points nearest them are left out.
+    #[arg(long, requires = "gt_shape")]
+    pub observed_by: Option<PathBuf>,
     /// Ground-truth mesh (sampled at the same density as the prediction).
     #[arg(long, conflicts_with = "run")]
     pub gt_mesh: Option<PathBuf>,
@@ -176,7 +181,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let Distances { spacing, max_dist, tau } = gt.distances(protocol, &gt_name)?;
     let gt = gt.into_points(spacing)?;
     let floor = match (&args.gt_shape, args.floor_resolution) {
-        (Some(shape), Some(resolution)) => Some(trainer::outputs::shape_floor(shape, &gt, resolution, spacing, max_dist, tau)?.chamfer),
+        (Some(shape), Some(resolution)) => Some(trainer::outputs::shape_floor(shape, &gt, None, resolution, (spacing, max_dist, tau))?.chamfer),
         _ => None,
     };
     let mut pred = eval_metrics::sample_mesh(&vertices, &triangles, spacing, PRED_SAMPLING_SEED)
@@ -226,6 +231,10 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         }
     }
     let m = eval_metrics::chamfer(&pred, &gt, max_dist, tau)?;
+    let observed = match (&args.gt_shape, &args.observed_by) {
+        (Some(shape), Some(run)) => Some(observed_metrics(shape, run, &pred, &gt, (spacing, max_dist, tau), args.floor_resolution)?),
+        _ => None,
+    };
     let parts = match &args.gt_shape {
         Some(shape) => trainer::outputs::part_metrics(shape, &pred, &gt, max_dist, tau)?,
         None => Vec::new(),
@@ -236,7 +245,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         "precision": m.precision, "recall": m.recall, "f_score": m.f_score, "tau": tau,
         "spacing": spacing, "max_dist": max_dist, "pred_points": m.n_pred, "culled": before - pred.len(), "gt_points": m.n_gt,
         "alignment": alignment, "icp": icp, "floor": floor, "floor_resolution": args.floor_resolution,
-        "parts": parts,
+        "parts": parts, "observed": observed,
     });
     if args.json {
         println!("{result}");
@@ -248,11 +257,36 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         if let (Some(floor), Some(resolution)) = (floor, args.floor_resolution) {
             println!("the shape's own {resolution}³ marching-cubes mesh by the same protocol: Chamfer {floor:.5}");
         }
+        if let Some(o) = &observed {
+            println!("{}", trainer::run::observed_line(o));
+        }
         for p in &parts {
-            println!("part {}: completeness {}, recall {:.3}", p.part, p.completeness.map_or("∞".into(), |c| format!("{c:.5}")), p.recall);
+            let d = |x: Option<f64>| x.map_or("-".to_string(), |c| format!("{c:.5}"));
+            println!("part {}: completeness {}, recall {:.3}, accuracy {}", p.part, d(p.completeness), p.recall, d(p.accuracy));
         }
     }
     Ok(())
+}
+
+/// The figures over what the training views of `run` observe of `shape` (and the floor at
+/// `floor_resolution`, measured the same way).
+fn observed_metrics(
+    shape: &prob_grid::Shape,
+    run: &Path,
+    pred: &[[f32; 3]],
+    gt: &[[f32; 3]],
+    protocol: (f64, f64, f64),
+    floor_resolution: Option<u32>,
+) -> Result<trainer::metrics::ObservedMetrics> {
+    let cameras = trainer::run::run_train_cameras(run)?;
+    let flags = trainer::observation::observed(shape, &cameras, gt);
+    let m = eval_metrics::chamfer_observed(pred, gt, &flags, protocol.1, protocol.2)
+        .with_context(|| format!("the training views of {} observe no point of the shape", run.display()))?;
+    let floor = match floor_resolution {
+        Some(resolution) => Some(trainer::outputs::shape_floor(shape, gt, Some(&flags), resolution, protocol)?.chamfer),
+        None => None,
+    };
+    Ok(trainer::metrics::ObservedMetrics::new(&m, flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64, floor))
 }
 
 fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
@@ -339,7 +373,9 @@ mod tests {
         let shape = prob_grid::ShapeName::Sphere.shape();
         let protocol = |spacing| Protocol { spacing: Some(spacing), max_dist: Some(0.1), tau: Some(0.01) };
         let floor = |resolution, spacing| {
-            trainer::outputs::shape_floor(&shape, &trainer::data::analytic_truth(&shape, spacing), resolution, spacing, 0.1, 0.01).unwrap().chamfer
+            trainer::outputs::shape_floor(&shape, &trainer::data::analytic_truth(&shape, spacing), None, resolution, (spacing, 0.1, 0.01))
+                .unwrap()
+                .chamfer
         };
         let config = prob_grid::MarchingCubesConfig { resolution: 64, block: 16, ..Default::default() };
         let (mesh, _) = prob_grid::marching_cubes(&shape, &config).unwrap();

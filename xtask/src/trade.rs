@@ -134,8 +134,9 @@ impl SceneSpec {
 type Figure = fn(&RunMetrics) -> Option<f64>;
 
 /// The metrics a table reports: key, label for tables and plots, the figure.
-const METRICS: [(&str, &str, Figure); 6] = [
+const METRICS: [(&str, &str, Figure); 7] = [
     ("chamfer", "Chamfer (normalised units) ↓", |m| m.chamfer),
+    ("chamfer_observed", "Chamfer over what the views observe ↓", |m| m.observed.as_ref().and_then(|o| o.chamfer)),
     ("accuracy", "accuracy (normalised units) ↓", |m| m.accuracy),
     ("completeness", "completeness (normalised units) ↓", |m| m.completeness),
     ("f_score", "F-score ↑", |m| m.f_score),
@@ -248,6 +249,7 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
                         bail!("stopped; run the same command again to continue the table");
                     }
                     write_atomic(&dir.join("trade_run.json"), serde_json::to_string_pretty(&record)?.as_bytes())?;
+                    write_atomic(&dir.join(MACHINE_FILE), crate::machine::Machine::this().line().as_bytes())?;
                 }
             }
         }
@@ -255,24 +257,42 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
     report(args, &scenes, &variants, budgets)
 }
 
-/// The runs of one row of the table (seeds 0 … n − 1 that have finished), and with
+/// The file of a run folder that names the machine the table trained it on.
+const MACHINE_FILE: &str = "trade_machine.txt";
+
+/// The machines the runs in `dirs` were trained on ([`MACHINE_FILE`]), each once.
+fn machines(dirs: &[PathBuf]) -> Vec<String> {
+    let mut names: Vec<String> =
+        dirs.iter().map(|d| std::fs::read_to_string(d.join(MACHINE_FILE)).unwrap_or_else(|_| "machine not recorded".into())).collect();
+    names.sort();
+    names.dedup();
+    names
+}
+
+/// The runs of one row of the table (seeds 0 … n − 1 that have finished), their folders, and with
 /// `--snapshots` for a budget shorter than the longest, the longest budget whose runs' snapshots
 /// they are.
-fn read_row(args: &TradeArgs, scene: &SceneSpec, variant: &Variant, budget: Duration) -> Result<(Vec<RunMetrics>, Option<Duration>)> {
+fn read_row(args: &TradeArgs, scene: &SceneSpec, variant: &Variant, budget: Duration) -> Result<(Vec<RunMetrics>, Vec<PathBuf>, Option<Duration>)> {
     let longest = args.budget.iter().copied().max().unwrap_or(budget);
     let snapshot_of = (args.snapshots && budget < longest).then_some(longest);
     let base = args.out.join(scene.name()).join(&variant.name).join(budget_dir(snapshot_of.unwrap_or(budget)));
-    let mut runs = Vec::new();
+    let (mut runs, mut dirs) = (Vec::new(), Vec::new());
     for s in 0..args.seeds {
         let dir = base.join(format!("s{s}"));
-        if snapshot_of.is_none() {
-            runs.extend(read_metrics(&dir)?);
+        let run = if snapshot_of.is_none() {
+            read_metrics(&dir)?
         } else if let Some(snapshot) = SnapshotMetrics::read(&dir, budget.as_secs_f64())? {
             let (config, _) = trainer::folder::read_run_config(&dir)?;
-            runs.push(snapshot.as_run_metrics(config.sampler));
+            Some(snapshot.as_run_metrics(config.sampler))
+        } else {
+            None
+        };
+        if let Some(run) = run {
+            runs.push(run);
+            dirs.push(dir);
         }
     }
-    Ok((runs, snapshot_of))
+    Ok((runs, dirs, snapshot_of))
 }
 
 /// Aggregates the runs in the folder: trade.md, trade.json, trade.png.
@@ -292,7 +312,7 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
     let mut panels = Vec::new();
     for scene in scenes {
         md += &format!(
-            "\n### {}\n\n| budget | variant | runs | iterations | s / iteration | grid s | {} |\n|---|---|---|---|---|---|{}\n",
+            "\n### {}\n\n| budget | variant | runs | iterations | s / iteration | grid s | {} | machine |\n|---|---|---|---|---|---|{}---|\n",
             scene.name(),
             METRICS.iter().map(|m| m.1).collect::<Vec<_>>().join(" | "),
             "---|".repeat(METRICS.len())
@@ -301,7 +321,8 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
         let mut curves: BTreeMap<(usize, &str), Vec<Point>> = BTreeMap::new();
         for &budget in budgets {
             for (vi, variant) in variants.iter().enumerate() {
-                let (runs, snapshot_of) = read_row(args, scene, variant, budget)?;
+                let (runs, dirs, snapshot_of) = read_row(args, scene, variant, budget)?;
+                let machines = machines(&dirs);
                 if runs.is_empty() {
                     continue;
                 }
@@ -316,7 +337,7 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
                         Some((m, s)) => format!("{m:.4} ± {s:.4}"),
                         None => "—".into(),
                     };
-                    let distance = matches!(*key, "chamfer" | "accuracy" | "completeness");
+                    let distance = matches!(*key, "chamfer" | "chamfer_observed" | "accuracy" | "completeness");
                     if distance && unbounded > 0 {
                         format!("{cell} over {} runs; {unbounded} with no part of the mesh near the truth (∞)", runs.len() - unbounded)
                     } else {
@@ -332,20 +353,21 @@ fn report(args: &TradeArgs, scenes: &[SceneSpec], variants: &[Variant], budgets:
                 let seconds = budget.as_secs_f64();
                 let label = snapshot_of.map_or(String::new(), |of| format!(" (snapshot of {:.0} s)", of.as_secs_f64()));
                 md += &format!(
-                    "| {seconds:.0} s{label} | {} | {} | {iterations} | {per_iteration} | {grid} | {} |\n",
+                    "| {seconds:.0} s{label} | {} | {} | {iterations} | {per_iteration} | {grid} | {} | {} |\n",
                     variant.name,
                     runs.len(),
-                    METRICS.iter().map(fmt).collect::<Vec<_>>().join(" | ")
+                    METRICS.iter().map(fmt).collect::<Vec<_>>().join(" | "),
+                    machines.join("; ")
                 );
                 for (key, _, figure) in METRICS {
                     if let Some((m, s)) = mean_std(&get(figure)) {
                         curves.entry((vi, key)).or_default().push((seconds, m, (runs.len() > 1).then_some(s)));
                     }
                 }
-                all.push(json!({"scene": scene.name(), "variant": variant.name, "overrides": variant.overrides, "sampler": variant.sampler.map(SamplerKind::name), "budget_s": seconds, "runs": runs}));
+                all.push(json!({"scene": scene.name(), "variant": variant.name, "overrides": variant.overrides, "sampler": variant.sampler.map(SamplerKind::name), "budget_s": seconds, "machines": machines, "runs": runs}));
             }
         }
-        for (key, label, _) in METRICS.iter().take(5) {
+        for (key, label, _) in METRICS.iter().take(6) {
             let series: Vec<Series> = variants
                 .iter()
                 .enumerate()

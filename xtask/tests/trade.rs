@@ -6,7 +6,7 @@ mod common;
 
 /// `--snapshots` trains one run per seed to the longest budget and reads the shorter budget's
 /// row from that run's snapshot: no run folder of the shorter budget, its row labelled as a
-/// snapshot with the snapshot's own figures.
+/// snapshot with the snapshot's own figures; each row names the machine.
 #[test]
 fn trade_with_snapshots_trains_each_seed_once_and_reads_the_shorter_budget_from_its_snapshot() {
     let dir = tempfile::tempdir().unwrap();
@@ -26,4 +26,12 @@ fn trade_with_snapshots_trains_each_seed_once_and_reads_the_shorter_budget_from_
     let steps = snapshot["step"].as_u64().unwrap();
     assert!(row.contains(&format!("| {steps} ± 0 |")), "the row's iterations are the snapshot's {steps}: {row}");
     assert!(table.lines().any(|l| l.starts_with("| 3 s | guided | 1 |")), "{table}");
+    // Every row names the machine its runs trained on (the CPU and the kernels' instruction set),
+    // and measures the mesh over what the views observe too.
+    let machine = std::fs::read_to_string(run.join("b3/s0/trade_machine.txt")).unwrap();
+    assert!(machine.contains("kernels ") && machine.contains("threads"), "{machine}");
+    for row in table.lines().filter(|l| l.starts_with("| 1 s") || l.starts_with("| 3 s")) {
+        assert!(row.trim_end().ends_with(&format!("| {machine} |")), "{row}");
+    }
+    assert!(table.contains("Chamfer over what the views observe"), "{table}");
 }

@@ -52,6 +52,23 @@ fn a_mesh_as_fine_as_the_model_is_measured_against_the_truths_own_mesh() {
     assert_eq!(parts.len(), 3, "{m}");
     assert!(parts.iter().any(|p| p["part"] == "torus 0.58 × 0.04"), "{m}");
     assert!(parts.iter().all(|p| p["recall"].as_f64().is_some_and(|r| (0.0..=1.0).contains(&r))), "{m}");
+    // Over what the training views observe: the foot's underside and what the body hides from
+    // the rig above it are left out (measured with its floor), and `eval` measures the same.
+    let observed = &m["observed"];
+    let share = observed["truth_observed"].as_f64().expect("an analytic truth is measured over what the views observe");
+    assert!((0.5..0.99).contains(&share), "{m}");
+    assert!(observed["mesh_floor"].as_f64().is_some_and(|f| f > 0.0) && observed["chamfer"].as_f64().is_some(), "{m}");
+    assert!(stderr.contains("over what the training views observe"), "{stderr}");
+    let mesh = out.join("mesh.ply");
+    let protocol = ["--spacing", "0.004", "--max-dist", "0.1", "--tau", "0.01"];
+    let mut eval = vec!["eval", "--mesh", mesh.to_str().unwrap(), "--gt-shape", "composite", "--observed-by", out.to_str().unwrap(), "--json"];
+    eval.extend_from_slice(&protocol);
+    let e = xtask(&eval);
+    assert!(e.status.success(), "{}", String::from_utf8_lossy(&e.stderr));
+    let again: serde_json::Value = serde_json::from_slice(&e.stdout).unwrap();
+    let (run, measured) = (observed["chamfer"].as_f64().unwrap(), again["observed"]["chamfer"].as_f64().unwrap());
+    assert!((measured / run - 1.0).abs() < 0.1, "the run's observed Chamfer {run}, eval's {measured} (truth points drawn apart)");
+    assert!((again["observed"]["truth_observed"].as_f64().unwrap() - share).abs() < 0.02, "{again}");
 }
 
 #[test]

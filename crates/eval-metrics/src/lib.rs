@@ -12,6 +12,9 @@
 //! is the mean distance from predicted points to the ground-truth points, completeness from
 //! ground-truth points to predicted points, each over the distances below `max_dist` (DTU: 20 mm;
 //! larger ones are outliers and are left out of the mean, not clamped); Chamfer = their mean.
+//! DTU's truth is what its scanner observed, and its script counts the mesh only inside that
+//! observed volume; [`chamfer_observed`] does the same for a truth that is a whole surface, given
+//! which of its points were observed (the caller's flags).
 #![deny(missing_docs)]
 
 pub mod align;
@@ -307,10 +310,37 @@ pub struct Coverage {
 /// completeness and recall are `coverage(pred, gt)`; a subset of the truth (one part of a shape)
 /// gives that part's.
 pub fn coverage(cloud: &PointCloud, queries: &[[f32; 3]], max_dist: f64, tau: f64) -> Coverage {
-    let d = cloud.nearest(queries);
-    let (s, n) = d.iter().filter(|(v, _)| f64::from(*v) < max_dist).fold((0.0, 0usize), |(s, n), (v, _)| (s + f64::from(*v), n + 1));
-    let within = d.iter().filter(|(v, _)| f64::from(*v) < tau).count() as f64 / d.len().max(1) as f64;
-    Coverage { mean: if n == 0 { f64::INFINITY } else { s / n as f64 }, within }
+    summarise(cloud.nearest(queries).iter().map(|(d, _)| *d), max_dist, tau)
+}
+
+/// [`Coverage`] of nearest distances: their mean below `max_dist`, the share below `tau`.
+fn summarise(distances: impl Iterator<Item = f32>, max_dist: f64, tau: f64) -> Coverage {
+    let (mut sum, mut kept, mut within, mut count) = (0.0, 0usize, 0usize, 0usize);
+    for d in distances.map(f64::from) {
+        count += 1;
+        if d < max_dist {
+            (sum, kept) = (sum + d, kept + 1);
+        }
+        within += usize::from(d < tau);
+    }
+    Coverage { mean: if kept == 0 { f64::INFINITY } else { sum / kept as f64 }, within: within as f64 / count.max(1) as f64 }
+}
+
+/// The metrics of both directions.
+fn geometry(accuracy: Coverage, completeness: Coverage, tau: f64, n_pred: usize, n_gt: usize) -> GeometryMetrics {
+    let (precision, recall) = (accuracy.within, completeness.within);
+    let f_score = if precision + recall > 0.0 { 2.0 * precision * recall / (precision + recall) } else { 0.0 };
+    GeometryMetrics {
+        accuracy: accuracy.mean,
+        completeness: completeness.mean,
+        chamfer: 0.5 * (accuracy.mean + completeness.mean),
+        precision,
+        recall,
+        f_score,
+        tau,
+        n_pred,
+        n_gt,
+    }
 }
 
 /// The DTU-protocol Chamfer distance and the F-score at `tau` between point sets (sample a mesh
@@ -318,20 +348,27 @@ pub fn coverage(cloud: &PointCloud, queries: &[[f32; 3]], max_dist: f64, tau: f6
 pub fn chamfer(pred: &[[f32; 3]], gt: &[[f32; 3]], max_dist: f64, tau: f64) -> Result<GeometryMetrics, MetricsError> {
     let pred_cloud = PointCloud::new(pred)?;
     let gt_cloud = PointCloud::new(gt)?;
-    let Coverage { mean: accuracy, within: precision } = coverage(&gt_cloud, pred, max_dist, tau);
-    let Coverage { mean: completeness, within: recall } = coverage(&pred_cloud, gt, max_dist, tau);
-    let f_score = if precision + recall > 0.0 { 2.0 * precision * recall / (precision + recall) } else { 0.0 };
-    Ok(GeometryMetrics {
-        accuracy,
-        completeness,
-        chamfer: 0.5 * (accuracy + completeness),
-        precision,
-        recall,
-        f_score,
-        tau,
-        n_pred: pred.len(),
-        n_gt: gt.len(),
-    })
+    Ok(geometry(coverage(&gt_cloud, pred, max_dist, tau), coverage(&pred_cloud, gt, max_dist, tau), tau, pred.len(), gt.len()))
+}
+
+/// [`chamfer`] over what the views observed, as the DTU evaluation's observation mask restricts
+/// it: completeness and recall over the truth points flagged in `observed` (one flag per point of
+/// `gt`), accuracy and precision over the predicted points whose nearest truth point is observed
+/// (a predicted point nearest a part no view saw, such as the underside of an object on a
+/// table, is neither right nor wrong). `n_pred` and `n_gt` count the points measured.
+pub fn chamfer_observed(pred: &[[f32; 3]], gt: &[[f32; 3]], observed: &[bool], max_dist: f64, tau: f64) -> Result<GeometryMetrics, MetricsError> {
+    if observed.len() != gt.len() {
+        return Err(MetricsError::SizeMismatch { what: "observation flags against truth points", a: observed.len(), b: gt.len() });
+    }
+    let seen: Vec<[f32; 3]> = gt.iter().zip(observed).filter(|(_, o)| **o).map(|(p, _)| *p).collect();
+    if seen.is_empty() {
+        return Err(MetricsError::Empty("the observed truth"));
+    }
+    let pred_cloud = PointCloud::new(pred)?;
+    let nearest = PointCloud::new(gt)?.nearest(pred);
+    let measured: Vec<f32> = nearest.iter().filter(|(_, i)| observed[*i]).map(|(d, _)| *d).collect();
+    let accuracy = summarise(measured.iter().copied(), max_dist, tau);
+    Ok(geometry(accuracy, coverage(&pred_cloud, &seen, max_dist, tau), tau, measured.len(), seen.len()))
 }
 
 /// Normal consistency: mean over both directions of |n_a · n_b| between each point's normal and
@@ -442,6 +479,31 @@ mod tests {
         let m2 = chamfer(&c, &b, 1.0, 0.06).unwrap();
         assert!((m2.accuracy - chamfer(&a, &b, 1.0, 0.06).unwrap().accuracy).abs() < 1e-6);
         assert!(matches!(chamfer(&[], &b, 1.0, 0.1), Err(MetricsError::Empty(_))));
+    }
+
+    /// The observed Chamfer measures only what the views saw: a prediction 0.01 off the seen
+    /// upper half and 0.08 off the unseen lower half scores 0.01, where the whole measures both.
+    #[test]
+    fn the_observed_chamfer_leaves_out_what_no_view_saw() {
+        let truth = sphere_points(1.0, 40_000, 1);
+        let observed: Vec<bool> = truth.iter().map(|p| p[2] > 0.0).collect();
+        let pred: Vec<[f32; 3]> = sphere_points(1.0, 40_000, 2)
+            .into_iter()
+            .map(|p| {
+                let r = if p[2] > 0.0 { 1.01 } else { 1.08 };
+                p.map(|c| c * r)
+            })
+            .collect();
+        let m = chamfer_observed(&pred, &truth, &observed, 1.0, 0.03).unwrap();
+        assert!((m.accuracy - 0.01).abs() < 0.006 && (m.completeness - 0.01).abs() < 0.006, "{m:?}");
+        assert!(m.f_score > 0.95, "{m:?}");
+        assert!((m.n_gt as f64 / truth.len() as f64 - 0.5).abs() < 0.02 && (m.n_pred as f64 / pred.len() as f64 - 0.5).abs() < 0.02, "{m:?}");
+        let whole = chamfer(&pred, &truth, 1.0, 0.03).unwrap();
+        assert!(whole.chamfer > 0.04 && whole.f_score < 0.6, "the whole counts the unseen half: {whole:?}");
+        let all = vec![true; truth.len()];
+        assert_eq!(chamfer_observed(&pred, &truth, &all, 1.0, 0.03).unwrap(), whole, "everything observed: the plain Chamfer");
+        assert!(matches!(chamfer_observed(&pred, &truth, &observed[1..], 1.0, 0.03), Err(MetricsError::SizeMismatch { .. })));
+        assert!(matches!(chamfer_observed(&pred, &truth, &vec![false; truth.len()], 1.0, 0.03), Err(MetricsError::Empty(_))));
     }
 
     #[test]

@@ -33,6 +33,7 @@ pub mod folder;
 pub mod memory;
 pub mod metrics;
 pub mod mining;
+pub mod observation;
 pub mod outputs;
 pub mod plot;
 pub mod progress;

@@ -26,6 +26,44 @@ pub struct PartMetrics {
     pub completeness: Option<f64>,
     /// Fraction of the part's points within `f_score_tau` of the mesh.
     pub recall: f64,
+    /// Mesh → truth mean distance over the mesh's points nearest this part (`None`: no point of
+    /// the mesh is, or none within the protocol's outlier distance).
+    pub accuracy: Option<f64>,
+}
+
+/// The geometry over what the training views observed ([`crate::observation`]): the DTU
+/// evaluation's observation mask for an analytic truth (the built-in scenes), whose truth is the
+/// whole surface, undersides no photo shows included.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct ObservedMetrics {
+    /// Mean of `accuracy` and `completeness` (`None`: infinite).
+    pub chamfer: Option<f64>,
+    /// Mesh → truth mean distance over the mesh's points nearest an observed truth point.
+    pub accuracy: Option<f64>,
+    /// Observed truth → mesh mean distance.
+    pub completeness: Option<f64>,
+    /// F-score at the run's τ over the same points.
+    pub f_score: f64,
+    /// Share of the truth's points that a training view sees.
+    pub truth_observed: f64,
+    /// The truth's own mesh at the run's resolution, measured the same way.
+    pub mesh_floor: Option<f64>,
+}
+
+impl ObservedMetrics {
+    /// From the observed [`eval_metrics::GeometryMetrics`], the observed share and the floor.
+    pub fn new(m: &eval_metrics::GeometryMetrics, truth_observed: f64, mesh_floor: Option<f64>) -> ObservedMetrics {
+        let finite = |x: f64| x.is_finite().then_some(x);
+        ObservedMetrics {
+            chamfer: finite(m.chamfer),
+            accuracy: finite(m.accuracy),
+            completeness: finite(m.completeness),
+            f_score: m.f_score,
+            truth_observed,
+            mesh_floor,
+        }
+    }
 }
 
 /// The metrics of a finished run (`metrics.json`). Optional figures are `None` (JSON `null`)
@@ -82,6 +120,8 @@ pub struct RunMetrics {
     /// The Chamfer of the truth's own mesh at `mesh_resolution` by the same protocol: what no
     /// mesh of that resolution can beat (`None` without an analytic truth; built-in scenes).
     pub mesh_floor: Option<f64>,
+    /// The geometry over what the training views observed (built-in scenes).
+    pub observed: Option<ObservedMetrics>,
     /// Vertices of the mesh written.
     pub mesh_vertices: usize,
     /// Triangles of the mesh written.

@@ -5,7 +5,7 @@
 use crate::config::MeshFilter;
 use crate::draw::colormap;
 use crate::error::Result;
-use crate::metrics::PartMetrics;
+use crate::metrics::{ObservedMetrics, PartMetrics};
 use datasets::Scene;
 use datasets::images::RgbImage;
 use datasets::io::{MeshFormat, mesh_bytes};
@@ -190,31 +190,50 @@ fn mesh_points(mesh: &IsoMesh, spacing: f64) -> Result<Vec<[f32; 3]>> {
     Ok(eval_metrics::sample_mesh(&v, &mesh.triangles, spacing, crate::evaluation::PRED_SAMPLING_SEED)?)
 }
 
-/// Chamfer and F-score of a mesh (normalised frame) against ground-truth points.
-pub fn geometry_metrics(mesh: &IsoMesh, gt: &[[f32; 3]], spacing: f64, max_dist: f64, tau: f64) -> Result<eval_metrics::GeometryMetrics> {
-    Ok(eval_metrics::chamfer(&mesh_points(mesh, spacing)?, gt, max_dist, tau)?)
+/// Chamfer and F-score of a mesh (normalised frame) against ground-truth points; with
+/// `observed` (one flag per truth point), over what was observed ([`eval_metrics::chamfer_observed`]).
+pub fn geometry_metrics(
+    mesh: &IsoMesh,
+    gt: &[[f32; 3]],
+    observed: Option<&[bool]>,
+    spacing: f64,
+    max_dist: f64,
+    tau: f64,
+) -> Result<eval_metrics::GeometryMetrics> {
+    let pred = mesh_points(mesh, spacing)?;
+    Ok(match observed {
+        Some(flags) => eval_metrics::chamfer_observed(&pred, gt, flags, max_dist, tau)?,
+        None => eval_metrics::chamfer(&pred, gt, max_dist, tau)?,
+    })
 }
 
 /// Completeness and recall of a mesh (`pred`: its surface points) on each part of `shape` (one
 /// entry per part of a union; none for a single primitive): `gt` (the shape's surface points)
-/// grouped by the part nearest, at the protocol's `max_dist` and `tau`.
+/// grouped by the part nearest, at the protocol's `max_dist` and `tau`; and the accuracy of the
+/// mesh's points nearest each part.
 pub fn part_metrics(shape: &prob_grid::Shape, pred: &[[f32; 3]], gt: &[[f32; 3]], max_dist: f64, tau: f64) -> Result<Vec<PartMetrics>> {
     let parts = shape.parts();
     if parts.len() < 2 {
         return Ok(Vec::new());
     }
-    let mut groups = vec![Vec::new(); parts.len()];
-    for p in gt {
-        groups[shape.nearest_part(glam::Vec3::from_array(*p).as_dvec3())].push(*p);
-    }
-    let cloud = eval_metrics::PointCloud::new(pred)?;
+    let by_part = |points: &[[f32; 3]]| {
+        let mut groups = vec![Vec::new(); parts.len()];
+        for p in points {
+            groups[shape.nearest_part(glam::Vec3::from_array(*p).as_dvec3())].push(*p);
+        }
+        groups
+    };
+    let (truth_groups, mesh_groups) = (by_part(gt), by_part(pred));
+    let (cloud, truth) = (eval_metrics::PointCloud::new(pred)?, eval_metrics::PointCloud::new(gt)?);
+    let finite = |x: f64| x.is_finite().then_some(x);
     Ok(parts
         .iter()
-        .zip(&groups)
-        .filter(|(_, group)| !group.is_empty())
-        .map(|(part, group)| {
+        .zip(truth_groups.iter().zip(&mesh_groups))
+        .filter(|(_, (group, _))| !group.is_empty())
+        .map(|(part, (group, near))| {
             let c = eval_metrics::coverage(&cloud, group, max_dist, tau);
-            PartMetrics { part: part.describe(), completeness: c.mean.is_finite().then_some(c.mean), recall: c.within }
+            let accuracy = (!near.is_empty()).then(|| eval_metrics::coverage(&truth, near, max_dist, tau).mean).and_then(finite);
+            PartMetrics { part: part.describe(), completeness: finite(c.mean), recall: c.within, accuracy }
         })
         .collect())
 }
@@ -224,63 +243,73 @@ pub fn part_metrics(shape: &prob_grid::Shape, pred: &[[f32; 3]], gt: &[[f32; 3]]
 pub struct RunGeometry {
     /// Chamfer and F-score.
     pub metrics: eval_metrics::GeometryMetrics,
-    /// [`mesh_floor`], when asked for and the truth is analytic.
+    /// The truth's own mesh at the resolution asked for ([`shape_floor`]), for an analytic truth.
     pub floor: Option<f64>,
     /// [`part_metrics`] of an analytic truth (empty otherwise).
     pub parts: Vec<PartMetrics>,
+    /// The same over what the training views observed ([`crate::observation`]), for an analytic
+    /// truth when observers were given.
+    pub observed: Option<ObservedMetrics>,
 }
 
 /// Chamfer and F-score of `mesh` against `data`'s ground truth with a run's protocol
 /// (`output.chamfer_spacing`, `chamfer_max_dist`, `fscore_tau`), and per part of an analytic
 /// truth; `None` when the data has no ground truth or the mesh no triangles. With `floor_at`,
-/// also [`mesh_floor`] at that resolution against the same truth points (fetched once). What the
-/// periodic metrics and the snapshots measure.
+/// also the floor: the truth's own marching-cubes mesh at that resolution ([`shape_floor`]) against
+/// the same truth points. With
+/// `observers` (the training cameras) and an analytic truth, also the figures over what they
+/// observe. What the periodic metrics and the snapshots measure.
 pub fn run_geometry(
     data: &crate::data::SceneData,
     output: &crate::config::OutputConfig,
     mesh: &IsoMesh,
     floor_at: Option<u32>,
+    observers: &[camera_geom::PinholeCamera],
 ) -> Result<Option<RunGeometry>> {
-    match data.ground_truth(output.chamfer_spacing)? {
-        Some(gt) if !mesh.triangles.is_empty() => {
-            let pred = mesh_points(mesh, output.chamfer_spacing)?;
-            let metrics = eval_metrics::chamfer(&pred, &gt, output.chamfer_max_dist, output.fscore_tau)?;
+    let Some(gt) = data.ground_truth(output.chamfer_spacing)? else { return Ok(None) };
+    if mesh.triangles.is_empty() {
+        return Ok(None);
+    }
+    let protocol = (output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau);
+    let pred = mesh_points(mesh, protocol.0)?;
+    let metrics = eval_metrics::chamfer(&pred, &gt, protocol.1, protocol.2)?;
+    let shape = data.builtin_shape.as_ref();
+    let floor = match (shape, floor_at) {
+        (Some(shape), Some(resolution)) => Some(shape_floor(shape, &gt, None, resolution, protocol)?.chamfer),
+        _ => None,
+    };
+    let parts = match shape {
+        Some(shape) => part_metrics(shape, &pred, &gt, protocol.1, protocol.2)?,
+        None => Vec::new(),
+    };
+    let observed = match shape {
+        Some(shape) if !observers.is_empty() => {
+            let flags = crate::observation::observed(shape, observers, &gt);
+            let m = eval_metrics::chamfer_observed(&pred, &gt, &flags, protocol.1, protocol.2)?;
             let floor = match floor_at {
-                Some(resolution) => mesh_floor(data, &gt, output, resolution)?,
+                Some(resolution) => Some(shape_floor(shape, &gt, Some(&flags), resolution, protocol)?.chamfer),
                 None => None,
             };
-            let parts = match &data.builtin_shape {
-                Some(shape) => part_metrics(shape, &pred, &gt, output.chamfer_max_dist, output.fscore_tau)?,
-                None => Vec::new(),
-            };
-            Ok(Some(RunGeometry { metrics, floor, parts }))
+            Some(ObservedMetrics::new(&m, flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64, floor))
         }
-        _ => Ok(None),
-    }
-}
-
-/// The Chamfer distance a mesh of `resolution` cells per side cannot beat on `data`: the truth's
-/// own marching-cubes mesh at that resolution, measured against `gt` (`data`'s truth points at
-/// the run's protocol) with the run's protocol. `None` without an analytic truth (only the
-/// built-in scenes have one).
-pub fn mesh_floor(data: &crate::data::SceneData, gt: &[[f32; 3]], output: &crate::config::OutputConfig, resolution: u32) -> Result<Option<f64>> {
-    let Some(shape) = &data.builtin_shape else { return Ok(None) };
-    Ok(Some(shape_floor(shape, gt, resolution, output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau)?.chamfer))
+        _ => None,
+    };
+    Ok(Some(RunGeometry { metrics, floor, parts, observed }))
 }
 
 /// The marching-cubes mesh of `shape` at `resolution` cells per side of the bound's cube,
-/// measured against `gt` (that shape's truth points) with the protocol's distances.
+/// measured against `gt` (that shape's truth points; with `observed`, over what was observed)
+/// with the protocol's (spacing, max distance, τ).
 pub fn shape_floor(
     shape: &prob_grid::Shape,
     gt: &[[f32; 3]],
+    observed: Option<&[bool]>,
     resolution: u32,
-    spacing: f64,
-    max_dist: f64,
-    tau: f64,
+    (spacing, max_dist, tau): (f64, f64, f64),
 ) -> Result<eval_metrics::GeometryMetrics> {
     let config = prob_grid::MarchingCubesConfig { resolution, block: 16, ..Default::default() };
     let (mesh, _) = prob_grid::marching_cubes(shape, &config)?;
-    geometry_metrics(&mesh, gt, spacing, max_dist, tau)
+    geometry_metrics(&mesh, gt, observed, spacing, max_dist, tau)
 }
 
 /// The mesh (normalised frame) seen from `cameras`, shaded by its normals, side by side.
@@ -325,19 +354,20 @@ mod tests {
     /// truth's own mesh covers every part; a mesh without the ring covers the body and the foot
     /// but not the ring.
     #[test]
-    fn part_metrics_see_a_missing_thin_ring() {
+    fn part_metrics_see_a_missing_thin_ring_and_where_the_mesh_is_off() {
         let composite = Shape::composite();
         let (max_dist, tau) = (0.1, 0.01);
         let gt = crate::data::analytic_truth(&composite, 0.004);
         let whole = part_metrics(&composite, &surface_points(&composite, 160), &gt, max_dist, tau).unwrap();
         assert_eq!(whole.len(), 3);
-        assert!(whole.iter().all(|p| p.recall > 0.95), "{whole:?}");
+        assert!(whole.iter().all(|p| p.recall > 0.95 && p.accuracy.unwrap() < 0.004), "{whole:?}");
         let parts = composite.parts();
         let ringless = Shape::Union(vec![parts[0].clone(), parts[2].clone()]);
         let without = part_metrics(&composite, &surface_points(&ringless, 160), &gt, max_dist, tau).unwrap();
         assert_eq!(without[1].part, "torus 0.58 × 0.04");
         assert!(without[1].recall < 0.05, "{without:?}");
         assert!(without[0].recall > 0.95 && without[2].recall > 0.9, "{without:?}");
+        assert_eq!(without[1].accuracy, None, "no point of the mesh is nearest the ring");
         assert!(part_metrics(&parts[1], &surface_points(&composite, 64), &gt, max_dist, tau).unwrap().is_empty(), "one primitive: no parts");
     }
 }

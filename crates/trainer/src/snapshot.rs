@@ -75,6 +75,8 @@ pub struct SnapshotMetrics {
     pub mesh_floor: Option<f64>,
     /// Per part of an analytic truth ([`RunMetrics::parts`]).
     pub parts: Vec<crate::metrics::PartMetrics>,
+    /// Over what the training views observed ([`RunMetrics::observed`]).
+    pub observed: Option<crate::metrics::ObservedMetrics>,
 }
 
 impl SnapshotMetrics {
@@ -104,6 +106,7 @@ impl SnapshotMetrics {
             f_score_tau: self.f_score_tau,
             mesh_resolution: self.mesh_resolution,
             mesh_floor: self.mesh_floor,
+            observed: self.observed.clone(),
             mesh_triangles: self.mesh_triangles,
             train_s: self.train_s,
             ..Default::default()
@@ -124,7 +127,7 @@ pub fn write_snapshot(trainer: &Trainer, folder: &RunFolder, at: f64, views: &[u
         folder.write(&format!("{dir}/mesh.{}", format.extension()), &bytes)?;
     }
     let o = &config.output;
-    let measured = run_geometry(trainer.data(), o, &mesh, Some(trainer.mesh_resolution()))?;
+    let measured = run_geometry(trainer.data(), o, &mesh, Some(trainer.mesh_resolution()), &trainer.train_cameras())?;
     let geometry = measured.as_ref().map(|g| g.metrics);
     let psnr = views.iter().map(|&v| Ok(trainer.render_view(v, o.eval_downscale)?.psnr())).collect::<Result<Vec<_>>>()?;
     let mean = |values: Vec<f64>| (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
@@ -143,6 +146,7 @@ pub fn write_snapshot(trainer: &Trainer, folder: &RunFolder, at: f64, views: &[u
         mesh_triangles: mesh.triangles.len(),
         mesh_resolution: trainer.mesh_resolution(),
         mesh_floor: measured.as_ref().and_then(|g| g.floor),
+        observed: measured.as_ref().and_then(|g| g.observed.clone()),
         parts: measured.map(|g| g.parts).unwrap_or_default(),
     };
     folder.write(&format!("{dir}/metrics.json"), serde_json::to_string_pretty(&metrics)?.as_bytes())?;

@@ -79,7 +79,7 @@ pub(super) fn finish(
     }
     let Some(mesh) = final_mesh(trainer, folder, progress, images.eval_views[0], &stopped)? else { return Ok(None) };
     let t = Instant::now();
-    let geometry = run_geometry(trainer.data(), &trainer.config().output, &mesh.mesh, Some(trainer.mesh_resolution()))?;
+    let geometry = run_geometry(trainer.data(), &trainer.config().output, &mesh.mesh, Some(trainer.mesh_resolution()), &trainer.train_cameras())?;
     let geometry_seconds = t.elapsed().as_secs_f64();
     progress.finish_phase();
     let metrics = run_metrics(trainer, times, estimate, &images, &mesh, geometry, geometry_seconds);
@@ -173,6 +173,7 @@ fn run_metrics(
         world_scale,
         mesh_resolution: trainer.mesh_resolution(),
         mesh_floor: geometry.as_ref().and_then(|g| g.floor),
+        observed: geometry.as_ref().and_then(|g| g.observed.clone()),
         mesh_vertices: mesh.mesh.vertices.len(),
         mesh_triangles: mesh.mesh.triangles.len(),
         mesh_components: mesh.components,
@@ -228,6 +229,9 @@ fn print_summary(m: &RunMetrics, images: &Images, mesh: &Mesh) {
         if m.psnr_held_out { "held-out" } else { "training (none held out)" },
         m.psnr_train.map_or(String::new(), |p| format!(", {p:.2} dB on {} training view(s)", images.fit_views.len())),
     );
+    if let Some(o) = &m.observed {
+        eprintln!("{}", crate::run::observed_line(o));
+    }
     if !m.parts.is_empty() {
         let parts: Vec<String> = m.parts.iter().map(|p| format!("{} {:.2}", p.part, p.recall)).collect();
         eprintln!("the truth's points within τ of the mesh, per part: {}", parts.join(", "));

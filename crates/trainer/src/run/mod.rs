@@ -180,6 +180,29 @@ pub fn open_run(dir: &Path, data: Option<&Path>) -> Result<Trainer> {
     restore_run(dir, config, data)
 }
 
+/// One line for the figures over what the training views observe.
+pub fn observed_line(o: &crate::metrics::ObservedMetrics) -> String {
+    let d = |x: Option<f64>| x.map_or("∞".to_string(), |v| format!("{v:.4}"));
+    format!(
+        "over what the training views observe ({:.1} % of the truth): Chamfer {} (accuracy {}, completeness {}), F-score {:.3}{}",
+        100.0 * o.truth_observed,
+        d(o.chamfer),
+        d(o.accuracy),
+        d(o.completeness),
+        o.f_score,
+        o.mesh_floor.map_or(String::new(), |f| format!("; the truth's own mesh: {f:.4}"))
+    )
+}
+
+/// The cameras of the training views of the run in `dir` (normalised frame): what observed its
+/// scene ([`crate::observation`]). Loads the data; needs no checkpoint.
+pub fn run_train_cameras(dir: &Path) -> Result<Vec<camera_geom::PinholeCamera>> {
+    let (config, record) = read_run_config(dir)?;
+    let data = load_run_data(dir, &config, &record, None)?;
+    let split = crate::data::ViewSplit::new(&config, &data.scene);
+    Ok(split.train.iter().map(|&v| data.scene.views[v].camera).collect())
+}
+
 /// The data of the run in `dir`: from `repointed` or the recorded path, verified.
 fn load_run_data(dir: &Path, config: &TrainConfig, record: &DataRecord, repointed: Option<&Path>) -> Result<SceneData> {
     let path = repointed.or(record.path.as_deref());
@@ -461,7 +484,7 @@ fn interim_metrics(trainer: &Trainer) -> Result<serde_json::Value> {
     let view = trainer.split().evaluation_views()[0];
     let (psnr, masked) = trainer.render_view(view, config.output.eval_downscale)?.psnr();
     let mesh = trainer.extract_mesh(&|_, _| {})?;
-    let geometry = run_geometry(trainer.data(), &config.output, &mesh, None)?;
+    let geometry = run_geometry(trainer.data(), &config.output, &mesh, None, &[])?;
     let t = trainer.timing();
     Ok(json!({"eval": true, "step": trainer.state().step, "psnr": psnr, "psnr_masked": masked,
         "chamfer": geometry.as_ref().map(|g| g.metrics.chamfer), "f_score": geometry.as_ref().map(|g| g.metrics.f_score),

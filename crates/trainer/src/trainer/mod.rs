@@ -291,6 +291,11 @@ impl Trainer {
         &self.split
     }
 
+    /// The training views' cameras (normalised frame).
+    pub fn train_cameras(&self) -> Vec<camera_geom::PinholeCamera> {
+        self.split.train.iter().map(|&v| self.data.scene.views[v].camera).collect()
+    }
+
     /// Whether the masks are used.
     pub fn uses_masks(&self) -> bool {
         self.use_masks

@@ -180,9 +180,13 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let protocol = Protocol { spacing: args.spacing, max_dist: args.max_dist, tau: args.tau };
     let Distances { spacing, max_dist, tau } = gt.distances(protocol, &gt_name)?;
     let gt = gt.into_points(spacing)?;
-    let floor = match (&args.gt_shape, args.floor_resolution) {
-        (Some(shape), Some(resolution)) => Some(trainer::outputs::shape_floor(shape, &gt, None, resolution, (spacing, max_dist, tau))?.chamfer),
+    let floor_mesh = match (&args.gt_shape, args.floor_resolution) {
+        (Some(shape), Some(resolution)) => Some(trainer::outputs::truth_mesh(shape, resolution)?),
         _ => None,
+    };
+    let floor = match &floor_mesh {
+        Some(mesh) => Some(trainer::outputs::geometry_metrics(mesh, &gt, None, spacing, max_dist, tau)?.chamfer),
+        None => None,
     };
     let mut pred = eval_metrics::sample_mesh(&vertices, &triangles, spacing, PRED_SAMPLING_SEED)
         .with_context(|| format!("the mesh {}", args.mesh.as_ref().map_or(String::new(), |m| m.display().to_string())))?;
@@ -232,7 +236,11 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     }
     let m = eval_metrics::chamfer(&pred, &gt, max_dist, tau)?;
     let observed = match (&args.gt_shape, &args.observed_by) {
-        (Some(shape), Some(run)) => Some(observed_metrics(shape, run, &pred, &gt, (spacing, max_dist, tau), args.floor_resolution)?),
+        (Some(shape), Some(run)) => {
+            let cameras = trainer::run::run_train_cameras(run)?;
+            let measured = trainer::outputs::observed_metrics(shape, &cameras, &pred, &gt, (spacing, max_dist, tau), floor_mesh.as_ref());
+            Some(measured.with_context(|| format!("over what the training views of {} observe", run.display()))?)
+        }
         _ => None,
     };
     let parts = match &args.gt_shape {
@@ -266,27 +274,6 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// The figures over what the training views of `run` observe of `shape` (and the floor at
-/// `floor_resolution`, measured the same way).
-fn observed_metrics(
-    shape: &prob_grid::Shape,
-    run: &Path,
-    pred: &[[f32; 3]],
-    gt: &[[f32; 3]],
-    protocol: (f64, f64, f64),
-    floor_resolution: Option<u32>,
-) -> Result<trainer::metrics::ObservedMetrics> {
-    let cameras = trainer::run::run_train_cameras(run)?;
-    let flags = trainer::observation::observed(shape, &cameras, gt);
-    let m = eval_metrics::chamfer_observed(pred, gt, &flags, protocol.1, protocol.2)
-        .with_context(|| format!("the training views of {} observe no point of the shape", run.display()))?;
-    let floor = match floor_resolution {
-        Some(resolution) => Some(trainer::outputs::shape_floor(shape, gt, Some(&flags), resolution, protocol)?.chamfer),
-        None => None,
-    };
-    Ok(trainer::metrics::ObservedMetrics::new(&m, flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64, floor))
 }
 
 fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
@@ -373,9 +360,7 @@ mod tests {
         let shape = prob_grid::ShapeName::Sphere.shape();
         let protocol = |spacing| Protocol { spacing: Some(spacing), max_dist: Some(0.1), tau: Some(0.01) };
         let floor = |resolution, spacing| {
-            trainer::outputs::shape_floor(&shape, &trainer::data::analytic_truth(&shape, spacing), None, resolution, (spacing, 0.1, 0.01))
-                .unwrap()
-                .chamfer
+            trainer::outputs::shape_floor(&shape, &trainer::data::analytic_truth(&shape, spacing), resolution, (spacing, 0.1, 0.01)).unwrap().chamfer
         };
         let config = prob_grid::MarchingCubesConfig { resolution: 64, block: 16, ..Default::default() };
         let (mesh, _) = prob_grid::marching_cubes(&shape, &config).unwrap();

@@ -190,35 +190,62 @@ fn init_parameters(backbone: Backbone, preset: Preset, radius: f64, seed: u64, w
     (backbone, params)
 }
 
+/// The most encoding parameters [`fit_sphere`] fits together with the network: the CPU presets'
+/// tables (≈ 0.5 M) and a grid sized for photos of a few hundred pixels. Beyond it the fit holds
+/// the tables at their initial values and fits the network alone: every step of the joint fit
+/// writes a gradient of every table entry, and for a grid sized for DTU's 1600 × 1200 photos
+/// (≈ 60 M) its 200 steps took minutes.
+pub const FIT_TABLES_UP_TO: usize = 1 << 22;
+
 /// Fits the SDF network to the sphere SDF `|x| − radius` on points of [−1, 1]³, a quarter of them
 /// within 0.15 of the origin (`steps` Adam steps of 2048 points, L1): after the geometric initialisation and the calibrated readout, this
 /// removes the residual error near the kink of |x| at the origin that a smooth readout cannot.
-/// Deterministic in `seed`; ~2 s for the CPU presets.
+/// `params` are the encoding's and the network's; the encoding's are fitted too up to
+/// [`FIT_TABLES_UP_TO`] of them, else held. Deterministic in `seed`; ~2 s for the CPU presets.
 pub fn fit_sphere(sdf: &SdfNet, params: &mut [f32], radius: f64, steps: u64, seed: u64) {
     use crate::module::batch_gradients;
     use crate::optim::WarmupCosine;
     use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
-    let mut adam = Adam::new(params.len());
+    let n_enc = Module::<f32>::n_params(&sdf.a);
+    let joint = n_enc <= FIT_TABLES_UP_TO;
+    let fitted = if joint { params.len() } else { params.len() - n_enc };
+    let mut adam = Adam::new(fitted);
     adam.epsilon = 1e-15;
     let schedule = WarmupCosine { base: 1e-3, warmup: 10, total: steps, final_factor: 0.05 };
     let batch = 2048;
     let n_out = Module::<f32>::n_outputs(sdf);
-    let mut grads = vec![0.0f32; params.len()];
-    for step in 0..steps {
-        // A quarter of the points near the origin, where the kink of |x| is hardest to follow.
-        let x: Vec<f32> = (0..3 * batch).map(|i| (rng.random::<f32>() * 2.0 - 1.0) * if i < 3 * batch / 4 { 0.15 } else { 1.0 }).collect();
-        grads.fill(0.0);
-        batch_gradients(sdf, params, &x, 256, &mut grads, |x, y, dy| {
+    let mut grads = vec![0.0f32; fitted];
+    // The loss of a chunk whose rows start with the point (the network's input does too).
+    let l1 = |n_in: usize| {
+        move |x: &[f32], y: &[f32], dy: &mut [f32]| {
             let mut l = 0.0;
-            for r in 0..x.len() / 3 {
-                let target = (x[3 * r] * x[3 * r] + x[3 * r + 1] * x[3 * r + 1] + x[3 * r + 2] * x[3 * r + 2]).sqrt() - radius as f32;
+            for r in 0..x.len() / n_in {
+                let p = &x[n_in * r..n_in * r + 3];
+                let target = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - radius as f32;
                 let e = y[r * n_out] - target;
                 l += f64::from(e.abs());
                 dy[r * n_out] = e.signum() / batch as f32;
             }
             l
-        });
-        adam.update(params, &grads, schedule.at(step));
+        }
+    };
+    let (n_features, n_ctx) = (Module::<f32>::n_outputs(&sdf.a), Module::<f32>::ctx_per_row(&sdf.a));
+    // The encoded points, when the network is fitted alone.
+    let rows = if joint { 0 } else { batch };
+    let (mut features, mut ctx) = (vec![0.0f32; rows * n_features], vec![0.0f32; rows * n_ctx]);
+    for step in 0..steps {
+        // A quarter of the points near the origin, where the kink of |x| is hardest to follow.
+        let x: Vec<f32> = (0..3 * batch).map(|i| (rng.random::<f32>() * 2.0 - 1.0) * if i < 3 * batch / 4 { 0.15 } else { 1.0 }).collect();
+        grads.fill(0.0);
+        if joint {
+            batch_gradients(sdf, params, &x, 256, &mut grads, l1(3));
+            adam.update(params, &grads, schedule.at(step));
+        } else {
+            let (encoding, network) = params.split_at_mut(n_enc);
+            sdf.a.forward(encoding, &x, &mut features, &mut ctx);
+            batch_gradients(&sdf.b, network, &features, 256, &mut grads, l1(n_features));
+            adam.update(network, &grads, schedule.at(step));
+        }
     }
 }

@@ -155,12 +155,17 @@ pub fn estimate(
     // Every work item's gradient (without the tables) and table record live until the sum.
     let batch = chunks * F32 * ((n - tables) + rows_per_chunk * record);
     let step = batch + t * work_item_bytes(backbone, config.render.chunk, samples, true) + t * F32 * level + F32 * (n - tables);
-    // Evaluation renders: work items of 64 rays, forward only, one per thread, and the render's
-    // rays (origin, direction, target, mask, depths) and outputs, every pixel of a view at once.
-    let render_samples = config.render.coarse + config.render.render_fine + 1;
+    // Evaluation renders: work items of 64 rays, forward only, one per thread; a band of rows
+    // (`RENDER_BAND_RAYS` pixels) at a time, each of its rays twice (the crossing ones are
+    // copied for the up-sampling) with its depths and SDF values (a heap block each) and its
+    // output; and for every pixel of the view its output, target, mask and image.
+    let render_samples = (config.render.coarse + config.render.render_fine + 1) as f64;
     let render_rays = view_pixels as f64 / f64::from(config.output.eval_downscale.min(config.output.validate_downscale).pow(2));
+    let (ray, output) = (std::mem::size_of::<sdf_backbone::RayInput<f32>>() as f64, std::mem::size_of::<sdf_backbone::RayOutput<f32>>() as f64);
+    let band = render_rays.min(crate::trainer::RENDER_BAND_RAYS as f64) * (2.0 * ray + 2.0 * (F32 * render_samples + 40.0) + output);
     let evaluation = t * work_item_bytes(backbone, 64, config.render.coarse + config.render.render_fine, false)
-        + render_rays * F32 * (30.0 + render_samples as f64);
+        + band
+        + render_rays * (output + 2.0 * 3.0 * F32 + 1.0);
     // Meshing: a block of 17³ corners per thread through the SDF network (chunks of 1024
     // rows), and the mesh (~ 12 triangles per surface cell of the resolution's shell).
     let mesh_res = f64::from(mesh_resolution);

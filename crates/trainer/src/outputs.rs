@@ -274,42 +274,61 @@ pub fn run_geometry(
     let pred = mesh_points(mesh, protocol.0)?;
     let metrics = eval_metrics::chamfer(&pred, &gt, protocol.1, protocol.2)?;
     let shape = data.builtin_shape.as_ref();
-    let floor = match (shape, floor_at) {
-        (Some(shape), Some(resolution)) => Some(shape_floor(shape, &gt, None, resolution, protocol)?.chamfer),
+    let floor_mesh = match (shape, floor_at) {
+        (Some(shape), Some(resolution)) => Some(truth_mesh(shape, resolution)?),
         _ => None,
+    };
+    let floor = match &floor_mesh {
+        Some(mesh) => Some(geometry_metrics(mesh, &gt, None, protocol.0, protocol.1, protocol.2)?.chamfer),
+        None => None,
     };
     let parts = match shape {
         Some(shape) => part_metrics(shape, &pred, &gt, protocol.1, protocol.2)?,
         None => Vec::new(),
     };
     let observed = match shape {
-        Some(shape) if !observers.is_empty() => {
-            let flags = crate::observation::observed(shape, observers, &gt);
-            let m = eval_metrics::chamfer_observed(&pred, &gt, &flags, protocol.1, protocol.2)?;
-            let floor = match floor_at {
-                Some(resolution) => Some(shape_floor(shape, &gt, Some(&flags), resolution, protocol)?.chamfer),
-                None => None,
-            };
-            Some(ObservedMetrics::new(&m, flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64, floor))
-        }
+        Some(shape) if !observers.is_empty() => Some(observed_metrics(shape, observers, &pred, &gt, protocol, floor_mesh.as_ref())?),
         _ => None,
     };
     Ok(Some(RunGeometry { metrics, floor, parts, observed }))
 }
 
-/// The marching-cubes mesh of `shape` at `resolution` cells per side of the bound's cube,
-/// measured against `gt` (that shape's truth points; with `observed`, over what was observed)
-/// with the protocol's (spacing, max distance, τ).
+/// The truth's own marching-cubes mesh: `shape` at `resolution` cells per side of the bound's
+/// cube, what a floor measures.
+pub fn truth_mesh(shape: &prob_grid::Shape, resolution: u32) -> Result<IsoMesh> {
+    let config = prob_grid::MarchingCubesConfig { resolution, block: 16, ..Default::default() };
+    Ok(prob_grid::marching_cubes(shape, &config)?.0)
+}
+
+/// The floor: the truth's own mesh at `resolution` ([`truth_mesh`]) measured against `gt` (that
+/// shape's truth points) with the protocol's (spacing, max distance, τ).
 pub fn shape_floor(
     shape: &prob_grid::Shape,
     gt: &[[f32; 3]],
-    observed: Option<&[bool]>,
     resolution: u32,
     (spacing, max_dist, tau): (f64, f64, f64),
 ) -> Result<eval_metrics::GeometryMetrics> {
-    let config = prob_grid::MarchingCubesConfig { resolution, block: 16, ..Default::default() };
-    let (mesh, _) = prob_grid::marching_cubes(shape, &config)?;
-    geometry_metrics(&mesh, gt, observed, spacing, max_dist, tau)
+    geometry_metrics(&truth_mesh(shape, resolution)?, gt, None, spacing, max_dist, tau)
+}
+
+/// The figures over what `observers` see of `shape` ([`crate::observation`]): a mesh's points
+/// `pred` against the truth points `gt` by the protocol's (spacing, max distance, τ), and with
+/// `floor_mesh` (the truth's own mesh) its floor measured the same way.
+pub fn observed_metrics(
+    shape: &prob_grid::Shape,
+    observers: &[camera_geom::PinholeCamera],
+    pred: &[[f32; 3]],
+    gt: &[[f32; 3]],
+    (spacing, max_dist, tau): (f64, f64, f64),
+    floor_mesh: Option<&IsoMesh>,
+) -> Result<ObservedMetrics> {
+    let flags = crate::observation::observed(shape, observers, gt);
+    let m = eval_metrics::chamfer_observed(pred, gt, &flags, max_dist, tau)?;
+    let floor = match floor_mesh {
+        Some(mesh) => Some(geometry_metrics(mesh, gt, Some(&flags), spacing, max_dist, tau)?.chamfer),
+        None => None,
+    };
+    Ok(ObservedMetrics::new(&m, flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64, floor))
 }
 
 /// The mesh (normalised frame) seen from `cameras`, shaded by its normals, side by side.

@@ -44,6 +44,7 @@ mod renders;
 mod schedules;
 pub mod silhouettes;
 mod split;
+pub use renders::RENDER_BAND_RAYS;
 pub use silhouettes::{Reach, Silhouette, SphereFit, silhouette_reach, sphere_radius};
 pub use split::{SplitStats, WALLED_OPACITY};
 

@@ -17,6 +17,10 @@ use view_sampler::march_through;
 /// Rays per work item of a render.
 const RENDER_CHUNK: usize = 64;
 
+/// The most pixels a render takes at once ([`Trainer::render_view`]): a 1600 × 1200 view taken
+/// whole held ≈ 1.2 GB of rays, depths and SDF values (≈ 650 bytes a pixel).
+pub const RENDER_BAND_RAYS: usize = 1 << 16;
+
 impl Trainer {
     /// Sets how renders sample (`render.render_fine` in `rounds` rounds, `render.render_trim`,
     /// `render.render_skip_empty`): what a render costs and resolves, not what the model learnt,
@@ -58,17 +62,41 @@ impl Trainer {
     }
 
     /// Renders view `view` of the scene at 1/`downscale` resolution (the estimator's coarse
-    /// samples without jitter, up-sampled), with its targets and mask.
+    /// samples without jitter, up-sampled), with its targets and mask, in bands of rows of at
+    /// most [`RENDER_BAND_RAYS`] pixels.
     pub fn render_view(&self, index: usize, downscale: u32) -> Result<ViewRender> {
+        self.render_view_in_bands(index, downscale, RENDER_BAND_RAYS)
+    }
+
+    /// [`Trainer::render_view`] in bands of whole rows of at most `band_rays` pixels (at least
+    /// one row): each band's rays, depths and SDF values are dropped before the next, so that a
+    /// render's working set is a band's, whatever the image's size; every ray is rendered alone,
+    /// so the bands do not change the result.
+    pub(crate) fn render_view_in_bands(&self, index: usize, downscale: u32, band_rays: usize) -> Result<ViewRender> {
         let camera = self.downscaled_camera(index, downscale)?;
         let view = &self.data.scene.views[index];
         let image = view.image.downscaled(downscale);
         let mask = view.mask.as_ref().map(|m| m.downscaled(downscale));
         let (width, height) = (image.width, image.height);
+        let occupancy = if self.config.render.render_skip_empty { Some(self.render_occupancy()?) } else { None };
+        let rows_per_band = (band_rays / width.max(1) as usize).clamp(1, height.max(1) as usize) as u32;
+        let mut outputs = Vec::with_capacity((width * height) as usize);
+        for first in (0..height).step_by(rows_per_band as usize) {
+            outputs.extend(self.render_rows(&camera, first..(first + rows_per_band).min(height), occupancy.as_deref()));
+        }
+        let pixels = || (0..height).flat_map(|r| (0..width).map(move |c| (c, r)));
+        let target = pixels().map(|(c, r)| image.get_f32(c, r)).collect();
+        let mask = mask.map(|m| pixels().map(|(c, r)| m.get(c, r)).collect());
+        Ok(ViewRender { width, height, outputs, target, mask })
+    }
+
+    /// The outputs of the pixels of `rows` (row-major) seen by `camera`: the estimator's coarse
+    /// samples without jitter through `occupancy` (else the estimator's), up-sampled and trimmed
+    /// where they cross occupied space, one interval at the far end where they do not.
+    fn render_rows(&self, camera: &camera_geom::PinholeCamera, rows: std::ops::Range<u32>, occupancy: Option<&Occupancy>) -> Vec<RayOutput<f32>> {
         let r = &self.config.render;
-        let occupancy = if r.render_skip_empty { Some(self.render_occupancy()?) } else { None };
-        let occupancy = occupancy.as_deref();
-        let (mut rays, hits): (Vec<RayInput<f32>>, Vec<bool>) = (0..height)
+        let width = camera.width;
+        let (mut rays, hits): (Vec<RayInput<f32>>, Vec<bool>) = rows
             .into_par_iter()
             .flat_map_iter(|row| (0..width).map(move |col| (col, row)))
             .map(|(col, row)| {
@@ -82,7 +110,7 @@ impl Trainer {
                     depths.drain(..depths.len() - 2);
                 }
                 let (origin, direction) = (ray.origin.as_vec3().to_array(), ray.direction.as_vec3().to_array());
-                (RayInput { origin, direction, depths, target: image.get_f32(col, row), mask: None, weight: 1.0 }, !empty)
+                (RayInput { origin, direction, depths, target: [0.0; 3], mask: None, weight: 1.0 }, !empty)
             })
             .unzip();
         // Up-sampling and the trim for the rays that cross occupied space, the SDF at every
@@ -103,10 +131,7 @@ impl Trainer {
         for (values, &i) in self.backbone.sdf_along(params, &missed_rays).into_iter().zip(&missed) {
             sdf[i] = values;
         }
-        let outputs = self.render_rays(&rays, Some(sdf));
-        let target = rays.iter().map(|r| r.target).collect();
-        let mask = mask.map(|m| (0..height).flat_map(|r| (0..width).map(move |c| (c, r))).map(|(c, r)| m.get(c, r)).collect());
-        Ok(ViewRender { width, height, outputs, target, mask })
+        self.render_rays(&rays, Some(sdf))
     }
 
     /// The guide's distribution of the training camera nearest in index to `view`, with that
@@ -269,5 +294,32 @@ mod tests {
         let levels = trainer.backbone.levels().expect("the default preset has a hash grid");
         trainer.backbone.set_active_levels(levels - 1);
         assert!(!Arc::ptr_eq(&second, &trainer.render_occupancy().unwrap()), "other active levels make a new occupancy");
+    }
+
+    /// Guards the bands that bound a render's memory: a view rendered a few rows at a time (bands
+    /// that split the rays crossing the object differently into work items) gives the same
+    /// outputs as the view at once, for the trained field.
+    #[test]
+    fn a_view_rendered_in_bands_of_rows_is_the_view_rendered_at_once() {
+        let mut config = TrainConfig { budget: Budget::Steps(30), ..TrainConfig::default() };
+        config.data.builtin.width = 48;
+        config.render.rays = 64;
+        let data = SceneData::builtin(&config).unwrap();
+        let mut trainer = Trainer::new(config, data).unwrap();
+        for _ in 0..30 {
+            trainer.step().unwrap();
+        }
+        let whole = trainer.render_view_in_bands(1, 1, usize::MAX).unwrap();
+        for band in [1, 100, 48 * 7] {
+            let banded = trainer.render_view_in_bands(1, 1, band).unwrap();
+            assert_eq!((banded.width, banded.height, &banded.target, &banded.mask), (whole.width, whole.height, &whole.target, &whole.mask));
+            let most = whole
+                .outputs
+                .iter()
+                .zip(&banded.outputs)
+                .map(|(a, b)| (a.color[0] - b.color[0]).abs().max((a.opacity - b.opacity).abs()))
+                .fold(0.0, f32::max);
+            assert!(most <= 1e-6, "bands of {band} pixels: outputs differ by {most}");
+        }
     }
 }

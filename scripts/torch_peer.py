@@ -39,8 +39,8 @@ TorchInductor caches on disk between runs (/tmp/torchinductor_$USER): for a cold
 set `TORCHINDUCTOR_CACHE_DIR=$(mktemp -d)`. torch.compile cannot differentiate its own backward
 (double backward), so `autograd` / `compile` reports an error figure.
 
-The model (preset neuralangelo-cpu, 799 414 parameters):
-  * SDF network: [x, HashGrid(x)] (3 + 8·2 = 19) → 64 → 64 → 16 (SDF + 15 features), softplus
+The model (preset neuralangelo-cpu, 795 254 parameters):
+  * SDF network: [x, HashGrid(x)] (3 + 8·2 = 19) → 64 → 16 (SDF + 15 features), softplus
     β = 100 (linear where βz > 20). Hash grid: 8 levels × 2 features, 2^16 entries per level,
     resolutions ⌊16·b^l + 1e-9⌋ with b = 16^(1/7) (16, 23, 35, 52, 78, 115, 172, 256), dense
     indexing where (N+1)³ ≤ 2^16 (the first three levels, whose tables hold their (N+1)³
@@ -74,9 +74,9 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 PRESET = "neuralangelo-cpu"
-RUST_PARAMS = 799414  # `cargo xtask bench backbone` for neuralangelo-cpu
+RUST_PARAMS = 795254  # `cargo xtask bench backbone` for neuralangelo-cpu
 GRID = dict(levels=8, features=2, log2_table=16, base_resolution=16, finest_resolution=256)
-SDF_HIDDEN = [64, 64]
+SDF_HIDDEN = [64]
 COLOUR_HIDDEN = [64, 64]
 N_FEATURES = 15  # geometry features after the SDF value
 SOFTPLUS_BETA = 100.0

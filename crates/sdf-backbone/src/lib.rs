@@ -54,7 +54,7 @@ pub use pipeline::{
     AnalyticNormals, ColorLoss, DeferredGradient, Differences, NoSampleLoss, NormalScheme, OpacityGuard, Pipeline, PipelineConfig, RayInput,
     RayOutput, SampleLoss, scale_from_variance, variance_from_scale,
 };
-pub use presets::{Preset, architecture, architecture_with_grid, build, build_with_grid};
+pub use presets::{Preset, Variation, architecture, architecture_varied, architecture_with_grid, build, build_varied, build_with_grid};
 pub use real::Real;
 pub use render::{RayGradients, RayRender, merge_sorted, render_ray, render_ray_backward, sample_intervals};
 pub use upsample::{Trim, interval_weights, trim_to_weight};

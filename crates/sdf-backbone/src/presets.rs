@@ -9,12 +9,14 @@ use crate::mlp::{Mlp, MlpConfig};
 use crate::module::{Activation, Chain, Module};
 use crate::optim::Adam;
 use crate::pipeline::{ColorLoss, Differences, Pipeline, PipelineConfig};
+use std::num::NonZeroUsize;
 
 /// Named configurations.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Preset {
-    /// Hash grid 8 levels × 2 features, 2¹⁶ entries, 16 → 256; SDF MLP 2 × 64; colour MLP 2 × 64.
+    /// Hash grid 8 levels × 2 features, 2¹⁶ entries, 16 → 256; SDF MLP 1 × 64 (one hidden layer,
+    /// as Neuralangelo and instant-nsr-pl; two until docs/DECISIONS.md §39); colour MLP 2 × 64.
     #[default]
     NeuralangeloCpu,
     /// Positional encoding (6 frequencies); SDF MLP 4 × 64; colour MLP 2 × 64.
@@ -72,13 +74,27 @@ impl Preset {
 /// v = 0.3 (NeuS: s = e³ ≈ 20). Coarse-to-fine starts with all levels active (see
 /// [`Backbone::set_active_levels`]).
 pub fn build(preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
-    build_from(assemble(preset, preset.hash_grid()), preset, radius, seed)
+    build_from(assemble(preset, preset.hash_grid(), None), preset, radius, seed)
 }
 
 /// [`build`] with another hash grid than the preset's (a model sized by the data): the preset's
 /// networks and initialisation on `grid`. An error for a preset without a hash grid.
 pub fn build_with_grid(preset: Preset, grid: HashGridConfig, radius: f64, seed: u64) -> Result<(Backbone, Vec<f32>), BackboneError> {
-    Ok(build_from(architecture_with_grid(preset, grid)?, preset, radius, seed))
+    build_varied(preset, &Variation { grid: Some(grid), ..Variation::default() }, radius, seed)
+}
+
+/// What a run may change of a preset's networks; `Variation::default()` is the preset itself.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Variation {
+    /// Another hash grid than the preset's (a model sized by the data); hash-grid presets only.
+    pub grid: Option<HashGridConfig>,
+    /// Hidden layers of the SDF network instead of the preset's (its width stays the preset's).
+    pub sdf_layers: Option<NonZeroUsize>,
+}
+
+/// [`build`] with `variation` applied: the preset's initialisation on the varied networks.
+pub fn build_varied(preset: Preset, variation: &Variation, radius: f64, seed: u64) -> Result<(Backbone, Vec<f32>), BackboneError> {
+    Ok(build_from(architecture_varied(preset, variation)?, preset, radius, seed))
 }
 
 fn build_from(backbone: Backbone, preset: Preset, radius: f64, seed: u64) -> (Backbone, Vec<f32>) {
@@ -90,25 +106,35 @@ fn build_from(backbone: Backbone, preset: Preset, radius: f64, seed: u64) -> (Ba
 /// A preset's networks without parameters (sizes, layouts, memory estimates); [`build`] adds
 /// initialised parameters.
 pub fn architecture(preset: Preset) -> Backbone {
-    assemble(preset, preset.hash_grid())
+    assemble(preset, preset.hash_grid(), None)
 }
 
 /// [`architecture`] on another hash grid than the preset's (see [`build_with_grid`]).
 pub fn architecture_with_grid(preset: Preset, grid: HashGridConfig) -> Result<Backbone, BackboneError> {
-    if !preset.has_hash_grid() {
-        return Err(BackboneError::NoHashGrid(preset.name()));
-    }
-    Ok(assemble(preset, Some(grid)))
+    architecture_varied(preset, &Variation { grid: Some(grid), ..Variation::default() })
 }
 
-/// The preset's networks on `grid` (the encoding: a hash grid, else the positional encoding).
-fn assemble(preset: Preset, grid: Option<HashGridConfig>) -> Backbone {
-    let (width, layers, features, color_width, color_layers) = match preset {
-        Preset::NeuralangeloCpu => (64, 2, 15, 64, 2),
+/// [`architecture`] with `variation` applied. An error for another grid on a preset without a
+/// hash grid.
+pub fn architecture_varied(preset: Preset, variation: &Variation) -> Result<Backbone, BackboneError> {
+    let grid = match &variation.grid {
+        Some(_) if !preset.has_hash_grid() => return Err(BackboneError::NoHashGrid(preset.name())),
+        Some(grid) => Some(grid.clone()),
+        None => preset.hash_grid(),
+    };
+    Ok(assemble(preset, grid, variation.sdf_layers))
+}
+
+/// The preset's networks on `grid` (the encoding: a hash grid, else the positional encoding),
+/// with `sdf_layers` hidden layers in the SDF network where given.
+fn assemble(preset: Preset, grid: Option<HashGridConfig>, sdf_layers: Option<NonZeroUsize>) -> Backbone {
+    let (width, preset_layers, features, color_width, color_layers) = match preset {
+        Preset::NeuralangeloCpu => (64, 1, 15, 64, 2),
         Preset::NeusCpu => (64, 4, 15, 64, 2),
         Preset::Neuralangelo => (256, 1, 255, 256, 4),
         Preset::Neus => (256, 8, 256, 256, 4),
     };
+    let layers = sdf_layers.map_or(preset_layers, NonZeroUsize::get);
     let encoding = match grid {
         Some(grid) => InputEncoding::HashGrid(WithInput { encoding: HashGrid::new(grid) }),
         None => InputEncoding::Positional(PositionalEncoding { frequencies: 6 }),

@@ -39,7 +39,10 @@ fn relative_difference(a: &[f32], b: &[f32]) -> f64 {
 
 #[test]
 fn bf16_products_stay_within_bf16_rounding_of_f32() {
-    let (backbone, params) = build(Preset::NeuralangeloCpu, 0.5, 1);
+    // Two hidden layers, so that the SDF network has a hidden-to-hidden product too (the
+    // preset's has one layer: only its colour network's products would be in bf16).
+    let two = sdf_backbone::Variation { sdf_layers: std::num::NonZeroUsize::new(2), ..Default::default() };
+    let (backbone, params) = sdf_backbone::build_varied(Preset::NeuralangeloCpu, &two, 0.5, 1).unwrap();
     let mut backbone = backbone.with_analytic_normals();
     // A trained-like field: the initial sphere perturbed, so that every layer carries signal.
     let params: Vec<f32> = params.iter().enumerate().map(|(i, p)| p + 0.01 * ((i * 7919 % 1000) as f32 / 500.0 - 1.0)).collect();

@@ -160,12 +160,15 @@ pub const MAX_MESH_RESOLUTION: u32 = 2048;
 /// The run's networks without parameters: the preset's, on the grid sized by the footprint when
 /// the configuration asks for one (the memory model's view of the trainer's backbone).
 pub fn architecture(model: &ModelConfig, footprint: Option<f64>) -> Result<Backbone> {
-    let mut backbone = match grid_choice(model, footprint)? {
-        Some(choice) => sdf_backbone::architecture_with_grid(model.preset, choice.grid)?,
-        None => sdf_backbone::architecture(model.preset),
-    };
+    let mut backbone = sdf_backbone::architecture_varied(model.preset, &variation(model, grid_choice(model, footprint)?.as_ref()))?;
     backbone.set_products(model.products.into());
     Ok(backbone)
+}
+
+/// What the configuration changes of its preset's networks: the grid sized by the footprint
+/// (`grid`, from [`grid_choice`]) and `model.sdf_layers`.
+pub fn variation(model: &ModelConfig, grid: Option<&GridChoice>) -> sdf_backbone::Variation {
+    sdf_backbone::Variation { grid: grid.map(|choice| choice.grid.clone()), sdf_layers: model.sdf_layers }
 }
 
 #[cfg(test)]

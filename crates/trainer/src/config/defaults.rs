@@ -45,6 +45,7 @@ impl Default for ModelConfig {
         ModelConfig {
             preset: Preset::NeuralangeloCpu,
             grid: GridSize::Preset,
+            sdf_layers: None,
             pixels_per_cell: 1.0,
             init_radius: InitRadius::Photos,
             initial_levels: 4,

@@ -17,6 +17,7 @@ use datasets::io::MeshFormat;
 use prob_grid::{CameraGridConfig, SceneGridConfig};
 use sdf_backbone::{LrSchedule, NormalScheme, Preset};
 use serde::{Deserialize, Serialize};
+use std::num::NonZeroUsize;
 use std::path::Path;
 use std::time::Duration;
 use surface_losses::{ExtraPoints, SurfaceLossConfig};
@@ -123,6 +124,10 @@ pub struct ModelConfig {
     /// resolution from the training views' pixel footprint at the region of interest, printed
     /// before training with why; hash-grid presets).
     pub grid: GridSize,
+    /// Hidden layers of the SDF network (0: the preset's; its width stays the preset's): fewer
+    /// is cheaper per sample, so more steps fit a budget (docs/DECISIONS.md §39).
+    #[serde(with = "off::zero_count_is_none")]
+    pub sdf_layers: Option<NonZeroUsize>,
     /// Training-view pixels per finest cell of a grid sized by the footprint (1: a cell per
     /// pixel at the region of interest's centre; 2: half as fine).
     pub pixels_per_cell: f64,
@@ -440,6 +445,12 @@ fn set_dotted(table: &mut toml::Table, key: &str, value: toml::Value) -> Result<
     Ok(())
 }
 
+/// Whether the override `key = value` alone, on the defaults, makes a configuration.
+fn fits_alone(key: &str, value: &toml::Value) -> bool {
+    let mut table = toml::Table::new();
+    set_dotted(&mut table, key, value.clone()).is_ok() && budget_from_short_keys(&mut table).is_ok() && table.try_into::<TrainConfig>().is_ok()
+}
+
 impl TrainConfig {
     /// The defaults, then `file` (if any), then the `key=value` overrides; validated.
     pub fn load(file: Option<&Path>, overrides: &[String]) -> Result<TrainConfig> {
@@ -475,9 +486,14 @@ impl TrainConfig {
         }
         let origin = file.map_or("the overrides".to_string(), |p| format!("{} and the overrides", p.display()));
         let config: TrainConfig = table.try_into().map_err(|e: toml::de::Error| {
-            // serde names the field, not its section: name the override that is not a key.
+            // serde names the field, not its section: name the override that is not a key, or
+            // the one whose value does not fit its key.
             let unknown = overrides.iter().map(|(k, _)| k).find(|k| !is_default_key(k));
-            let key = unknown.map_or(String::new(), |k| format!(" (no key {k})"));
+            let key = match (unknown, overrides.iter().find(|(k, v)| !fits_alone(k, v))) {
+                (Some(k), _) => format!(" (no key {k})"),
+                (None, Some((k, v))) => format!(" ({k} = {v})"),
+                (None, None) => String::new(),
+            };
             crate::Error::Config(format!("config from {origin}{key}: {}", e.message()))
         })?;
         config.validate().with_context(|| format!("config from {origin}"))?;

@@ -21,6 +21,22 @@ pub mod zero_is_none {
     }
 }
 
+/// `Option<NonZeroUsize>` as a count, with 0 meaning `None`.
+pub mod zero_count_is_none {
+    use super::*;
+    use std::num::NonZeroUsize;
+
+    /// `None` as 0.
+    pub fn serialize<S: Serializer>(value: &Option<NonZeroUsize>, s: S) -> Result<S::Ok, S::Error> {
+        value.map_or(0, NonZeroUsize::get).serialize(s)
+    }
+
+    /// 0 as `None`.
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<NonZeroUsize>, D::Error> {
+        Ok(NonZeroUsize::new(usize::deserialize(d)?))
+    }
+}
+
 /// `Option<[f64; N]>` as a list: `[]` is `None`, N numbers (`[x, y, z, radius]`, …) are `Some`.
 pub mod empty_is_none {
     use super::*;

@@ -251,3 +251,18 @@ fn the_backgrounds_start_lies_beyond_its_near_radius() {
     assert!(load(&["model.background_near=2", "model.background_near_start=1.5"]).unwrap_err().chain().contains("model.background_near_start"));
     assert!(load(&["model.background_near_until=1.5"]).unwrap_err().chain().contains("model.background_near_until"));
 }
+
+#[test]
+fn the_sdf_networks_depth_is_the_presets_unless_given() {
+    let layers = |v: &str| TrainConfig::load(None, &[format!("model.sdf_layers={v}")]).map(|c| c.model.sdf_layers.map(std::num::NonZeroUsize::get));
+    assert_eq!(TrainConfig::default().model.sdf_layers, None);
+    assert_eq!(layers("0").unwrap(), None);
+    assert_eq!(layers("2").unwrap(), Some(2));
+    let err = layers("-1").unwrap_err().chain();
+    assert!(err.contains("sdf_layers"), "{err}");
+    let config = TrainConfig::load(None, &["model.sdf_layers=3".to_string()]).unwrap();
+    assert_eq!(TrainConfig::from_toml(&config.to_toml()).unwrap(), config);
+    // The run's networks (and so the memory model and a resumed run) have the layers asked.
+    let backbone = crate::sizing::architecture(&config.model, None).unwrap();
+    assert_eq!(backbone.sdf.b.config().hidden_layers, 3);
+}

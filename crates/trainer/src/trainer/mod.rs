@@ -35,7 +35,7 @@ use crate::data::{SceneData, ViewSplit, uses_masks};
 use crate::error::{Context, Result};
 use crate::rays::{Batch, PixelSource, Sampling, build_batch};
 use crate::sizing::GridChoice;
-use sdf_backbone::{Adam, Backbone, CheckpointReader, CheckpointWriter, NoSampleLoss, RayOutput, SampleLoss, StepRates, build};
+use sdf_backbone::{Adam, Backbone, CheckpointReader, CheckpointWriter, NoSampleLoss, RayOutput, SampleLoss, StepRates};
 use std::time::Instant;
 use surface_losses::{RaySurface, SurfaceLossConfig};
 use view_sampler::{ErrorMap, Estimator, EstimatorConfig, UniformSchedule, UpdateReport};
@@ -149,10 +149,7 @@ impl SampleLoss for SurfaceHook<'_> {
 /// The configured backbone with its initial parameters.
 fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&GridChoice>, radius: f64) -> Result<(Backbone, Vec<f32>)> {
     let (model, seed) = (&config.model, config.seed);
-    let (mut backbone, mut params) = match grid {
-        Some(choice) => sdf_backbone::build_with_grid(model.preset, choice.grid.clone(), radius, seed)?,
-        None => build(model.preset, radius, seed),
-    };
+    let (mut backbone, mut params) = sdf_backbone::build_varied(model.preset, &crate::sizing::variation(model, grid), radius, seed)?;
     if config.model.background_model.learned(use_masks) {
         backbone.add_learned_background(&mut params, background_model(config), config.seed + 4);
     }

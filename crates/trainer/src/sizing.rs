@@ -171,10 +171,47 @@ pub fn variation(model: &ModelConfig, grid: Option<&GridChoice>) -> sdf_backbone
     sdf_backbone::Variation { grid: grid.map(|choice| choice.grid.clone()), sdf_layers: model.sdf_layers }
 }
 
+/// The parameters a 64 × 64 hidden layer (and its bias) adds: what the neuralangelo-cpu SDF
+/// network lost with docs/DECISIONS.md §39.
+const SECOND_SDF_LAYER: usize = 64 * 65;
+
+/// A checkpoint that does not fit the run's networks, named: a neuralangelo-cpu run made before
+/// its SDF network had one hidden layer (§39) has one 64 × 64 layer more than this build makes
+/// of its configuration, and only a build from before can resume or evaluate it.
+pub fn explain_size_mismatch(model: &ModelConfig, error: sdf_backbone::BackboneError) -> crate::Error {
+    match error {
+        sdf_backbone::BackboneError::SizeMismatch { found, expected, .. }
+            if model.preset == sdf_backbone::Preset::NeuralangeloCpu && model.sdf_layers.is_none() && found == expected + SECOND_SDF_LAYER =>
+        {
+            crate::Error::Input(format!(
+                "{error}: the run was made by a build whose neuralangelo-cpu SDF network had two hidden layers (before docs/DECISIONS.md §39); resume or evaluate it with such a build (its mesh and metrics.json stand)"
+            ))
+        }
+        error => error.into(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use camera_geom::{Intrinsics, PixelCenters};
+
+    #[test]
+    fn a_checkpoint_of_the_two_layer_sdf_network_is_named() {
+        let model = crate::config::TrainConfig::default().model;
+        let mismatch = |found, expected| sdf_backbone::BackboneError::SizeMismatch { name: "params".into(), found, expected };
+        let text = explain_size_mismatch(&model, mismatch(799_414, 795_254)).to_string();
+        assert!(text.contains("two hidden layers") && text.contains("799414"), "{text}");
+        // Any other mismatch, or a run that names its depth, keeps the plain message.
+        assert!(!explain_size_mismatch(&model, mismatch(1000, 795_254)).to_string().contains("two hidden layers"));
+        let mut given = model.clone();
+        given.sdf_layers = std::num::NonZeroUsize::new(1);
+        assert!(!explain_size_mismatch(&given, mismatch(799_414, 795_254)).to_string().contains("two hidden layers"));
+        // The layer's size is what the preset's networks say it is.
+        let two = crate::config::TrainConfig::load(None, &["model.sdf_layers=2".to_string()]).unwrap().model;
+        let count = |m: &ModelConfig| architecture(m, None).unwrap().n_params::<f32>();
+        assert_eq!(count(&two), count(&model) + SECOND_SDF_LAYER);
+    }
 
     fn camera(eye: DVec3, focal: f64) -> PinholeCamera {
         let k = Intrinsics { fx: focal, fy: focal, cx: 200.0, cy: 150.0, skew: 0.0 };

@@ -603,7 +603,9 @@ impl Trainer {
             Some(_) => Some(reader.read_vec(input, "sampler.error_map").context("the checkpoint's error map")?),
             None => None,
         };
-        reader.restore_state(input, &mut self.state.params, &mut self.state.adam)?;
+        reader
+            .restore_state(input, &mut self.state.params, &mut self.state.adam)
+            .map_err(|e| crate::sizing::explain_size_mismatch(&self.config.model, e))?;
         self.state.step = step;
         self.state.train_seconds = train_seconds;
         self.first_phase_seconds = first_phase_seconds;

@@ -275,15 +275,20 @@ mod tests {
         }
     }
 
+    /// A trainer of the built-in scene at 48 pixels wide, 64 rays a step, for `steps` steps.
+    fn small_trainer(steps: u64) -> Trainer {
+        let mut config = TrainConfig { budget: Budget::Steps(steps), ..TrainConfig::default() };
+        config.data.builtin.width = 48;
+        config.render.rays = 64;
+        let data = SceneData::builtin(&config).unwrap();
+        Trainer::new(config, data).unwrap()
+    }
+
     /// The renders' occupancy is made once per field: reused while nothing changed, made again
     /// after the parameters or the active hash-grid levels changed.
     #[test]
     fn a_renders_occupancy_is_reused_only_for_the_same_field() {
-        let mut config = TrainConfig { budget: Budget::Steps(1), ..TrainConfig::default() };
-        config.data.builtin.width = 48;
-        config.render.rays = 64;
-        let data = SceneData::builtin(&config).unwrap();
-        let mut trainer = Trainer::new(config, data).unwrap();
+        let mut trainer = small_trainer(1);
         let first = trainer.render_occupancy().unwrap();
         assert!(Arc::ptr_eq(&first, &trainer.render_occupancy().unwrap()), "the same field reuses its occupancy");
         let mut params = trainer.state().params.clone();
@@ -301,11 +306,7 @@ mod tests {
     /// outputs as the view at once, for the trained field.
     #[test]
     fn a_view_rendered_in_bands_of_rows_is_the_view_rendered_at_once() {
-        let mut config = TrainConfig { budget: Budget::Steps(30), ..TrainConfig::default() };
-        config.data.builtin.width = 48;
-        config.render.rays = 64;
-        let data = SceneData::builtin(&config).unwrap();
-        let mut trainer = Trainer::new(config, data).unwrap();
+        let mut trainer = small_trainer(30);
         for _ in 0..30 {
             trainer.step().unwrap();
         }

@@ -124,6 +124,12 @@ impl<R: Real> TangentModule<R> for InputEncoding {
             InputEncoding::Positional(p) => p.backward_tangent(pass, d_params, d_input),
         }
     }
+    fn input_gradient(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
+        match self {
+            InputEncoding::HashGrid(g) => g.input_gradient(params, input, ctx, d_output, d_input),
+            InputEncoding::Positional(p) => p.input_gradient(params, input, ctx, d_output, d_input),
+        }
+    }
 }
 
 impl<R: Real> ScatterTangent<R> for InputEncoding {

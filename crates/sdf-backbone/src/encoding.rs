@@ -96,6 +96,10 @@ impl<R: Real> TangentModule<R> for PositionalEncoding {
             }
         }
     }
+    /// The reverse pass of [`Module::backward`] (no parameters to add to).
+    fn input_gradient(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
+        self.backward(params, input, ctx, d_output, &mut [], Some(d_input));
+    }
 }
 
 /// No parameters: no blocks, nothing to scatter.
@@ -305,6 +309,22 @@ impl<R: Real, M: TangentModule<R>> TangentModule<R> for WithInput<M> {
                 }
             }
             None => self.encoding.backward_tangent(inner, d_params, None),
+        }
+    }
+    /// `x̄ = ȳ[..n_in] + (∂m/∂x)ᵀ ȳ[n_in..]`.
+    fn input_gradient(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
+        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
+        let rows = input.len() / n_in;
+        let n_out = n_in + n_enc;
+        let mut d_enc = crate::scratch::Buf::<R>::zeroed(rows * n_enc);
+        for (dst, src) in d_enc.chunks_exact_mut(n_enc).zip(d_output.chunks_exact(n_out)) {
+            dst.copy_from_slice(&src[n_in..]);
+        }
+        self.encoding.input_gradient(params, input, &ctx[..rows * self.encoding.ctx_per_row()], &d_enc, d_input);
+        for (d_in, dy) in d_input.chunks_exact_mut(n_in).zip(d_output.chunks_exact(n_out)) {
+            for (d, &g) in d_in.iter_mut().zip(&dy[..n_in]) {
+                *d += g;
+            }
         }
     }
 }

@@ -271,6 +271,15 @@ impl<R: Real> TangentModule<R> for HashGrid {
             self.scatter_tangent_level(level, input, tangent_in, d_output, d_tangent_out, &mut d_params[self.level_params(level)]);
         }
     }
+    /// x̄ = Σ_levels Σ_c (T\[c\] · ȳ) ∇ₓw_c: the corners' gradients of the tangents, read once per
+    /// row instead of once per direction.
+    fn input_gradient(&self, params: &[R], input: &[R], _: &[R], d_output: &[R], d_input: &mut [R]) {
+        let _span = crate::profile::span(crate::profile::Stage::HashTangents);
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || self.input_adjoint_rows(params, input, d_output, d_input),
+        );
+    }
 }
 
 impl<R: Real> ScatterTangent<R> for HashGrid {
@@ -445,6 +454,38 @@ fn level_tangent_scatter<R: Real, const F: usize, const DENSE: bool>(
     }
 }
 
+/// One level's share of the input's adjoint for every row: `d_input` (rows × 3) += Σ_c (T\[c\] ·
+/// ȳ) ∇ₓw_c, ȳ the level's columns `at..at + F` of `d_output` (rows × `n_out`).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn level_input_adjoint<R: Real, const F: usize, const DENSE: bool>(
+    table: &[R],
+    n: u32,
+    mask: u32,
+    input: &[R],
+    d_output: &[R],
+    n_out: usize,
+    at: usize,
+    d_input: &mut [R],
+) {
+    for ((p, dy), d_in) in input.chunks_exact(3).zip(d_output.chunks_exact(n_out)).zip(d_input.chunks_exact_mut(3)) {
+        let (idx, _, dw) = corner_gradients::<R, DENSE>(p, n, mask);
+        let mut g = [R::ZERO; 3];
+        for c in 0..8 {
+            let mut s = R::ZERO;
+            for q in 0..F {
+                s = table.get(idx[c] as usize * F + q).copied().unwrap_or(R::ZERO).mul_add(dy[at + q], s);
+            }
+            for d in 0..3 {
+                g[d] = s.mul_add(dw[c][d], g[d]);
+            }
+        }
+        for d in 0..3 {
+            d_in[d] += g[d];
+        }
+    }
+}
+
 /// One level's features for every row into `out` (rows × F, level-major). Table reads go
 /// through `get` (out of range reads 0, which the indices never are): a bounds check that panics
 /// is an early exit, and loops with early exits do not vectorise.
@@ -552,31 +593,38 @@ impl HashGrid {
     }
 
     #[inline(always)]
-    fn backward_rows<R: Real>(&self, params: &[R], input: &[R], d_output: &[R], d_params: &mut [R], mut d_input: Option<&mut [R]>) {
-        let f = self.config.features;
-        let n_out = self.config.levels * f;
-        if let Some(d_in) = d_input.as_deref_mut() {
-            d_in.fill(R::ZERO);
-        }
+    fn backward_rows<R: Real>(&self, params: &[R], input: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
         for level in 0..self.active_levels.min(self.config.levels) {
             self.scatter_level(level, input, d_output, &mut d_params[self.level_params(level)]);
-            if let Some(d_in) = d_input.as_deref_mut() {
-                let table = &params[self.level_params(level)];
+        }
+        if let Some(d_in) = d_input {
+            self.input_adjoint_rows(params, input, d_output, d_in);
+        }
+    }
+
+    /// The input's adjoint (rows × 3, written) for the features' adjoints `d_output`, level by
+    /// level ([`level_input_adjoint`]).
+    #[inline(always)]
+    fn input_adjoint_rows<R: Real>(&self, params: &[R], input: &[R], d_output: &[R], d_input: &mut [R]) {
+        let f = self.config.features;
+        let n_out = self.config.levels * f;
+        d_input.fill(R::ZERO);
+        let mask = (self.table - 1) as u32;
+        for level in 0..self.active_levels.min(self.config.levels) {
+            let table = &params[self.level_params(level)];
+            let (n, dense) = (self.resolutions[level], self.dense[level]);
+            by_kernel!(f, dense, |F, DENSE| level_input_adjoint::<R, F, DENSE>(table, n, mask, input, d_output, n_out, level * f, d_input), {
                 for (row, (x, dy)) in input.chunks_exact(3).zip(d_output.chunks_exact(n_out)).enumerate() {
                     let dy = &dy[level * f..level * f + f];
                     let (idx, _, dw) = self.corners(level, x);
                     for c in 0..8 {
-                        let at = idx[c] * f;
-                        let mut g = R::ZERO;
-                        for k in 0..f {
-                            g += table[at + k] * dy[k];
-                        }
+                        let g = (0..f).fold(R::ZERO, |g, k| table[idx[c] * f + k].mul_add(dy[k], g));
                         for d in 0..3 {
-                            d_in[3 * row + d] += g * dw[c][d];
+                            d_input[3 * row + d] = g.mul_add(dw[c][d], d_input[3 * row + d]);
                         }
                     }
                 }
-            }
+            });
         }
     }
 }

@@ -87,6 +87,13 @@ pub trait TangentModule<R: Real>: Module<R> {
     /// of the input and of its tangent into `d_input` when given (encodings that come first in
     /// a network need not: the pipeline's inputs are not learnt).
     fn backward_tangent(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], d_input: Option<(&mut [R], &mut [R])>);
+
+    /// After [`Module::forward`] (with its `ctx`): the input's adjoint `d_input` (rows ×
+    /// n_inputs, written) for the outputs' adjoints `d_output` (rows × n_outputs), and no
+    /// parameter gradient. The gradient of one output (a render's analytic normal ∇ₓS) is one
+    /// such reverse pass, where [`TangentModule::forward_tangents`] takes one forward pass per
+    /// input direction.
+    fn input_gradient(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]);
 }
 
 /// A [`ScatterGradient`] module with tangents: the scatter of the reverse pass through values
@@ -382,6 +389,14 @@ impl<R: Real, A: TangentModule<R>, B: TangentModule<R>> TangentModule<R> for Cha
         self.b.backward_tangent(outer, dpb, Some((&mut d_mid, &mut d_mid_tangent)));
         let inner = TangentAdjoints { params: pa, input, ctx: ca, tangent_in, d_output: &d_mid, d_tangent_out: &d_mid_tangent };
         self.a.backward_tangent(inner, dpa, d_input);
+    }
+    fn input_gradient(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
+        let rows = input.len() / self.a.n_inputs();
+        let (pa, pb) = params.split_at(self.a.n_params());
+        let (ca, mid, cb) = self.split_ctx(ctx, rows);
+        let mut d_mid = crate::scratch::Buf::<R>::zeroed(mid.len());
+        self.b.input_gradient(pb, mid, cb, d_output, &mut d_mid);
+        self.a.input_gradient(pa, input, ca, &d_mid, d_input);
     }
 }
 

@@ -280,8 +280,9 @@ fn with_input_gradients_match() {
 }
 
 /// Checks `d_params`, `d_input` and the adjoint of the input tangent of
-/// [`TangentModule::backward_tangent`], and [`TangentModule::forward_tangents`] itself, against central
-/// differences of L = Σ r ⊙ y(x) + Σ q ⊙ (∂y/∂x · v). Returns the largest relative error.
+/// [`TangentModule::backward_tangent`], [`TangentModule::forward_tangents`] itself and
+/// [`TangentModule::input_gradient`], against central differences of L = Σ r ⊙ y(x) + Σ q ⊙
+/// (∂y/∂x · v) (of its first sum, for the input gradient). Returns the largest relative error.
 fn tangent_check<M: TangentModule<f64>>(module: &M, params: &[f64], rows: usize, check_input: bool, seed: u64) -> f64 {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let (n_in, n_out) = (module.n_inputs(), module.n_outputs());
@@ -325,6 +326,16 @@ fn tangent_check<M: TangentModule<f64>>(module: &M, params: &[f64], rows: usize,
                 }
             }
         }
+    }
+    // The input's adjoint alone (one reverse pass, no parameter gradient) is ∂(Σ r ⊙ y)/∂x.
+    let mut reverse = vec![0.0; input.len()];
+    module.input_gradient(params, &input, &ctx, &r, &mut reverse);
+    let values = |x: &[f64]| run(params, x, &v).0.iter().zip(&r).map(|(a, b)| a * b).sum::<f64>();
+    for i in 0..input.len() {
+        let (mut p, mut m) = (input.clone(), input.clone());
+        p[i] += h;
+        m[i] -= h;
+        worst = worst.max(rel(reverse[i], (values(&p) - values(&m)) / (2.0 * h)));
     }
     let mut d_params = vec![0.0; params.len()];
     let (mut d_input, mut d_tangent) = (vec![0.0; input.len()], vec![0.0; input.len()]);

@@ -11,15 +11,24 @@ use crate::real::Real;
 use crate::scratch::Buf;
 
 impl Mlp {
-    /// [`crate::Module::backward`]: dZ = dY ⊙ act'(Z), dW += dZᵀA, db += ΣdZ, dA = dZ W.
-    pub(super) fn backward_pass<R: Real>(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
+    /// [`crate::Module::backward`]: dZ = dY ⊙ act'(Z), dW += dZᵀA, db += ΣdZ, dA = dZ W; without
+    /// `d_params` (the input's adjoint alone) no dW.
+    pub(super) fn backward_pass<R: Real>(
+        &self,
+        params: &[R],
+        input: &[R],
+        ctx: &[R],
+        d_output: &[R],
+        d_params: Option<&mut [R]>,
+        d_input: Option<&mut [R]>,
+    ) {
         let _span = crate::profile::span(crate::profile::Stage::MlpBackward);
         let rows = input.len() / self.config.n_inputs;
         if rows == 0 {
             return;
         }
         let starts = self.ctx_starts(rows);
-        let mut d_input = d_input;
+        let (mut d_params, mut d_input) = (d_params, d_input);
         crate::kernels::dispatch(
             #[inline(always)]
             || {
@@ -34,9 +43,11 @@ impl Mlp {
                     for (g, s) in dy.iter_mut().zip(slope) {
                         *g *= *s;
                     }
-                    let mut dw = Buf::<R>::zeroed(n_out * ip);
-                    gemm_in(self.in_bf16(l), &mut dw, ip, Strided { data: &dy, sm: 1, sk: op }, a, ip, n_out, ip, rows, false);
-                    self.add_layer_gradient(l, &dw, &dy, d_params);
+                    if let Some(d_params) = d_params.as_deref_mut() {
+                        let mut dw = Buf::<R>::zeroed(n_out * ip);
+                        gemm_in(self.in_bf16(l), &mut dw, ip, Strided { data: &dy, sm: 1, sk: op }, a, ip, n_out, ip, rows, false);
+                        self.add_layer_gradient(l, &dw, &dy, d_params);
+                    }
                     if l == 0 && d_input.is_none() {
                         break;
                     }

@@ -206,7 +206,7 @@ impl<R: Real> Module<R> for Mlp {
     }
 
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
-        self.backward_pass(params, input, ctx, d_output, d_params, d_input);
+        self.backward_pass(params, input, ctx, d_output, Some(d_params), d_input);
     }
 }
 

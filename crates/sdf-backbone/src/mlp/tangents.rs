@@ -76,6 +76,11 @@ impl<R: Real> TangentModule<R> for Mlp {
             },
         );
     }
+
+    /// The reverse pass without the weights' gradients (dA = dZ W layer by layer).
+    fn input_gradient(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
+        self.backward_pass(params, input, ctx, d_output, None, Some(d_input));
+    }
 }
 
 impl Mlp {

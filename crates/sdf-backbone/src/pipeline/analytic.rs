@@ -35,6 +35,8 @@ pub type BackwardTangentFn<S, R> = fn(&S, TangentAdjoints<'_, R>, &mut [R]);
 pub type BackwardTangentDeferringFn<S, R> = fn(&S, TangentAdjoints<'_, R>, &mut [R], &mut [R]);
 /// [`DeferringTangentModule::apply_deferred_tangent_block`].
 pub type ApplyTangentBlockFn<S, R> = fn(&S, &[(&[R], &[R])], usize, &mut [R]);
+/// [`TangentModule::input_gradient`].
+pub type InputGradientFn<S, R> = fn(&S, &[R], &[R], &[R], &[R], &mut [R]);
 
 /// The tangent passes of a network `S` in precision `R`.
 pub struct TangentFns<S, R> {
@@ -46,6 +48,8 @@ pub struct TangentFns<S, R> {
     pub backward_deferring: BackwardTangentDeferringFn<S, R>,
     /// One block of the deferred gradient from the records.
     pub apply_block: ApplyTangentBlockFn<S, R>,
+    /// The input's adjoint by one reverse pass (a render's normals: no gradient to carry on).
+    pub input_gradient: InputGradientFn<S, R>,
 }
 
 impl<S, R> Clone for TangentFns<S, R> {
@@ -62,6 +66,7 @@ impl<S: DeferringTangentModule<R>, R: Real> TangentFns<S, R> {
             backward: |net, pass, d_params| net.backward_tangent(pass, d_params, None),
             backward_deferring: |net, pass, d_params, deferred| net.backward_tangent_deferring(pass, d_params, deferred),
             apply_block: |net, parts, block, d_block| net.apply_deferred_tangent_block(parts, block, d_block),
+            input_gradient: |net, params, input, ctx, d_output, d_input| net.input_gradient(params, input, ctx, d_output, d_input),
         }
     }
 }

@@ -4,7 +4,8 @@
 //! 1. The weights of every interval from those values at the model's scale s (no network).
 //! 2. The *kept* intervals, those whose weight exceeds `negligible / n` (n intervals on the
 //!    ray): only their colour is needed, so the SDF network runs at their first sample alone
-//!    (features and normals, analytic or by probes) and the colour network on those rows. The
+//!    (features and normals: analytic ones by one reverse pass from the SDF value, no tangents;
+//!    or by probes) and the colour network on those rows. The
 //!    dropped intervals' weights sum to at most `negligible` per ray.
 //! 3. The learned background only for the rays that let more than `negligible` through.
 //! 4. Each ray composited: `colour = Σ_kept wᵢ cᵢ + (1 − O) C_bg` (the background term dropped
@@ -15,7 +16,7 @@
 //! pass, no loss terms, no allocation per ray, and most rows of the loss pass never evaluated
 //! (a ray's last sample, the samples that carry no weight, the background of opaque rays).
 
-use super::accumulate::{COLOR_IN_FIXED, axis_tangents, color_row, probe_normal};
+use super::accumulate::{COLOR_IN_FIXED, color_row, probe_normal};
 use super::{Pipeline, RayInput, RayOutput, scale_from_variance};
 use crate::encoding::SphericalHarmonics;
 use crate::module::Module;
@@ -113,9 +114,14 @@ impl<S, C> Pipeline<S, C> {
         self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
         let normals: Vec<[R; 3]> = match &self.analytic {
             Some(analytic) => {
-                // The kept samples only: the probes are not among the rows with analytic normals.
-                let grad = axis_tangents(R::tangent_fns(analytic), &self.sdf, p_sdf, &points, &sdf_ctx, n_out);
-                (0..rows).map(|j| [0, 1, 2].map(|a| grad[(j * 3 + a) * n_out])).collect()
+                // ∇ₓS by one reverse pass from the SDF output (no probes with analytic normals).
+                let mut d_sdf = Buf::<R>::zeroed(rows * n_out);
+                for row in d_sdf.chunks_exact_mut(n_out) {
+                    row[0] = R::ONE;
+                }
+                let mut grad = Buf::<R>::zeroed(rows * 3);
+                (R::tangent_fns(analytic).input_gradient)(&self.sdf, p_sdf, &points, &sdf_ctx, &d_sdf, &mut grad);
+                grad.chunks_exact(3).map(|g| [g[0], g[1], g[2]]).collect()
             }
             None => (0..rows).map(|j| probe_normal(probes, h, |p| sdf_out[(rows + np * j + p) * n_out])).collect(),
         };

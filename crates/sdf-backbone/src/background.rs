@@ -188,8 +188,8 @@ impl BackgroundModel {
                 row[columns.clone()].copy_from_slice(f);
             }
         }
-        let mut raw = Buf::<R>::zeroed(rows_n * 4);
-        let mut ctx = Buf::<R>::zeroed(rows_n * Module::<R>::ctx_per_row(&self.net));
+        let mut raw = Buf::<R>::to_overwrite(rows_n * 4);
+        let mut ctx = Buf::<R>::to_overwrite(rows_n * Module::<R>::ctx_per_row(&self.net));
         self.net.forward(p_net, &input, &mut raw, &mut ctx);
         let mut rows = vec![[R::ZERO; 10]; rows_n];
         let mut colors = vec![[R::ZERO; 3]; rays];

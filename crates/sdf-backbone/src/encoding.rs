@@ -275,7 +275,7 @@ impl<R: Real, M: TangentModule<R>> TangentModule<R> for WithInput<M> {
     fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
         let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
         let rows = input.len() / n_in;
-        let mut enc = crate::scratch::Buf::<R>::zeroed(rows * k * n_enc);
+        let mut enc = crate::scratch::Buf::<R>::to_overwrite(rows * k * n_enc);
         self.encoding.forward_tangents(params, input, &ctx[..rows * self.encoding.ctx_per_row()], k, tangents_in, &mut enc);
         let n_out = n_in + n_enc;
         for ((out, t), e) in tangents_out.chunks_exact_mut(n_out).zip(tangents_in.chunks_exact(n_in)).zip(enc.chunks_exact(n_enc)) {

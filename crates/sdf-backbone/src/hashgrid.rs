@@ -523,7 +523,7 @@ impl HashGrid {
         let n_out = self.config.levels * f;
         let rows = input.len() / 3;
         output.fill(R::ZERO);
-        let mut level_out = Buf::<R>::zeroed(rows * f);
+        let mut level_out = Buf::<R>::to_overwrite(rows * f);
         let mask = (self.table - 1) as u32;
         for level in 0..self.active_levels.min(self.config.levels) {
             let table = &params[self.level_params(level)];
@@ -552,8 +552,8 @@ impl HashGrid {
         let f = self.config.features;
         let n_out = self.config.levels * f;
         let rows = input.len() / 3;
-        let mut idx = Buf::<u32>::zeroed(rows * 8);
-        let mut w = Buf::<R>::zeroed(rows * 8);
+        let mut idx = Buf::<u32>::to_overwrite(rows * 8);
+        let mut w = Buf::<R>::to_overwrite(rows * 8);
         let mask = (self.table - 1) as u32;
         let (n, dense) = (self.resolutions[level], self.dense[level]);
         if dense {

@@ -40,9 +40,11 @@ pub trait Module<R: Real>: Sync {
     fn n_outputs(&self) -> usize;
     /// Context values saved per row by `forward` for `backward`.
     fn ctx_per_row(&self) -> usize;
-    /// Forward pass for a batch; `ctx` has `rows · ctx_per_row()` values.
+    /// Forward pass for a batch; `ctx` has `rows · ctx_per_row()` values. Writes every value of
+    /// `output` and `ctx` (callers pass buffers with stale values: [`crate::scratch::Buf::to_overwrite`]).
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]);
-    /// Backward pass: adds ∂L/∂params into `d_params`, writes ∂L/∂input into `d_input` if given.
+    /// Backward pass: adds ∂L/∂params into `d_params`, writes ∂L/∂input (every value) into
+    /// `d_input` if given.
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>);
 }
 
@@ -78,7 +80,7 @@ pub trait ScatterGradient<R: Real>: Module<R> {
 pub trait TangentModule<R: Real>: Module<R> {
     /// After [`Module::forward`] (with its `ctx`): the outputs' derivatives along `k` input
     /// directions per row. `tangents_in` is rows × k × n_inputs (direction j of row r at
-    /// `(r·k + j)·n_inputs`), `tangents_out` rows × k × n_outputs, written.
+    /// `(r·k + j)·n_inputs`), `tangents_out` rows × k × n_outputs, every value written.
     fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]);
 
     /// The reverse pass through the outputs y and their derivative ẏ along one input direction
@@ -332,7 +334,7 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         let (pa, pb) = params.split_at(self.a.n_params());
         let (dpa, dpb) = d_params.split_at_mut(self.a.n_params());
         let (ca, mid, cb) = self.split_ctx(ctx, rows);
-        let mut d_mid = crate::scratch::Buf::<R>::zeroed(mid.len());
+        let mut d_mid = crate::scratch::Buf::<R>::to_overwrite(mid.len());
         self.b.backward(pb, mid, cb, d_output, dpb, Some(&mut d_mid));
         self.a.backward(pa, input, ca, &d_mid, dpa, d_input);
     }
@@ -372,7 +374,7 @@ impl<R: Real, A: TangentModule<R>, B: TangentModule<R>> TangentModule<R> for Cha
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
         let (ca, mid, cb) = self.split_ctx(ctx, rows);
-        let mut mid_tangents = crate::scratch::Buf::<R>::zeroed(rows * k * self.a.n_outputs());
+        let mut mid_tangents = crate::scratch::Buf::<R>::to_overwrite(rows * k * self.a.n_outputs());
         self.a.forward_tangents(pa, input, ca, k, tangents_in, &mut mid_tangents);
         self.b.forward_tangents(pb, mid, cb, k, &mid_tangents, tangents_out);
     }
@@ -382,7 +384,7 @@ impl<R: Real, A: TangentModule<R>, B: TangentModule<R>> TangentModule<R> for Cha
         let (pa, pb) = params.split_at(self.a.n_params());
         let (dpa, dpb) = d_params.split_at_mut(self.a.n_params());
         let (ca, mid, cb) = self.split_ctx(ctx, rows);
-        let mut mid_tangent = crate::scratch::Buf::<R>::zeroed(mid.len());
+        let mut mid_tangent = crate::scratch::Buf::<R>::to_overwrite(mid.len());
         self.a.forward_tangents(pa, input, ca, 1, tangent_in, &mut mid_tangent);
         let (mut d_mid, mut d_mid_tangent) = (crate::scratch::Buf::<R>::zeroed(mid.len()), crate::scratch::Buf::<R>::zeroed(mid.len()));
         let outer = TangentAdjoints { params: pb, input: mid, ctx: cb, tangent_in: &mid_tangent, d_output, d_tangent_out };
@@ -394,7 +396,7 @@ impl<R: Real, A: TangentModule<R>, B: TangentModule<R>> TangentModule<R> for Cha
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
         let (ca, mid, cb) = self.split_ctx(ctx, rows);
-        let mut d_mid = crate::scratch::Buf::<R>::zeroed(mid.len());
+        let mut d_mid = crate::scratch::Buf::<R>::to_overwrite(mid.len());
         self.b.input_gradient(pb, mid, cb, d_output, &mut d_mid);
         self.a.input_gradient(pa, input, ca, &d_mid, d_input);
     }
@@ -406,7 +408,7 @@ impl<R: Real, A: ScatterTangent<R>, B: TangentModule<R>> DeferringTangentModule<
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
         let (ca, mid, cb) = self.split_ctx(ctx, rows);
-        let mut mid_tangent = crate::scratch::Buf::<R>::zeroed(mid.len());
+        let mut mid_tangent = crate::scratch::Buf::<R>::to_overwrite(mid.len());
         self.a.forward_tangents(pa, input, ca, 1, tangent_in, &mut mid_tangent);
         // The record: ∂L/∂(first module's outputs), then ∂L/∂(their tangents).
         let (d_mid, d_mid_tangent) = deferred.split_at_mut(mid.len());

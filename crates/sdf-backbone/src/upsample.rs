@@ -49,8 +49,8 @@ fn chunk_sdf<S: Module<f32>>(net: &S, params: &[f32], rays: &[RayInput<f32>], de
     for (ray, depths) in rays.iter().zip(depths) {
         points.extend(depths.iter().flat_map(|&t| [0, 1, 2].map(|j| ray.origin[j] + t * ray.direction[j])));
     }
-    let mut y = Buf::<f32>::zeroed(rows * n_out);
-    let mut ctx = Buf::<f32>::zeroed(rows * net.ctx_per_row());
+    let mut y = Buf::<f32>::to_overwrite(rows * n_out);
+    let mut ctx = Buf::<f32>::to_overwrite(rows * net.ctx_per_row());
     net.forward(&params[..net.n_params()], &points, &mut y, &mut ctx);
     let mut values = y.chunks_exact(n_out).map(|r| r[0]);
     depths.iter().map(|d| values.by_ref().take(d.len()).collect()).collect()

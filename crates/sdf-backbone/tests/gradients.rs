@@ -451,3 +451,52 @@ fn check_hash_grid_network_tangents(features: usize) {
     let worst = tangent_check(&net, &params, 9, false, 32);
     assert!(worst < 1e-6, "{features} features: relative error {worst:e}");
 }
+
+/// Every pass that callers hand a buffer with stale values (`Buf::to_overwrite`) writes all of
+/// it: the outputs and context of `forward`, the output tangents, the input adjoints of
+/// `backward` and `input_gradient` — each buffer filled with NaN first, none left.
+fn assert_writes_everything<M: TangentModule<f64>>(name: &str, module: &M, params: &[f64]) {
+    let rows = 7;
+    let (n_in, n_out) = (module.n_inputs(), module.n_outputs());
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(5);
+    let input: Vec<f64> = (0..rows * n_in).map(|_| rng.random::<f64>() * 1.6 - 0.8).collect();
+    let d_output: Vec<f64> = (0..rows * n_out).map(|_| rng.random::<f64>() - 0.5).collect();
+    let (mut output, mut ctx) = (vec![f64::NAN; rows * n_out], vec![f64::NAN; rows * module.ctx_per_row()]);
+    module.forward(params, &input, &mut output, &mut ctx);
+    let k = 3;
+    let tangents_in: Vec<f64> = (0..rows * k * n_in).map(|_| rng.random::<f64>() - 0.5).collect();
+    let mut tangents = vec![f64::NAN; rows * k * n_out];
+    module.forward_tangents(params, &input, &ctx, k, &tangents_in, &mut tangents);
+    let (mut d_input, mut reverse) = (vec![f64::NAN; rows * n_in], vec![f64::NAN; rows * n_in]);
+    module.backward(params, &input, &ctx, &d_output, &mut vec![0.0; params.len()], Some(&mut d_input));
+    module.input_gradient(params, &input, &ctx, &d_output, &mut reverse);
+    for (what, values) in [("output", &output), ("context", &ctx), ("tangents", &tangents), ("input adjoint", &d_input), ("input gradient", &reverse)]
+    {
+        assert!(values.iter().all(|v| v.is_finite()), "{name}: its {what} is not written in full");
+    }
+}
+
+#[test]
+fn every_pass_writes_all_of_the_buffers_it_is_given() {
+    let mlp = |n_inputs, hidden_layers, skip, hidden_activation| {
+        Mlp::new(MlpConfig { n_inputs, width: 6, hidden_layers, n_outputs: 5, skip, hidden_activation, output_activation: Activation::Identity })
+    };
+    let softplus = Activation::Softplus { beta: 10.0 };
+    for (name, net) in [
+        ("one hidden layer", mlp(19, 1, None, softplus)),
+        ("a skip", mlp(5, 3, Some(2), softplus)),
+        ("sigmoids", mlp(3, 2, None, Activation::Sigmoid)),
+        ("relu", mlp(4, 2, None, Activation::Relu)),
+    ] {
+        assert_writes_everything(name, &net, &random_params(Module::<f64>::n_params(&net), 0.5, 3));
+    }
+    for features in [2, 3] {
+        let grid = HashGrid::new(HashGridConfig { levels: 3, features, log2_table: 6, base_resolution: 2, finest_resolution: 9 });
+        let params = random_params(Module::<f64>::n_params(&grid), 0.5, 4);
+        assert_writes_everything("hash grid", &grid, &params);
+        let net = Chain { a: WithInput { encoding: grid }, b: mlp(3 + 3 * features, 1, None, softplus) };
+        assert_writes_everything("hash-grid network", &net, &random_params(Module::<f64>::n_params(&net), 0.5, 6));
+    }
+    let net = Chain { a: PositionalEncoding { frequencies: 2 }, b: mlp(15, 2, None, softplus) };
+    assert_writes_everything("positional network", &net, &random_params(Module::<f64>::n_params(&net), 0.5, 7));
+}

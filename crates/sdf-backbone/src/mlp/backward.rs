@@ -44,7 +44,7 @@ impl Mlp {
                         *g *= *s;
                     }
                     if let Some(d_params) = d_params.as_deref_mut() {
-                        let mut dw = Buf::<R>::zeroed(n_out * ip);
+                        let mut dw = Buf::<R>::to_overwrite(n_out * ip);
                         gemm_in(self.in_bf16(l), &mut dw, ip, Strided { data: &dy, sm: 1, sk: op }, a, ip, n_out, ip, rows, false);
                         self.add_layer_gradient(l, &dw, &dy, d_params);
                     }
@@ -95,7 +95,7 @@ impl Mlp {
     pub(super) fn input_adjoint<R: Real>(&self, l: usize, wp: &[R], dz: &[R], rows: usize) -> Buf<R> {
         let (n_in, n_out, _) = self.layers[l];
         let (ip, op) = (pad(n_in), pad(n_out));
-        let mut da = Buf::<R>::zeroed(rows * ip);
+        let mut da = Buf::<R>::to_overwrite(rows * ip);
         gemm_in(self.in_bf16(l), &mut da, ip, Strided { data: dz, sm: op, sk: 1 }, wp, ip, rows, ip, n_out, false);
         da
     }

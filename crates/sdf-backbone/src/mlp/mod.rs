@@ -175,7 +175,7 @@ impl<R: Real> Module<R> for Mlp {
                     let pairs = packed.as_ref().map(|(left, right)| bf16::Pairs { left, stride: ip, k: n_in, right, n: op });
                     if l == last {
                         // Into a padded temporary, then the unpadded output.
-                        let mut y = Buf::<R>::zeroed(rows * op);
+                        let mut y = Buf::<R>::to_overwrite(rows * op);
                         dense_forward(&Dense { a, a_s: ip, n_in, wt, bias, n_out_pad: op, act, scale, pairs }, &mut y, op, 0, d, rows);
                         for (o, yr) in output.chunks_exact_mut(n_y).zip(y.chunks_exact(op)) {
                             o.copy_from_slice(&yr[..n_y]);

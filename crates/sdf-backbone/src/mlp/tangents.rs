@@ -51,7 +51,7 @@ impl<R: Real> TangentModule<R> for Mlp {
                         dy[i] = slope[i] * g + second * z_dot[i] * u;
                         du[i] = slope[i] * u;
                     }
-                    let mut dw = Buf::<R>::zeroed(n_out * ip);
+                    let mut dw = Buf::<R>::to_overwrite(n_out * ip);
                     let in_bf16 = self.in_bf16(l);
                     gemm_in(in_bf16, &mut dw, ip, Strided { data: &dy, sm: 1, sk: op }, a, ip, n_out, ip, rows, false);
                     gemm_in(in_bf16, &mut dw, ip, Strided { data: &du, sm: 1, sk: op }, a_dot, ip, n_out, ip, rows, true);
@@ -145,7 +145,7 @@ impl Mlp {
                     let (ip, op) = (pad(n_in), pad(n_out));
                     let (wt, _, _) = self.packed(params, l);
                     // Ż = Ȧ Wᵀ (no bias).
-                    let mut z_dot = Buf::<R>::zeroed(t_rows * op);
+                    let mut z_dot = Buf::<R>::to_overwrite(t_rows * op);
                     gemm_in(self.in_bf16(l), &mut z_dot, op, Strided { data: &a_dot, sm: ip, sk: 1 }, &wt, op, t_rows, op, n_in, false);
                     let slope = &ctx[starts[l].1..starts[l].1 + rows * op];
                     let (_, scale) = self.layer_activation::<R>(l);

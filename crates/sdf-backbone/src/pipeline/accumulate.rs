@@ -123,7 +123,7 @@ pub(super) fn axis_tangents<S, R: Real>(fns: &TangentFns<S, R>, sdf: &S, p_sdf: 
     for row in axes.chunks_exact_mut(9) {
         (row[0], row[4], row[8]) = (R::ONE, R::ONE, R::ONE);
     }
-    let mut out = Buf::<R>::zeroed(rows * 3 * n_out);
+    let mut out = Buf::<R>::to_overwrite(rows * 3 * n_out);
     (fns.forward)(sdf, p_sdf, points, ctx, 3, &axes, &mut out);
     out
 }
@@ -211,7 +211,7 @@ impl<S, C> Pipeline<S, C> {
         S: Module<R>,
     {
         let h = R::of(dims.h);
-        let mut points = Buf::<R>::zeroed(3 * rows.sdf);
+        let mut points = Buf::<R>::to_overwrite(3 * rows.sdf);
         let mut at = 0;
         for ray in rays {
             let n = ray.depths.len() - 1;
@@ -231,8 +231,8 @@ impl<S, C> Pipeline<S, C> {
                 }
             }
         }
-        let mut sdf_out = Buf::<R>::zeroed(rows.sdf * dims.n_out);
-        let mut sdf_ctx = Buf::<R>::zeroed(rows.sdf * self.sdf.ctx_per_row());
+        let mut sdf_out = Buf::<R>::to_overwrite(rows.sdf * dims.n_out);
+        let mut sdf_ctx = Buf::<R>::to_overwrite(rows.sdf * self.sdf.ctx_per_row());
         self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
         let gradients =
             self.analytic.as_ref().map(|analytic| axis_tangents(R::tangent_fns(analytic), &self.sdf, p_sdf, &points, &sdf_ctx, dims.n_out));
@@ -260,7 +260,7 @@ impl<S, C> Pipeline<S, C> {
         let (n_out, c_in, np, h) = (dims.n_out, dims.c_in, dims.probes.len(), R::of(dims.h));
         let mut normals: Vec<[R; 3]> = Vec::with_capacity(rows.col);
         let mut sh: Vec<[R; 16]> = Vec::with_capacity(rays.len());
-        let mut color_in = Buf::<R>::zeroed(rows.col * c_in);
+        let mut color_in = Buf::<R>::to_overwrite(rows.col * c_in);
         for (r, ray) in rays.iter().enumerate() {
             let n = ray.depths.len() - 1;
             let (b, c0) = (rows.sdf_at[r], rows.col_at[r]);
@@ -277,8 +277,8 @@ impl<S, C> Pipeline<S, C> {
                 color_row(row, &points[3 * (b + i)..3 * (b + i) + 3], &nrm, &sh_d, &sdf_out[(b + i) * n_out + 1..(b + i + 1) * n_out]);
             }
         }
-        let mut colors = Buf::<R>::zeroed(rows.col * 3);
-        let mut color_ctx = Buf::<R>::zeroed(rows.col * self.color.ctx_per_row());
+        let mut colors = Buf::<R>::to_overwrite(rows.col * 3);
+        let mut color_ctx = Buf::<R>::to_overwrite(rows.col * self.color.ctx_per_row());
         self.color.forward(p_col, &color_in, &mut colors, &mut color_ctx);
         let background = self.background.as_ref().map(|model| {
             let origins: Vec<[R; 3]> = rays.iter().map(|r| r.origin).collect();

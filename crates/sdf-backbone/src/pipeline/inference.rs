@@ -95,7 +95,7 @@ impl<S, C> Pipeline<S, C> {
         let rows = kept.len();
         let probes = if self.analytic.is_some() { &[] } else { self.config.normals.probes() };
         let (np, h) = (probes.len(), R::of(self.config.normal_step));
-        let mut points = Buf::<R>::zeroed(3 * rows * (1 + np));
+        let mut points = Buf::<R>::to_overwrite(3 * rows * (1 + np));
         for (j, k) in kept.iter().enumerate() {
             let ray = &rays[k.ray];
             let t = ray.depths[k.interval];
@@ -109,8 +109,8 @@ impl<S, C> Pipeline<S, C> {
             }
         }
         let n_out = self.sdf.n_outputs();
-        let mut sdf_out = Buf::<R>::zeroed(rows * (1 + np) * n_out);
-        let mut sdf_ctx = Buf::<R>::zeroed(rows * (1 + np) * self.sdf.ctx_per_row());
+        let mut sdf_out = Buf::<R>::to_overwrite(rows * (1 + np) * n_out);
+        let mut sdf_ctx = Buf::<R>::to_overwrite(rows * (1 + np) * self.sdf.ctx_per_row());
         self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
         let normals: Vec<[R; 3]> = match &self.analytic {
             Some(analytic) => {
@@ -119,20 +119,20 @@ impl<S, C> Pipeline<S, C> {
                 for row in d_sdf.chunks_exact_mut(n_out) {
                     row[0] = R::ONE;
                 }
-                let mut grad = Buf::<R>::zeroed(rows * 3);
+                let mut grad = Buf::<R>::to_overwrite(rows * 3);
                 (R::tangent_fns(analytic).input_gradient)(&self.sdf, p_sdf, &points, &sdf_ctx, &d_sdf, &mut grad);
                 grad.chunks_exact(3).map(|g| [g[0], g[1], g[2]]).collect()
             }
             None => (0..rows).map(|j| probe_normal(probes, h, |p| sdf_out[(rows + np * j + p) * n_out])).collect(),
         };
         let c_in = COLOR_IN_FIXED + n_out - 1;
-        let mut color_in = Buf::<R>::zeroed(rows * c_in);
+        let mut color_in = Buf::<R>::to_overwrite(rows * c_in);
         for (j, k) in kept.iter().enumerate() {
             let row = &mut color_in[j * c_in..(j + 1) * c_in];
             color_row(row, &points[3 * j..3 * j + 3], &normals[j], &sh[k.ray], &sdf_out[j * n_out + 1..(j + 1) * n_out]);
         }
-        let mut colors = Buf::<R>::zeroed(rows * 3);
-        let mut color_ctx = Buf::<R>::zeroed(rows * self.color.ctx_per_row());
+        let mut colors = Buf::<R>::to_overwrite(rows * 3);
+        let mut color_ctx = Buf::<R>::to_overwrite(rows * self.color.ctx_per_row());
         self.color.forward(p_col, &color_in, &mut colors, &mut color_ctx);
         (colors, normals)
     }

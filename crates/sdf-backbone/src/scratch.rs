@@ -51,33 +51,39 @@ impl Element for f32 {}
 impl Element for f64 {}
 impl Element for u32 {}
 
-/// A zeroed buffer from the pool, returned to it when dropped.
+/// A buffer from the pool (its first `len` values), returned to it when dropped. The allocation
+/// keeps every value it ever held initialised (its vector's length only grows), so a buffer
+/// taken again is zeroed once, or not at all ([`Buf::to_overwrite`]), never twice.
 #[derive(Debug)]
-pub struct Buf<R: Element>(Vec<R>);
+pub struct Buf<R: Element> {
+    values: Vec<R>,
+    len: usize,
+}
 
 impl<R: Element> Buf<R> {
     /// `len` zeros, reusing a pooled allocation when one is large enough (the smallest such).
     pub fn zeroed(len: usize) -> Buf<R> {
         // Taken out of the lock before zeroing: threads do not wait on each other's memset.
-        let mut v = Self::pooled(len);
-        v.clear();
-        v.resize(len, R::default());
-        Buf(v)
+        let mut values = Self::pooled(len);
+        let held = values.len().min(len);
+        values[..held].fill(R::default());
+        if values.len() < len {
+            values.resize(len, R::default());
+        }
+        Buf { values, len }
     }
 
     /// `len` values that the caller overwrites, every one, before it reads any: a pooled
     /// allocation keeps what it last held (no memset; only a part beyond its old length is
-    /// zeroed). For the outputs and contexts that a module's passes write in full
+    /// zeroed, once in the allocation's life). For the outputs and contexts that a module's passes write in full
     /// ([`crate::Module::forward`], a product that does not accumulate): zeroing them was 6–13 %
     /// of a training step's and of a render's time.
     pub fn to_overwrite(len: usize) -> Buf<R> {
-        let mut v = Self::pooled(len);
-        if v.len() >= len {
-            v.truncate(len);
-        } else {
-            v.resize(len, R::default());
+        let mut values = Self::pooled(len);
+        if values.len() < len {
+            values.resize(len, R::default());
         }
-        Buf(v)
+        Buf { values, len }
     }
 
     /// The smallest pooled allocation of at least `len` values (else any, else a new one), with
@@ -94,18 +100,20 @@ impl<R: Element> Buf<R> {
 
     /// The values, leaving this buffer empty (its allocation moves with them).
     pub fn take(&mut self) -> Buf<R> {
-        Buf(std::mem::take(&mut self.0))
+        Buf { values: std::mem::take(&mut self.values), len: std::mem::take(&mut self.len) }
     }
 
     /// The values, as a vector (the allocation leaves the pool for good).
     pub fn into_vec(mut self) -> Vec<R> {
-        std::mem::take(&mut self.0)
+        let mut values = std::mem::take(&mut self.values);
+        values.truncate(self.len);
+        values
     }
 }
 
 impl<R: Element> Drop for Buf<R> {
     fn drop(&mut self) {
-        let v = std::mem::take(&mut self.0);
+        let v = std::mem::take(&mut self.values);
         if v.capacity() > 0 {
             R::with_pool(|pool| {
                 // A few buffers per work item in flight is all a step uses.
@@ -120,13 +128,13 @@ impl<R: Element> Drop for Buf<R> {
 impl<R: Element> Deref for Buf<R> {
     type Target = [R];
     fn deref(&self) -> &[R] {
-        &self.0
+        &self.values[..self.len]
     }
 }
 
 impl<R: Element> DerefMut for Buf<R> {
     fn deref_mut(&mut self) -> &mut [R] {
-        &mut self.0
+        &mut self.values[..self.len]
     }
 }
 
@@ -166,10 +174,18 @@ mod tests {
         assert_eq!((b.as_ptr(), b.len()), (ptr, 600), "the allocation came back, at the length asked");
         assert!(b.iter().all(|v| *v == 9), "what it held is left for the caller to overwrite");
         drop(b);
-        // Longer than its last length: the old values, then zeros.
+        // Longer than it was taken last: every value it held (never zeroed again).
         let longer = Buf::<i32>::to_overwrite(900);
         assert_eq!((longer.as_ptr(), longer.len()), (ptr, 900));
-        assert!(longer[..600].iter().all(|v| *v == 9) && longer[600..].iter().all(|v| *v == 0));
+        assert!(longer.iter().all(|v| *v == 9));
+        drop(longer);
+        let zeroed = Buf::<i32>::zeroed(800);
+        assert_eq!((zeroed.as_ptr(), zeroed.len()), (ptr, 800));
+        assert!(zeroed.iter().all(|v| *v == 0));
+        drop(zeroed);
+        // Beyond what the allocation ever held: zeros there.
+        let beyond = Buf::<i32>::to_overwrite(2000);
+        assert!(beyond[..800].iter().all(|v| *v == 0) && beyond[800..1000].iter().all(|v| *v == 9) && beyond[1000..].iter().all(|v| *v == 0));
     }
 
     #[test]

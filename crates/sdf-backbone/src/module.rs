@@ -43,6 +43,18 @@ pub trait Module<R: Real>: Sync {
     /// Forward pass for a batch; `ctx` has `rows · ctx_per_row()` values. Writes every value of
     /// `output` and `ctx` (callers pass buffers with stale values: [`crate::scratch::Buf::to_overwrite`]).
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]);
+    /// The first output alone (an SDF network's value) of every row, into `first` (one value a
+    /// row): what an up-sampling needs. By default [`Module::forward`]'s first column; an MLP
+    /// computes only that output of its last layer.
+    fn forward_first(&self, params: &[R], input: &[R], first: &mut [R]) {
+        let (rows, n_out) = (first.len(), self.n_outputs());
+        let mut output = crate::scratch::Buf::<R>::to_overwrite(rows * n_out);
+        let mut ctx = crate::scratch::Buf::<R>::to_overwrite(rows * self.ctx_per_row());
+        self.forward(params, input, &mut output, &mut ctx);
+        for (f, row) in first.iter_mut().zip(output.chunks_exact(n_out)) {
+            *f = row[0];
+        }
+    }
     /// Backward pass: adds ∂L/∂params into `d_params`, writes ∂L/∂input (every value) into
     /// `d_input` if given.
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>);
@@ -328,6 +340,14 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         let (mid, cb) = rest.split_at_mut(rows * self.a.n_outputs());
         self.a.forward(pa, input, mid, ca);
         self.b.forward(pb, mid, output, cb);
+    }
+    fn forward_first(&self, params: &[R], input: &[R], first: &mut [R]) {
+        let rows = first.len();
+        let (pa, pb) = params.split_at(self.a.n_params());
+        let mut mid = crate::scratch::Buf::<R>::to_overwrite(rows * self.a.n_outputs());
+        let mut ca = crate::scratch::Buf::<R>::to_overwrite(rows * self.a.ctx_per_row());
+        self.a.forward(pa, input, &mut mid, &mut ca);
+        self.b.forward_first(pb, &mid, first);
     }
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
         let rows = input.len() / self.a.n_inputs();

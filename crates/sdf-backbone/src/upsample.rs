@@ -39,20 +39,18 @@ fn merge_with_values(a: &[f32], va: &[f32], b: &[f32], vb: &[f32]) -> (Vec<f32>,
     (depths, values)
 }
 
-/// The SDF (first output of `net`) at `depths[i]` along `rays[i]` for each ray of a chunk, in
-/// one forward pass over all their points (rows of the network are independent: the values are
+/// The SDF (first output of `net`, [`Module::forward_first`]) at `depths[i]` along `rays[i]` for
+/// each ray of a chunk, in one forward pass over all their points (rows of the network are independent: the values are
 /// those of evaluating each ray alone).
 fn chunk_sdf<S: Module<f32>>(net: &S, params: &[f32], rays: &[RayInput<f32>], depths: &[&[f32]]) -> Vec<Vec<f32>> {
-    let n_out = net.n_outputs();
     let rows: usize = depths.iter().map(|d| d.len()).sum();
     let mut points = Vec::with_capacity(3 * rows);
     for (ray, depths) in rays.iter().zip(depths) {
         points.extend(depths.iter().flat_map(|&t| [0, 1, 2].map(|j| ray.origin[j] + t * ray.direction[j])));
     }
-    let mut y = Buf::<f32>::to_overwrite(rows * n_out);
-    let mut ctx = Buf::<f32>::to_overwrite(rows * net.ctx_per_row());
-    net.forward(&params[..net.n_params()], &points, &mut y, &mut ctx);
-    let mut values = y.chunks_exact(n_out).map(|r| r[0]);
+    let mut sdf = Buf::<f32>::to_overwrite(rows);
+    net.forward_first(&params[..net.n_params()], &points, &mut sdf);
+    let mut values = sdf.iter().copied();
     depths.iter().map(|d| values.by_ref().take(d.len()).collect()).collect()
 }
 

@@ -363,18 +363,23 @@ fn tangent_check<M: TangentModule<f64>>(module: &M, params: &[f64], rows: usize,
     worst
 }
 
+/// An MLP 5 → 7 → 7 → 7 → 4 (softplus), with `skip` and `output_activation`.
+fn deep_mlp(skip: Option<usize>, output_activation: Activation) -> Mlp {
+    Mlp::new(MlpConfig {
+        n_inputs: 5,
+        width: 7,
+        hidden_layers: 3,
+        n_outputs: 4,
+        skip,
+        hidden_activation: Activation::Softplus { beta: 10.0 },
+        output_activation,
+    })
+}
+
 #[test]
 fn mlp_tangents_and_their_backward_match_finite_differences() {
     for skip in [None, Some(2)] {
-        let mlp = Mlp::new(MlpConfig {
-            n_inputs: 5,
-            width: 7,
-            hidden_layers: 3,
-            n_outputs: 4,
-            skip,
-            hidden_activation: Activation::Softplus { beta: 10.0 },
-            output_activation: Activation::Identity,
-        });
+        let mlp = deep_mlp(skip, Activation::Identity);
         let params = random_params(Module::<f64>::n_params(&mlp), 0.6, 21);
         let worst = tangent_check(&mlp, &params, 6, true, 22);
         assert!(worst < 1e-6, "skip {skip:?}: relative error {worst:e}");
@@ -435,7 +440,9 @@ fn hash_grid_network_tangents_and_their_backward_match_finite_differences() {
     }
 }
 
-fn check_hash_grid_network_tangents(features: usize) {
+/// A small SDF network of the hash-grid presets' shape: 3 levels of `features`, raw xyz beside
+/// them, one hidden layer of 6, 3 outputs.
+fn small_grid_network(features: usize) -> Chain<WithInput<HashGrid>, Mlp> {
     let grid = HashGrid::new(HashGridConfig { levels: 3, features, log2_table: 6, base_resolution: 2, finest_resolution: 9 });
     let mlp = Mlp::new(MlpConfig {
         n_inputs: 3 + 3 * features,
@@ -446,7 +453,11 @@ fn check_hash_grid_network_tangents(features: usize) {
         hidden_activation: Activation::Softplus { beta: 10.0 },
         output_activation: Activation::Identity,
     });
-    let net = Chain { a: WithInput { encoding: grid }, b: mlp };
+    Chain { a: WithInput { encoding: grid }, b: mlp }
+}
+
+fn check_hash_grid_network_tangents(features: usize) {
+    let net = small_grid_network(features);
     let params = random_params(Module::<f64>::n_params(&net), 0.5, 31);
     let worst = tangent_check(&net, &params, 9, false, 32);
     assert!(worst < 1e-6, "{features} features: relative error {worst:e}");
@@ -494,9 +505,42 @@ fn every_pass_writes_all_of_the_buffers_it_is_given() {
         let grid = HashGrid::new(HashGridConfig { levels: 3, features, log2_table: 6, base_resolution: 2, finest_resolution: 9 });
         let params = random_params(Module::<f64>::n_params(&grid), 0.5, 4);
         assert_writes_everything("hash grid", &grid, &params);
-        let net = Chain { a: WithInput { encoding: grid }, b: mlp(3 + 3 * features, 1, None, softplus) };
+        let net = small_grid_network(features);
         assert_writes_everything("hash-grid network", &net, &random_params(Module::<f64>::n_params(&net), 0.5, 6));
     }
     let net = Chain { a: PositionalEncoding { frequencies: 2 }, b: mlp(15, 2, None, softplus) };
     assert_writes_everything("positional network", &net, &random_params(Module::<f64>::n_params(&net), 0.5, 7));
+}
+
+/// `forward_first` (an up-sampling's SDF values: the last layer's first row of weights alone)
+/// is the first column of `forward`, for MLPs with skips and output activations and for a
+/// hash-grid network, in f64 and f32.
+#[test]
+fn the_first_output_alone_is_the_first_column_of_the_forward_pass() {
+    fn check<M: Module<f64> + Module<f32>>(name: &str, net: &M, params: &[f64]) {
+        let rows = 11;
+        let n_in = Module::<f64>::n_inputs(net);
+        let n_out = Module::<f64>::n_outputs(net);
+        let mut rng = Xoshiro256PlusPlus::seed_from_u64(8);
+        let input: Vec<f64> = (0..rows * n_in).map(|_| rng.random::<f64>() * 1.6 - 0.8).collect();
+        let mut output = vec![0.0; rows * n_out];
+        net.forward(params, &input, &mut output, &mut vec![0.0; rows * Module::<f64>::ctx_per_row(net)]);
+        let mut first = vec![f64::NAN; rows];
+        net.forward_first(params, &input, &mut first);
+        for (r, f) in first.iter().enumerate() {
+            assert!((f - output[r * n_out]).abs() <= 1e-12 * (1.0 + f.abs()), "{name}, row {r}: {f} against {}", output[r * n_out]);
+        }
+        let (p32, x32): (Vec<f32>, Vec<f32>) = (params.iter().map(|&p| p as f32).collect(), input.iter().map(|&x| x as f32).collect());
+        let mut first32 = vec![f32::NAN; rows];
+        net.forward_first(&p32, &x32, &mut first32);
+        for (r, f) in first32.iter().enumerate() {
+            assert!((f64::from(*f) - first[r]).abs() <= 1e-5 * (1.0 + first[r].abs()), "{name}, f32 row {r}: {f} against {}", first[r]);
+        }
+    }
+    for (skip, output_activation) in [(None, Activation::Identity), (Some(2), Activation::Sigmoid)] {
+        let mlp = deep_mlp(skip, output_activation);
+        check("mlp", &mlp, &random_params(Module::<f64>::n_params(&mlp), 0.6, 9));
+    }
+    let net = small_grid_network(2);
+    check("hash-grid network", &net, &random_params(Module::<f64>::n_params(&net), 0.5, 10));
 }

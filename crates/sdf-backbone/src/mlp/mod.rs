@@ -139,7 +139,31 @@ impl<R: Real> Module<R> for Mlp {
     }
 
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
+        self.forward_into(params, input, Outputs::All(output), ctx);
+    }
+
+    fn forward_first(&self, params: &[R], input: &[R], first: &mut [R]) {
+        let mut ctx = Buf::<R>::to_overwrite(first.len() * self.ctx_layout());
+        self.forward_into(params, input, Outputs::First(first), &mut ctx);
+    }
+
+    fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
+        self.backward_pass(params, input, ctx, d_output, Some(d_params), d_input);
+    }
+}
+
+/// What a forward pass writes: every output, or the first alone (its last layer's other rows
+/// of weights unused).
+enum Outputs<'a, R> {
+    All(&'a mut [R]),
+    First(&'a mut [R]),
+}
+
+impl Mlp {
+    /// [`Module::forward`] into `output`, layer by layer through `ctx`.
+    fn forward_into<R: Real>(&self, params: &[R], input: &[R], output: Outputs<'_, R>, ctx: &mut [R]) {
         let _span = crate::profile::span(crate::profile::Stage::MlpForward);
+        let mut output = output;
         let n_x = self.config.n_inputs;
         let n_y = self.config.n_outputs;
         let rows = input.len() / n_x;
@@ -174,11 +198,24 @@ impl<R: Real> Module<R> for Mlp {
                     });
                     let pairs = packed.as_ref().map(|(left, right)| bf16::Pairs { left, stride: ip, k: n_in, right, n: op });
                     if l == last {
-                        // Into a padded temporary, then the unpadded output.
-                        let mut y = Buf::<R>::to_overwrite(rows * op);
-                        dense_forward(&Dense { a, a_s: ip, n_in, wt, bias, n_out_pad: op, act, scale, pairs }, &mut y, op, 0, d, rows);
-                        for (o, yr) in output.chunks_exact_mut(n_y).zip(y.chunks_exact(op)) {
-                            o.copy_from_slice(&yr[..n_y]);
+                        match &mut output {
+                            Outputs::All(output) => {
+                                // Into a padded temporary, then the unpadded output.
+                                let mut y = Buf::<R>::to_overwrite(rows * op);
+                                dense_forward(&Dense { a, a_s: ip, n_in, wt, bias, n_out_pad: op, act, scale, pairs }, &mut y, op, 0, d, rows);
+                                for (o, yr) in output.chunks_exact_mut(n_y).zip(y.chunks_exact(op)) {
+                                    o.copy_from_slice(&yr[..n_y]);
+                                }
+                            }
+                            // One dot product a row with the weights' first row (no act' kept).
+                            Outputs::First(first) => {
+                                let off = self.layers[l].2;
+                                let (w, b) = (&params[off..off + n_in], params[off + n_in * n_out]);
+                                for (f, row) in first.iter_mut().zip(a.chunks_exact(ip)) {
+                                    let z = row[..n_in].iter().zip(w).fold(b, |z, (&x, &w)| x.mul_add(w, z));
+                                    *f = act.apply(z) * scale;
+                                }
+                            }
                         }
                     } else {
                         // Straight into the next layer's input block (its padding stays zero).
@@ -205,12 +242,6 @@ impl<R: Real> Module<R> for Mlp {
         );
     }
 
-    fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
-        self.backward_pass(params, input, ctx, d_output, Some(d_params), d_input);
-    }
-}
-
-impl Mlp {
     /// Block offsets of each layer's input A and act'(Z) in a context of `rows` rows.
     fn ctx_starts(&self, rows: usize) -> Vec<(usize, usize)> {
         let mut starts = Vec::with_capacity(self.layers.len());

@@ -180,13 +180,9 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let protocol = Protocol { spacing: args.spacing, max_dist: args.max_dist, tau: args.tau };
     let Distances { spacing, max_dist, tau } = gt.distances(protocol, &gt_name)?;
     let gt = gt.into_points(spacing)?;
-    let floor_mesh = match (&args.gt_shape, args.floor_resolution) {
-        (Some(shape), Some(resolution)) => Some(trainer::outputs::truth_mesh(shape, resolution)?),
+    let floor = match (&args.gt_shape, args.floor_resolution) {
+        (Some(shape), Some(resolution)) => Some(trainer::outputs::shape_floor(shape, &gt, resolution, spacing)?),
         _ => None,
-    };
-    let floor = match &floor_mesh {
-        Some(mesh) => Some(trainer::outputs::geometry_metrics(mesh, &gt, None, spacing, max_dist, tau)?.chamfer),
-        None => None,
     };
     let mut pred = eval_metrics::sample_mesh(&vertices, &triangles, spacing, PRED_SAMPLING_SEED)
         .with_context(|| format!("the mesh {}", args.mesh.as_ref().map_or(String::new(), |m| m.display().to_string())))?;
@@ -234,19 +230,21 @@ pub fn run(args: &EvalArgs) -> Result<()> {
             );
         }
     }
-    let m = eval_metrics::chamfer(&pred, &gt, max_dist, tau)?;
+    let nearest = eval_metrics::Nearest::new(&pred, &gt)?;
+    let m = nearest.chamfer(max_dist, tau);
     let observed = match (&args.gt_shape, &args.observed_by) {
         (Some(shape), Some(run)) => {
             let cameras = trainer::run::run_train_cameras(run)?;
-            let measured = trainer::outputs::observed_metrics(shape, &cameras, &pred, &gt, (spacing, max_dist, tau), floor_mesh.as_ref());
+            let measured = trainer::outputs::observed_metrics(shape, &cameras, &gt, &nearest, (max_dist, tau), floor.as_ref());
             Some(measured.with_context(|| format!("over what the training views of {} observe", run.display()))?)
         }
         _ => None,
     };
     let parts = match &args.gt_shape {
-        Some(shape) => trainer::outputs::part_metrics(shape, &pred, &gt, max_dist, tau)?,
+        Some(shape) => trainer::outputs::part_metrics(shape, &pred, &gt, &nearest, max_dist, tau),
         None => Vec::new(),
     };
+    let floor = floor.map(|f| f.chamfer(max_dist, tau).chamfer);
     let result = json!({
         "mesh": mesh_path.display().to_string(),
         "chamfer": m.chamfer, "accuracy": m.accuracy, "completeness": m.completeness,
@@ -360,7 +358,10 @@ mod tests {
         let shape = prob_grid::ShapeName::Sphere.shape();
         let protocol = |spacing| Protocol { spacing: Some(spacing), max_dist: Some(0.1), tau: Some(0.01) };
         let floor = |resolution, spacing| {
-            trainer::outputs::shape_floor(&shape, &trainer::data::analytic_truth(&shape, spacing), resolution, (spacing, 0.1, 0.01)).unwrap().chamfer
+            trainer::outputs::shape_floor(&shape, &trainer::data::analytic_truth(&shape, spacing), resolution, spacing)
+                .unwrap()
+                .chamfer(0.1, 0.01)
+                .chamfer
         };
         let config = prob_grid::MarchingCubesConfig { resolution: 64, block: 16, ..Default::default() };
         let (mesh, _) = prob_grid::marching_cubes(&shape, &config).unwrap();

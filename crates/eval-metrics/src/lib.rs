@@ -310,11 +310,12 @@ pub struct Coverage {
 /// completeness and recall are `coverage(pred, gt)`; a subset of the truth (one part of a shape)
 /// gives that part's.
 pub fn coverage(cloud: &PointCloud, queries: &[[f32; 3]], max_dist: f64, tau: f64) -> Coverage {
-    summarise(cloud.nearest(queries).iter().map(|(d, _)| *d), max_dist, tau)
+    coverage_of(cloud.nearest(queries).iter().map(|(d, _)| *d), max_dist, tau)
 }
 
-/// [`Coverage`] of nearest distances: their mean below `max_dist`, the share below `tau`.
-fn summarise(distances: impl Iterator<Item = f32>, max_dist: f64, tau: f64) -> Coverage {
+/// [`Coverage`] of nearest distances: their mean below `max_dist`, the share below `tau` (a
+/// part of a [`Nearest`]'s distances gives that part's).
+pub fn coverage_of(distances: impl Iterator<Item = f32>, max_dist: f64, tau: f64) -> Coverage {
     let (mut sum, mut kept, mut within, mut count) = (0.0, 0usize, 0usize, 0usize);
     for d in distances.map(f64::from) {
         count += 1;
@@ -346,9 +347,46 @@ fn geometry(accuracy: Coverage, completeness: Coverage, tau: f64, n_pred: usize,
 /// The DTU-protocol Chamfer distance and the F-score at `tau` between point sets (sample a mesh
 /// with [`sample_mesh`] first).
 pub fn chamfer(pred: &[[f32; 3]], gt: &[[f32; 3]], max_dist: f64, tau: f64) -> Result<GeometryMetrics, MetricsError> {
-    let pred_cloud = PointCloud::new(pred)?;
-    let gt_cloud = PointCloud::new(gt)?;
-    Ok(geometry(coverage(&gt_cloud, pred, max_dist, tau), coverage(&pred_cloud, gt, max_dist, tau), tau, pred.len(), gt.len()))
+    Ok(Nearest::new(pred, gt)?.chamfer(max_dist, tau))
+}
+
+/// The nearest neighbours between predicted and truth points, both ways (one k-d tree over each
+/// set): everything a Chamfer distance reads, so that the whole figure, the figure over what the
+/// views observed and one per part are made from one search.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Nearest {
+    /// For each predicted point, the distance to its nearest truth point and that point's index.
+    pub pred_to_gt: Vec<(f32, usize)>,
+    /// For each truth point, the distance to its nearest predicted point and that point's index.
+    pub gt_to_pred: Vec<(f32, usize)>,
+}
+
+impl Nearest {
+    /// Both searches.
+    pub fn new(pred: &[[f32; 3]], gt: &[[f32; 3]]) -> Result<Nearest, MetricsError> {
+        let (pred_cloud, gt_cloud) = (PointCloud::new(pred)?, PointCloud::new(gt)?);
+        Ok(Nearest { pred_to_gt: gt_cloud.nearest(pred), gt_to_pred: pred_cloud.nearest(gt) })
+    }
+
+    /// [`chamfer`].
+    pub fn chamfer(&self, max_dist: f64, tau: f64) -> GeometryMetrics {
+        let distances = |n: &[(f32, usize)]| coverage_of(n.iter().map(|(d, _)| *d), max_dist, tau);
+        geometry(distances(&self.pred_to_gt), distances(&self.gt_to_pred), tau, self.pred_to_gt.len(), self.gt_to_pred.len())
+    }
+
+    /// [`chamfer_observed`].
+    pub fn chamfer_observed(&self, observed: &[bool], max_dist: f64, tau: f64) -> Result<GeometryMetrics, MetricsError> {
+        if observed.len() != self.gt_to_pred.len() {
+            return Err(MetricsError::SizeMismatch { what: "observation flags against truth points", a: observed.len(), b: self.gt_to_pred.len() });
+        }
+        let seen: Vec<f32> = self.gt_to_pred.iter().zip(observed).filter(|(_, o)| **o).map(|((d, _), _)| *d).collect();
+        if seen.is_empty() {
+            return Err(MetricsError::Empty("the observed truth"));
+        }
+        let measured: Vec<f32> = self.pred_to_gt.iter().filter(|(_, i)| observed[*i]).map(|(d, _)| *d).collect();
+        let n_pred = measured.len();
+        Ok(geometry(coverage_of(measured.into_iter(), max_dist, tau), coverage_of(seen.iter().copied(), max_dist, tau), tau, n_pred, seen.len()))
+    }
 }
 
 /// [`chamfer`] over what the views observed, as the DTU evaluation's observation mask restricts
@@ -360,15 +398,7 @@ pub fn chamfer_observed(pred: &[[f32; 3]], gt: &[[f32; 3]], observed: &[bool], m
     if observed.len() != gt.len() {
         return Err(MetricsError::SizeMismatch { what: "observation flags against truth points", a: observed.len(), b: gt.len() });
     }
-    let seen: Vec<[f32; 3]> = gt.iter().zip(observed).filter(|(_, o)| **o).map(|(p, _)| *p).collect();
-    if seen.is_empty() {
-        return Err(MetricsError::Empty("the observed truth"));
-    }
-    let pred_cloud = PointCloud::new(pred)?;
-    let nearest = PointCloud::new(gt)?.nearest(pred);
-    let measured: Vec<f32> = nearest.iter().filter(|(_, i)| observed[*i]).map(|(d, _)| *d).collect();
-    let accuracy = summarise(measured.iter().copied(), max_dist, tau);
-    Ok(geometry(accuracy, coverage(&pred_cloud, &seen, max_dist, tau), tau, measured.len(), seen.len()))
+    Nearest::new(pred, gt)?.chamfer_observed(observed, max_dist, tau)
 }
 
 /// Normal consistency: mean over both directions of |n_a · n_b| between each point's normal and

@@ -201,6 +201,12 @@ impl ViewSplit {
         ViewSplit { train: (0..n).filter(|&i| !held(i)).collect(), held_out: (0..n).filter(|&i| held(i)).collect() }
     }
 
+    /// The training views' cameras in `scene` (normalised frame): what observed the scene
+    /// ([`crate::observation`]).
+    pub fn train_cameras(&self, scene: &Scene) -> Vec<camera_geom::PinholeCamera> {
+        self.train.iter().map(|&v| scene.views[v].camera).collect()
+    }
+
     /// The views evaluation renders: the held-out ones, or all views when none are held out.
     pub fn evaluation_views(&self) -> Vec<usize> {
         if self.held_out.is_empty() {

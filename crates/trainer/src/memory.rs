@@ -119,12 +119,13 @@ fn work_item_bytes(backbone: &Backbone, rays: usize, samples: usize, backward: b
     // Forward: points, outputs, contexts; backward: output gradients, the layers' temporaries
     // (dZ, dA), the colour input gradient.
     let forward = sdf_rows * (3.0 + sdf_out + sdf_ctx) + col_rows * (2.0 * col_in + col_ctx + 6.0);
-    // Analytic normals: the tangents along x, y, z of every layer (forward), then along ∂L/∂n
-    // with their adjoints (backward).
-    let tangents = if backbone.normal_scheme() == NormalScheme::Analytic {
-        sdf_rows * (3.0 * (sdf_ctx + sdf_out) + if backward { 2.0 * sdf_ctx + 6.0 } else { 0.0 })
-    } else {
-        0.0
+    // Analytic normals: to train, the tangents along x, y, z of every layer (forward), then along
+    // ∂L/∂n with their adjoints (backward); to render, one reverse pass for the input alone
+    // (`input_gradient`: a layer's dZ and dA at a time).
+    let tangents = match (backbone.normal_scheme() == NormalScheme::Analytic, backward) {
+        (false, _) => 0.0,
+        (true, true) => sdf_rows * (3.0 * (sdf_ctx + sdf_out) + 2.0 * sdf_ctx + 6.0),
+        (true, false) => sdf_rows * (2.0 * width + sdf_out + 3.0),
     };
     let backward = if backward { sdf_rows * (sdf_out + 3.0 * width + 8.0) + col_rows * (col_in + 3.0 * width) } else { 0.0 };
     F32 * (forward + backward + tangents)

@@ -190,52 +190,42 @@ fn mesh_points(mesh: &IsoMesh, spacing: f64) -> Result<Vec<[f32; 3]>> {
     Ok(eval_metrics::sample_mesh(&v, &mesh.triangles, spacing, crate::evaluation::PRED_SAMPLING_SEED)?)
 }
 
-/// Chamfer and F-score of a mesh (normalised frame) against ground-truth points; with
-/// `observed` (one flag per truth point), over what was observed ([`eval_metrics::chamfer_observed`]).
-pub fn geometry_metrics(
-    mesh: &IsoMesh,
-    gt: &[[f32; 3]],
-    observed: Option<&[bool]>,
-    spacing: f64,
-    max_dist: f64,
-    tau: f64,
-) -> Result<eval_metrics::GeometryMetrics> {
-    let pred = mesh_points(mesh, spacing)?;
-    Ok(match observed {
-        Some(flags) => eval_metrics::chamfer_observed(&pred, gt, flags, max_dist, tau)?,
-        None => eval_metrics::chamfer(&pred, gt, max_dist, tau)?,
-    })
-}
-
 /// Completeness and recall of a mesh (`pred`: its surface points) on each part of `shape` (one
 /// entry per part of a union; none for a single primitive): `gt` (the shape's surface points)
 /// grouped by the part nearest, at the protocol's `max_dist` and `tau`; and the accuracy of the
 /// mesh's points nearest each part.
-pub fn part_metrics(shape: &prob_grid::Shape, pred: &[[f32; 3]], gt: &[[f32; 3]], max_dist: f64, tau: f64) -> Result<Vec<PartMetrics>> {
+pub fn part_metrics(
+    shape: &prob_grid::Shape,
+    pred: &[[f32; 3]],
+    gt: &[[f32; 3]],
+    nearest: &eval_metrics::Nearest,
+    max_dist: f64,
+    tau: f64,
+) -> Vec<PartMetrics> {
     let parts = shape.parts();
     if parts.len() < 2 {
-        return Ok(Vec::new());
+        return Vec::new();
     }
-    let by_part = |points: &[[f32; 3]]| {
+    // The nearest distances (one search, `nearest`) of each part's points.
+    let by_part = |points: &[[f32; 3]], distances: &[(f32, usize)]| {
         let mut groups = vec![Vec::new(); parts.len()];
-        for p in points {
-            groups[shape.nearest_part(glam::Vec3::from_array(*p).as_dvec3())].push(*p);
+        for (p, (d, _)) in points.iter().zip(distances) {
+            groups[shape.nearest_part(glam::Vec3::from_array(*p).as_dvec3())].push(*d);
         }
         groups
     };
-    let (truth_groups, mesh_groups) = (by_part(gt), by_part(pred));
-    let (cloud, truth) = (eval_metrics::PointCloud::new(pred)?, eval_metrics::PointCloud::new(gt)?);
+    let (truth_groups, mesh_groups) = (by_part(gt, &nearest.gt_to_pred), by_part(pred, &nearest.pred_to_gt));
     let finite = |x: f64| x.is_finite().then_some(x);
-    Ok(parts
+    parts
         .iter()
         .zip(truth_groups.iter().zip(&mesh_groups))
         .filter(|(_, (group, _))| !group.is_empty())
         .map(|(part, (group, near))| {
-            let c = eval_metrics::coverage(&cloud, group, max_dist, tau);
-            let accuracy = (!near.is_empty()).then(|| eval_metrics::coverage(&truth, near, max_dist, tau).mean).and_then(finite);
+            let c = eval_metrics::coverage_of(group.iter().copied(), max_dist, tau);
+            let accuracy = (!near.is_empty()).then(|| eval_metrics::coverage_of(near.iter().copied(), max_dist, tau).mean).and_then(finite);
             PartMetrics { part: part.describe(), completeness: finite(c.mean), recall: c.within, accuracy }
         })
-        .collect())
+        .collect()
 }
 
 /// What a mesh measured against a run's ground truth ([`run_geometry`]).
@@ -270,64 +260,55 @@ pub fn run_geometry(
     if mesh.triangles.is_empty() {
         return Ok(None);
     }
-    let protocol = (output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau);
-    let pred = mesh_points(mesh, protocol.0)?;
-    let metrics = eval_metrics::chamfer(&pred, &gt, protocol.1, protocol.2)?;
+    let (spacing, max_dist, tau) = (output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau);
+    let pred = mesh_points(mesh, spacing)?;
+    let nearest = eval_metrics::Nearest::new(&pred, &gt)?;
     let shape = data.builtin_shape.as_ref();
-    let floor_mesh = match (shape, floor_at) {
-        (Some(shape), Some(resolution)) => Some(truth_mesh(shape, resolution)?),
+    let floor = match (shape, floor_at) {
+        (Some(shape), Some(resolution)) => Some(shape_floor(shape, &gt, resolution, spacing)?),
         _ => None,
     };
-    let floor = match &floor_mesh {
-        Some(mesh) => Some(geometry_metrics(mesh, &gt, None, protocol.0, protocol.1, protocol.2)?.chamfer),
-        None => None,
-    };
     let parts = match shape {
-        Some(shape) => part_metrics(shape, &pred, &gt, protocol.1, protocol.2)?,
+        Some(shape) => part_metrics(shape, &pred, &gt, &nearest, max_dist, tau),
         None => Vec::new(),
     };
     let observed = match shape {
-        Some(shape) if !observers.is_empty() => Some(observed_metrics(shape, observers, &pred, &gt, protocol, floor_mesh.as_ref())?),
+        Some(shape) if !observers.is_empty() => Some(observed_metrics(shape, observers, &gt, &nearest, (max_dist, tau), floor.as_ref())?),
         _ => None,
     };
-    Ok(Some(RunGeometry { metrics, floor, parts, observed }))
+    let floor = floor.map(|f| f.chamfer(max_dist, tau).chamfer);
+    Ok(Some(RunGeometry { metrics: nearest.chamfer(max_dist, tau), floor, parts, observed }))
 }
 
 /// The truth's own marching-cubes mesh: `shape` at `resolution` cells per side of the bound's
 /// cube, what a floor measures.
-pub fn truth_mesh(shape: &prob_grid::Shape, resolution: u32) -> Result<IsoMesh> {
+fn truth_mesh(shape: &prob_grid::Shape, resolution: u32) -> Result<IsoMesh> {
     let config = prob_grid::MarchingCubesConfig { resolution, block: 16, ..Default::default() };
     Ok(prob_grid::marching_cubes(shape, &config)?.0)
 }
 
-/// The floor: the truth's own mesh at `resolution` ([`truth_mesh`]) measured against `gt` (that
-/// shape's truth points) with the protocol's (spacing, max distance, τ).
-pub fn shape_floor(
-    shape: &prob_grid::Shape,
-    gt: &[[f32; 3]],
-    resolution: u32,
-    (spacing, max_dist, tau): (f64, f64, f64),
-) -> Result<eval_metrics::GeometryMetrics> {
-    geometry_metrics(&truth_mesh(shape, resolution)?, gt, None, spacing, max_dist, tau)
+/// The floor: the truth's own mesh at `resolution` (`truth_mesh`), sampled every `spacing`,
+/// against `gt` (that shape's truth points) — its Chamfer over the whole truth and, with the
+/// flags of what the views observe, over that ([`observed_metrics`]).
+pub fn shape_floor(shape: &prob_grid::Shape, gt: &[[f32; 3]], resolution: u32, spacing: f64) -> Result<eval_metrics::Nearest> {
+    Ok(eval_metrics::Nearest::new(&mesh_points(&truth_mesh(shape, resolution)?, spacing)?, gt)?)
 }
 
-/// The figures over what `observers` see of `shape` ([`crate::observation`]): a mesh's points
-/// `pred` against the truth points `gt` by the protocol's (spacing, max distance, τ), and with
-/// `floor_mesh` (the truth's own mesh) its floor measured the same way.
+/// The figures over what `observers` see of `shape` ([`crate::observation`]): a mesh's nearest
+/// neighbours against the truth points `gt` ([`eval_metrics::Nearest`]) by the protocol's (max
+/// distance, τ), and with `floor` (the truth's own mesh against `gt`, [`shape_floor`]) its floor
+/// measured the same way.
 pub fn observed_metrics(
     shape: &prob_grid::Shape,
     observers: &[camera_geom::PinholeCamera],
-    pred: &[[f32; 3]],
     gt: &[[f32; 3]],
-    (spacing, max_dist, tau): (f64, f64, f64),
-    floor_mesh: Option<&IsoMesh>,
+    nearest: &eval_metrics::Nearest,
+    (max_dist, tau): (f64, f64),
+    floor: Option<&eval_metrics::Nearest>,
 ) -> Result<ObservedMetrics> {
     let flags = crate::observation::observed(shape, observers, gt);
-    let m = eval_metrics::chamfer_observed(pred, gt, &flags, max_dist, tau)?;
-    let floor = match floor_mesh {
-        Some(mesh) => Some(geometry_metrics(mesh, gt, Some(&flags), spacing, max_dist, tau)?.chamfer),
-        None => None,
-    };
+    let m = nearest.chamfer_observed(&flags, max_dist, tau)?;
+    let floor = floor.map(|f| f.chamfer_observed(&flags, max_dist, tau).map(|m| m.chamfer)).transpose()?;
     Ok(ObservedMetrics::new(&m, flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64, floor))
 }
 
@@ -374,19 +355,21 @@ mod tests {
     /// but not the ring.
     #[test]
     fn part_metrics_see_a_missing_thin_ring_and_where_the_mesh_is_off() {
+        let parts_of = |shape: &Shape, pred: &[[f32; 3]], gt: &[[f32; 3]]| {
+            part_metrics(shape, pred, gt, &eval_metrics::Nearest::new(pred, gt).unwrap(), 0.1, 0.01)
+        };
         let composite = Shape::composite();
-        let (max_dist, tau) = (0.1, 0.01);
         let gt = crate::data::analytic_truth(&composite, 0.004);
-        let whole = part_metrics(&composite, &surface_points(&composite, 160), &gt, max_dist, tau).unwrap();
+        let whole = parts_of(&composite, &surface_points(&composite, 160), &gt);
         assert_eq!(whole.len(), 3);
         assert!(whole.iter().all(|p| p.recall > 0.95 && p.accuracy.unwrap() < 0.004), "{whole:?}");
         let parts = composite.parts();
         let ringless = Shape::Union(vec![parts[0].clone(), parts[2].clone()]);
-        let without = part_metrics(&composite, &surface_points(&ringless, 160), &gt, max_dist, tau).unwrap();
+        let without = parts_of(&composite, &surface_points(&ringless, 160), &gt);
         assert_eq!(without[1].part, "torus 0.58 × 0.04");
         assert!(without[1].recall < 0.05, "{without:?}");
         assert!(without[0].recall > 0.95 && without[2].recall > 0.9, "{without:?}");
         assert_eq!(without[1].accuracy, None, "no point of the mesh is nearest the ring");
-        assert!(part_metrics(&parts[1], &surface_points(&composite, 64), &gt, max_dist, tau).unwrap().is_empty(), "one primitive: no parts");
+        assert!(parts_of(&parts[1], &surface_points(&composite, 64), &gt).is_empty(), "one primitive: no parts");
     }
 }

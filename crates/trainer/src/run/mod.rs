@@ -199,8 +199,7 @@ pub fn observed_line(o: &crate::metrics::ObservedMetrics) -> String {
 pub fn run_train_cameras(dir: &Path) -> Result<Vec<camera_geom::PinholeCamera>> {
     let (config, record) = read_run_config(dir)?;
     let data = load_run_data(dir, &config, &record, None)?;
-    let split = crate::data::ViewSplit::new(&config, &data.scene);
-    Ok(split.train.iter().map(|&v| data.scene.views[v].camera).collect())
+    Ok(crate::data::ViewSplit::new(&config, &data.scene).train_cameras(&data.scene))
 }
 
 /// The data of the run in `dir`: from `repointed` or the recorded path, verified.

@@ -291,7 +291,7 @@ impl Trainer {
 
     /// The training views' cameras (normalised frame).
     pub fn train_cameras(&self) -> Vec<camera_geom::PinholeCamera> {
-        self.split.train.iter().map(|&v| self.data.scene.views[v].camera).collect()
+        self.split.train_cameras(&self.data.scene)
     }
 
     /// Whether the masks are used.

@@ -1,9 +1,10 @@
 //! Scratch buffers, reused across work items and steps: a training step needs tens of megabytes
 //! of context per work item, and allocating it fresh each time costs page faults and zeroing of
 //! fresh pages (measured ~15 % of a step). A [`Buf`] is taken from the process's pool of its
-//! element type (zeroed, of the asked length, the smallest pooled allocation that fits) and goes
-//! back to it when dropped, whichever thread drops it, so the pool holds what the largest step
-//! had live at once and the resident size stays flat after the first steps.
+//! element type (of the asked length, the smallest pooled allocation that fits; zeroed, or as it
+//! was for a pass that overwrites it: [`Buf::to_overwrite`]) and goes back to it when dropped,
+//! whichever thread drops it, so the pool holds what the largest step had live at once and the
+//! resident size stays flat after the first steps.
 //!
 //! The pool is shared by all threads on purpose: a work item's deferred records are made on a
 //! worker and dropped by the thread that sums the batch. With one pool per thread they piled up
@@ -74,10 +75,10 @@ impl<R: Element> Buf<R> {
     }
 
     /// `len` values that the caller overwrites, every one, before it reads any: a pooled
-    /// allocation keeps what it last held (no memset; only a part beyond its old length is
-    /// zeroed, once in the allocation's life). For the outputs and contexts that a module's passes write in full
-    /// ([`crate::Module::forward`], a product that does not accumulate): zeroing them was 6–13 %
-    /// of a training step's and of a render's time.
+    /// allocation keeps what it last held (no memset; only a part beyond all it ever held is
+    /// zeroed, once in the allocation's life). For the outputs and contexts that a module's
+    /// passes write in full ([`crate::Module::forward`], a product that does not accumulate):
+    /// zeroing them was 6–13 % of a training step's and of a render's time.
     pub fn to_overwrite(len: usize) -> Buf<R> {
         let mut values = Self::pooled(len);
         if values.len() < len {

@@ -40,8 +40,8 @@ fn merge_with_values(a: &[f32], va: &[f32], b: &[f32], vb: &[f32]) -> (Vec<f32>,
 }
 
 /// The SDF (first output of `net`, [`Module::forward_first`]) at `depths[i]` along `rays[i]` for
-/// each ray of a chunk, in one forward pass over all their points (rows of the network are independent: the values are
-/// those of evaluating each ray alone).
+/// each ray of a chunk, in one forward pass over all their points (rows of the network are
+/// independent: the values are those of evaluating each ray alone).
 fn chunk_sdf<S: Module<f32>>(net: &S, params: &[f32], rays: &[RayInput<f32>], depths: &[&[f32]]) -> Vec<Vec<f32>> {
     let rows: usize = depths.iter().map(|d| d.len()).sum();
     let mut points = Vec::with_capacity(3 * rows);

@@ -18,6 +18,8 @@
 #![deny(missing_docs)]
 
 pub mod align;
+mod ssim;
+pub use ssim::ssim;
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
@@ -95,57 +97,6 @@ pub fn psnr(pred: &[[f32; 3]], target: &[[f32; 3]], mask: Option<&[bool]>) -> Re
         return Err(MetricsError::Empty("psnr mask"));
     }
     Ok(-10.0 * (sum / count as f64).log10())
-}
-
-/// Mean SSIM (Wang et al. 2004: 11 × 11 Gaussian window, σ = 1.5, K₁ = 0.01, K₂ = 0.03, data
-/// range 1) over the valid window positions, averaged over the three channels.
-pub fn ssim(pred: &[[f32; 3]], target: &[[f32; 3]], width: usize, height: usize) -> Result<f64, MetricsError> {
-    if pred.len() != target.len() || pred.len() != width * height {
-        return Err(MetricsError::SizeMismatch { what: "ssim images", a: pred.len(), b: target.len().max(width * height) });
-    }
-    const R: usize = 5;
-    if width < 2 * R + 1 || height < 2 * R + 1 {
-        return Err(MetricsError::Empty("ssim window (image smaller than 11 × 11)"));
-    }
-    let g: Vec<f64> = (0..=2 * R).map(|i| (-((i as f64 - R as f64).powi(2)) / (2.0 * 1.5 * 1.5)).exp()).collect();
-    let norm: f64 = g.iter().sum();
-    let g: Vec<f64> = g.iter().map(|v| v / norm).collect();
-    let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
-    let mut total = 0.0;
-    for k in 0..3 {
-        let x: Vec<f64> = pred.iter().map(|p| f64::from(p[k])).collect();
-        let y: Vec<f64> = target.iter().map(|p| f64::from(p[k])).collect();
-        // Separable blur of x, y, x², y², xy ("valid" region only).
-        let blur = |f: &dyn Fn(usize) -> f64| -> Vec<f64> {
-            let (w2, h2) = (width - 2 * R, height - 2 * R);
-            let mut rows = vec![0.0; w2 * height];
-            for r in 0..height {
-                for c in 0..w2 {
-                    rows[r * w2 + c] = (0..=2 * R).map(|i| g[i] * f(r * width + c + i)).sum();
-                }
-            }
-            let mut out = vec![0.0; w2 * h2];
-            for r in 0..h2 {
-                for c in 0..w2 {
-                    out[r * w2 + c] = (0..=2 * R).map(|i| g[i] * rows[(r + i) * w2 + c]).sum();
-                }
-            }
-            out
-        };
-        let mx = blur(&|i| x[i]);
-        let my = blur(&|i| y[i]);
-        let sxx = blur(&|i| x[i] * x[i]);
-        let syy = blur(&|i| y[i] * y[i]);
-        let sxy = blur(&|i| x[i] * y[i]);
-        let n = mx.len();
-        let mut sum = 0.0;
-        for i in 0..n {
-            let (vx, vy, cxy) = (sxx[i] - mx[i] * mx[i], syy[i] - my[i] * my[i], sxy[i] - mx[i] * my[i]);
-            sum += ((2.0 * mx[i] * my[i] + c1) * (2.0 * cxy + c2)) / ((mx[i] * mx[i] + my[i] * my[i] + c1) * (vx + vy + c2));
-        }
-        total += sum / n as f64;
-    }
-    Ok(total / 3.0)
 }
 
 /// Points on a triangle mesh at a fixed density: `⌈area / spacing²⌉` points per unit of area in
@@ -438,16 +389,6 @@ mod tests {
         assert_eq!(psnr(&t, &t, None).unwrap(), f64::INFINITY);
         assert!(matches!(psnr(&p, &t, Some(&[false; 4])), Err(MetricsError::Empty(_))));
         assert!(matches!(psnr(&p[..3], &t, None), Err(MetricsError::SizeMismatch { .. })));
-    }
-
-    #[test]
-    fn ssim_is_one_for_identical_images_and_drops_with_noise() {
-        let (w, h) = (32, 24);
-        let img: Vec<[f32; 3]> = (0..w * h).map(|i| [((i % w) as f32 / w as f32), ((i / w) as f32 / h as f32), 0.5]).collect();
-        assert!((ssim(&img, &img, w, h).unwrap() - 1.0).abs() < 1e-9);
-        let noisy: Vec<[f32; 3]> = img.iter().enumerate().map(|(i, p)| p.map(|v| v + if (i * 7919) % 3 == 0 { 0.1 } else { -0.05 })).collect();
-        let s = ssim(&noisy, &img, w, h).unwrap();
-        assert!(s < 0.9 && s > 0.0, "ssim {s}");
     }
 
     fn sphere_points(r: f32, n: usize, seed: u64) -> Vec<[f32; 3]> {

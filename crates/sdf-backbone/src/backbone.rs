@@ -202,8 +202,13 @@ impl Backbone {
 
     /// Hash-grid levels (None for positional encoding).
     pub fn levels(&self) -> Option<usize> {
+        self.level_resolutions().map(<[u32]>::len)
+    }
+
+    /// The hash grid's resolution per level, coarsest first (None for positional encoding).
+    pub fn level_resolutions(&self) -> Option<&[u32]> {
         match &self.sdf.a {
-            InputEncoding::HashGrid(g) => Some(g.encoding.resolutions().len()),
+            InputEncoding::HashGrid(g) => Some(g.encoding.resolutions()),
             InputEncoding::Positional(_) => None,
         }
     }

@@ -161,12 +161,18 @@ pub fn estimate(
     // copied for the up-sampling) with its depths and SDF values (a heap block each) and its
     // output; and for every pixel of the view its output, target, mask and image.
     let render_samples = (config.render.coarse + config.render.render_fine + 1) as f64;
-    let render_rays = view_pixels as f64 / f64::from(config.output.eval_downscale.min(config.output.validate_downscale).pow(2));
+    let rays_at = |downscale: u32| view_pixels as f64 / f64::from(downscale.pow(2));
+    let render_rays = rays_at(config.output.eval_downscale.min(config.output.validate_downscale));
     let (ray, output) = (std::mem::size_of::<sdf_backbone::RayInput<f32>>() as f64, std::mem::size_of::<sdf_backbone::RayOutput<f32>>() as f64);
     let band = render_rays.min(crate::trainer::RENDER_BAND_RAYS as f64) * (2.0 * ray + 2.0 * (F32 * render_samples + 40.0) + output);
+    // After a render, beside its outputs: PSNR and SSIM copy the predicted colours (SSIM's own
+    // window of rows is under a megabyte); a validation panel is five RGB images side by side,
+    // its PNG encoding (at most as large) and the hit pixels' depths.
+    let after_render = (rays_at(config.output.eval_downscale) * 3.0 * F32).max(rays_at(config.output.validate_downscale) * (2.0 * 5.0 * 3.0 + F32));
     let evaluation = t * work_item_bytes(backbone, 64, config.render.coarse + config.render.render_fine, false)
         + band
-        + render_rays * (output + 2.0 * 3.0 * F32 + 1.0);
+        + render_rays * (output + 2.0 * 3.0 * F32 + 1.0)
+        + after_render;
     // Meshing: a block of 17³ corners per thread through the SDF network (chunks of 1024
     // rows), and the mesh (~ 12 triangles per surface cell of the resolution's shell).
     let mesh_res = f64::from(mesh_resolution);

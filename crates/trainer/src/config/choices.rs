@@ -100,6 +100,20 @@ pub enum Normals {
     Analytic,
 }
 
+/// How the smoothing weights (`model.curvature`, `model.normal_smoothness`) follow the
+/// coarse-to-fine levels (`model.smoothing_decay`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SmoothingDecay {
+    /// The weights stay as given once the warm-up has reached them.
+    None,
+    /// Neuralangelo's: divided by the hash grid's growth for each level switched on after the
+    /// initial ones (the finest active resolution over the initial finest), so that smoothing
+    /// holds the coarse shape early and lets the finer levels' detail through later. No effect
+    /// without a hash grid.
+    Levels,
+}
+
 /// Which connected components of the extracted mesh are kept.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -32,7 +32,7 @@ mod validate;
 pub use annotated::annotated_default;
 use budget::budget_from_short_keys;
 pub use budget::{Budget, parse_duration, positive_duration};
-pub use choices::{BackgroundModel, GridSize, InitRadius, MeshFilter, MeshResolution, MomentStorage, Normals, Products, SamplerKind};
+pub use choices::{BackgroundModel, GridSize, InitRadius, MeshFilter, MeshResolution, MomentStorage, Normals, Products, SamplerKind, SmoothingDecay};
 
 /// The default spacing of the points sampled on meshes for Chamfer (`output.chamfer_spacing`,
 /// normalised units): every table in BENCHMARKS.md so far was measured with it, against the
@@ -155,6 +155,10 @@ pub struct ModelConfig {
     /// the learning-rate warm-up like the curvature. It needs no probes, so it works with
     /// analytic normals (default 0: see BENCHMARKS.md, "Detail against the budget").
     pub normal_smoothness: f64,
+    /// How the curvature and normal-smoothness weights follow the coarse-to-fine levels:
+    /// `none` (as given) or `levels` (Neuralangelo's: divided by the grid's growth for each level
+    /// switched on after the initial ones).
+    pub smoothing_decay: SmoothingDecay,
     /// Normals (and curvature) by tetrahedral (4 probes) or central (6 probes) differences, or
     /// `analytic`: the exact ∇ₓS by forward-mode derivatives (every preset; no curvature);
     /// `auto`: analytic where that holds, else tetrahedral ([`ModelConfig::normal_scheme`]).

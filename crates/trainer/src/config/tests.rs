@@ -266,3 +266,13 @@ fn the_sdf_networks_depth_is_the_presets_unless_given() {
     let backbone = crate::sizing::architecture(&config.model, None).unwrap();
     assert_eq!(backbone.sdf.b.config().hidden_layers, 3);
 }
+
+/// `model.smoothing_decay` reads its two names and names the key of a bad one.
+#[test]
+fn the_smoothing_decay_reads_its_names_and_names_a_bad_one() {
+    let decay = |v: &str| TrainConfig::load(None, &[format!("model.smoothing_decay={v}")]).map(|c| c.model.smoothing_decay);
+    assert_eq!(decay("levels").unwrap(), SmoothingDecay::Levels);
+    assert_eq!(decay("none").unwrap(), SmoothingDecay::None);
+    let err = decay("often").unwrap_err().chain();
+    assert!(err.contains("smoothing_decay") && err.contains("often"), "{err}");
+}

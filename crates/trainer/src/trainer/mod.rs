@@ -384,10 +384,7 @@ impl Trainer {
         let step = self.state.step;
         let progress = self.progress();
         self.set_progress_schedules(progress);
-        let warmup = self.config.optim.schedule.warmup;
-        let ramp = if warmup > 0.0 { (progress / warmup).min(1.0) } else { 1.0 };
-        self.backbone.config.curvature_weight = self.config.model.curvature * ramp;
-        self.backbone.config.normal_smoothness = self.config.model.normal_smoothness * ramp;
+        (self.backbone.config.curvature_weight, self.backbone.config.normal_smoothness) = self.smoothing_weights(progress);
 
         // Grid update at the start of each part of the run (the estimator's schedule).
         let update = self.update_grids_due(progress)?;

@@ -1,7 +1,8 @@
-//! What follows the run's progress: the active hash-grid levels (coarse-to-fine), where the
-//! learned background starts, and whether the geometry learns yet.
+//! What follows the run's progress: the active hash-grid levels (coarse-to-fine), the smoothing
+//! weights, where the learned background starts, and whether the geometry learns yet.
 
 use super::Trainer;
+use crate::config::SmoothingDecay;
 
 impl Trainer {
     /// Active hash-grid levels at `progress` (coarse-to-fine).
@@ -9,6 +10,25 @@ impl Trainer {
         let ramp = if self.config.model.all_levels_at > 0.0 { (progress / self.config.model.all_levels_at).min(1.0) } else { 1.0 };
         let start = self.config.model.initial_levels.min(levels);
         start + ((levels - start) as f64 * ramp).floor() as usize
+    }
+
+    /// The curvature and normal-smoothness weights at `progress`: reached linearly over the
+    /// learning-rate warm-up, then, with `model.smoothing_decay = "levels"`, divided by the finest
+    /// active resolution over the initial levels' finest (Neuralangelo's growth factor per level
+    /// switched on).
+    pub(super) fn smoothing_weights(&self, progress: f64) -> (f64, f64) {
+        let warmup = self.config.optim.schedule.warmup;
+        let ramp = if warmup > 0.0 { (progress / warmup).min(1.0) } else { 1.0 };
+        let decay = match (self.config.model.smoothing_decay, self.backbone.level_resolutions()) {
+            (SmoothingDecay::Levels, Some(resolutions)) => {
+                let initial = self.config.model.initial_levels.clamp(1, resolutions.len());
+                let active = self.active_levels(resolutions.len(), progress).clamp(1, resolutions.len());
+                f64::from(resolutions[initial - 1]) / f64::from(resolutions[active - 1])
+            }
+            _ => 1.0,
+        };
+        let m = &self.config.model;
+        (m.curvature * ramp * decay, m.normal_smoothness * ramp * decay)
     }
 
     /// Where the learned background starts at `progress`: from `model.background_near_start`
@@ -81,6 +101,35 @@ mod tests {
         trainer.config.model.background_near_start = None;
         trainer.set_progress_schedules(0.0);
         assert_eq!(trainer.backbone.background.as_ref().unwrap().near, 1.0, "no start: always the near radius");
+    }
+
+    /// Neuralangelo's decay: the smoothing weights are divided by the finest active resolution
+    /// over the initial levels' finest, after the warm-up's ramp; `none` keeps them as given.
+    #[test]
+    fn the_smoothing_weights_decay_by_the_grids_growth_per_level_switched_on() {
+        let (mut config, data) = small(true, 1);
+        (config.model.normal_smoothness, config.model.curvature) = (0.2, 0.0);
+        (config.model.initial_levels, config.model.all_levels_at, config.optim.schedule.warmup) = (4, 0.5, 0.1);
+        config.model.smoothing_decay = SmoothingDecay::Levels;
+        let mut trainer = Trainer::new(config, data).unwrap();
+        let resolutions = trainer.backbone.level_resolutions().unwrap().to_vec();
+        let levels = resolutions.len();
+        assert!(levels > 4 && resolutions[levels - 1] > resolutions[3], "the preset has levels to switch on: {resolutions:?}");
+        let at = |trainer: &Trainer, progress: f64| trainer.smoothing_weights(progress).1;
+        assert!((at(&trainer, 0.05) - 0.1).abs() < 1e-12, "half-way through the warm-up: half the weight");
+        assert!((at(&trainer, 0.1) - 0.2).abs() < 1e-12, "the initial levels: the weight as given");
+        let all = 0.2 * f64::from(resolutions[3]) / f64::from(resolutions[levels - 1]);
+        assert!((at(&trainer, 0.6) - all).abs() < 1e-12, "every level: decayed by the growth over them");
+        let middle = trainer.active_levels(levels, 0.3);
+        let expected = 0.2 * f64::from(resolutions[3]) / f64::from(resolutions[middle - 1]);
+        assert!(middle > 4 && middle < levels && (at(&trainer, 0.3) - expected).abs() < 1e-12, "part of the way: {middle} levels");
+        trainer.config.model.curvature = 1e-3;
+        assert!((trainer.smoothing_weights(0.6).0 - 1e-3 * all / 0.2).abs() < 1e-15, "the curvature decays alike");
+        trainer.config.model.smoothing_decay = SmoothingDecay::None;
+        assert_eq!(trainer.smoothing_weights(0.6), (1e-3, 0.2), "none: as given after the warm-up");
+        trainer.config.model.curvature = 0.0;
+        trainer.step().unwrap();
+        assert_eq!(trainer.backbone.config.normal_smoothness, 0.0, "a step at progress 0 sets the weight the ramp gives");
     }
 
     #[test]

@@ -45,6 +45,8 @@ pub struct SceneSize {
     pub pixel_bytes: usize,
     /// Pixels of the largest view.
     pub largest_view_pixels: usize,
+    /// The widest view's width in pixels.
+    pub widest_view: u32,
     /// Whether every view has a mask.
     pub masks: bool,
     /// The views' median pixel footprint at the region of interest ([`crate::sizing`]).
@@ -57,7 +59,8 @@ impl SceneSize {
         let mask_bytes = if masks { pixels.div_ceil(8) } else { 0 };
         let views = cameras.len();
         let footprint = crate::sizing::median_footprint(cameras);
-        SceneSize { views, pixel_bytes: views * (3 * pixels + mask_bytes), largest_view_pixels: pixels, masks, footprint }
+        let widest_view = cameras.iter().map(|c| c.width).max().unwrap_or(0);
+        SceneSize { views, pixel_bytes: views * (3 * pixels + mask_bytes), largest_view_pixels: pixels, widest_view, masks, footprint }
     }
 
     /// The sizes of a loaded scene.
@@ -66,6 +69,7 @@ impl SceneSize {
             views: scene.views.len(),
             pixel_bytes: scene.pixel_bytes(),
             largest_view_pixels: scene.views.iter().map(|v| v.image.width as usize * v.image.height as usize).max().unwrap_or(0),
+            widest_view: scene.views.iter().map(|v| v.image.width).max().unwrap_or(0),
             masks: scene.views.iter().all(|v| v.mask.is_some()),
             footprint: crate::sizing::median_footprint(scene.views.iter().map(|v| &v.camera)),
         }
@@ -134,6 +138,7 @@ impl SceneData {
             views: pixels.len(),
             pixel_bytes: pixels.iter().map(|p| 3 * p + p.div_ceil(8)).sum(),
             largest_view_pixels: pixels.iter().copied().max().unwrap_or(0),
+            widest_view: cameras.records.iter().map(|r| r.camera.width).max().unwrap_or(0),
             masks,
             footprint: crate::sizing::median_footprint(cameras.records.iter().map(|r| &r.camera)),
         })

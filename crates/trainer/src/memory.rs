@@ -177,7 +177,12 @@ pub fn estimate(
     // rows), and the mesh (~ 12 triangles per surface cell of the resolution's shell).
     let mesh_res = f64::from(mesh_resolution);
     let sdf_ctx = Module::<f32>::ctx_per_row(&backbone.sdf) as f64;
-    let meshing = t * F32 * 1024.0 * (sdf_ctx + 32.0) + mesh_res * mesh_res * 6.0 * 40.0;
+    // The mesh's picture: two views side by side (RGB), drawn one at a time at most
+    // `MESH_PICTURE_WIDTH` wide by the golden renderer (which holds a whole view's hits).
+    let picture_downscale = f64::from(crate::outputs::mesh_picture_downscale(size.widest_view));
+    let picture_pixels = view_pixels as f64 / (picture_downscale * picture_downscale);
+    let picture = picture_pixels * (datasets::golden::render::RENDER_BYTES_PER_PIXEL as f64 + 2.0 * 3.0);
+    let meshing = t * F32 * 1024.0 * (sdf_ctx + 32.0) + mesh_res * mesh_res * 6.0 * 40.0 + picture;
     let cells = (config.guide.camera.ru * config.guide.camera.rv * config.guide.camera.rl) as f64;
     let guided = config.sampler == crate::config::SamplerKind::Guided;
     let scene_cells = (config.guide.scene.resolution as f64).powi(3);

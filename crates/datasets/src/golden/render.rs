@@ -126,6 +126,11 @@ pub struct Render {
     pub normal: Vec<[f32; 3]>,
 }
 
+/// Bytes a pixel of [`render_view`] holds at its peak: each row's hits with their rays until
+/// the view is shaded, and the [`Render`] itself (colour, depth, normal; the mask's bit rounded
+/// up). For memory models of callers that render large views.
+pub const RENDER_BYTES_PER_PIXEL: usize = std::mem::size_of::<(Option<Hit>, DVec3, DVec3)>() + 3 + 4 + 12 + 1;
+
 /// The fixed light direction (towards the light).
 pub const LIGHT_DIRECTION: DVec3 = DVec3::new(0.36, -0.48, 0.8);
 

@@ -9,7 +9,7 @@ use crate::error::Result;
 use crate::folder::RunFolder;
 use crate::memory::{self, MemoryEstimate};
 use crate::metrics::{RunMetrics, ViewPsnr};
-use crate::outputs::{RunGeometry, mesh_files, mesh_picture, run_geometry};
+use crate::outputs::{RunGeometry, mesh_files, mesh_picture, mesh_picture_downscale, run_geometry};
 use crate::progress::Progress;
 use crate::trainer::Trainer;
 use prob_grid::IsoMesh;
@@ -104,6 +104,9 @@ fn final_images(trainer: &Trainer, progress: &Progress, stopped: &dyn Fn() -> bo
             return Ok(None);
         }
         let metrics = trainer.view_metrics(v, config.output.eval_downscale)?;
+        // A view's work items leave buffers of many sizes in the pool: emptied after each view,
+        // the resident size is one view's, not the views' together (measured at 1600 × 1200).
+        sdf_backbone::scratch::release_all();
         progress.phase("eval", i + 1, n_renders);
         if i < eval_views.len() { held.push(metrics) } else { fit.push(metrics) }
     }
@@ -128,7 +131,8 @@ fn final_mesh(trainer: &Trainer, folder: &RunFolder, progress: &Progress, pictur
     }
     if !mesh.triangles.is_empty() {
         let views = [picture_view, split.train[split.train.len() / 2]];
-        let cams: Vec<camera_geom::PinholeCamera> = views.iter().map(|&v| scene.views[v].camera).collect();
+        let cams =
+            views.iter().map(|&v| trainer.downscaled_camera(v, mesh_picture_downscale(scene.views[v].camera.width))).collect::<Result<Vec<_>>>()?;
         folder.write_png("pictures/mesh.png", &mesh_picture(&mesh, &cams))?;
     }
     Ok(Some(Mesh { mesh, components, kept, files, seconds: t.elapsed().as_secs_f64() }))

@@ -107,10 +107,10 @@ pub enum Normals {
 pub enum SmoothingDecay {
     /// The weights stay as given once the warm-up has reached them.
     None,
-    /// Neuralangelo's: divided by the hash grid's growth for each level switched on after the
-    /// initial ones (the finest active resolution over the initial finest), so that smoothing
-    /// holds the coarse shape early and lets the finer levels' detail through later. No effect
-    /// without a hash grid.
+    /// Neuralangelo's (the default): divided by the hash grid's growth for each level switched on
+    /// after the initial ones (the finest active resolution over the initial finest), so that
+    /// smoothing holds the coarse shape early and lets the finer levels' detail through later.
+    /// No effect without a hash grid.
     Levels,
 }
 

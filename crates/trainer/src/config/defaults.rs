@@ -54,7 +54,7 @@ impl Default for ModelConfig {
             mask: 1.0,
             curvature: 0.0,
             normal_smoothness: 0.0,
-            smoothing_decay: SmoothingDecay::None,
+            smoothing_decay: SmoothingDecay::Levels,
             normals: Normals::Auto,
             background: [0.0; 3],
             background_model: BackgroundModel::Auto,

@@ -152,12 +152,14 @@ pub struct ModelConfig {
     pub curvature: f64,
     /// Normal smoothness weight, `mean |nᵢ₊₁ − nᵢ|²` over neighbouring samples of each ray
     /// (the Hessian of S along the rays: zero on planes, large on bumps), reached linearly over
-    /// the learning-rate warm-up like the curvature. It needs no probes, so it works with
-    /// analytic normals (default 0: see BENCHMARKS.md, "Detail against the budget").
+    /// the learning-rate warm-up like the curvature, then decayed by `smoothing_decay`. It needs
+    /// no probes, so it works with analytic normals (default 0: at 0.1, decayed, Chamfer 0.96–0.98×
+    /// on three masked scenes, inside the seeds' spread; docs/DECISIONS.md §41).
     pub normal_smoothness: f64,
-    /// How the curvature and normal-smoothness weights follow the coarse-to-fine levels:
-    /// `none` (as given) or `levels` (Neuralangelo's: divided by the grid's growth for each level
-    /// switched on after the initial ones).
+    /// How the curvature and normal-smoothness weights follow the coarse-to-fine levels: `levels`
+    /// (the default; Neuralangelo's: divided by the grid's growth for each level switched on after
+    /// the initial ones) or `none` (as given to the end: normal smoothness 0.1 then costs 1.03–1.04×
+    /// the Chamfer of none at all, where decayed it gains; docs/DECISIONS.md §41).
     pub smoothing_decay: SmoothingDecay,
     /// Normals (and curvature) by tetrahedral (4 probes) or central (6 probes) differences, or
     /// `analytic`: the exact ∇ₓS by forward-mode derivatives (every preset; no curvature);

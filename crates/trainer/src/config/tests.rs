@@ -267,10 +267,12 @@ fn the_sdf_networks_depth_is_the_presets_unless_given() {
     assert_eq!(backbone.sdf.b.config().hidden_layers, 3);
 }
 
-/// `model.smoothing_decay` reads its two names and names the key of a bad one.
+/// `model.smoothing_decay` is `levels` unless given, reads its two names and names the key of a
+/// bad one.
 #[test]
-fn the_smoothing_decay_reads_its_names_and_names_a_bad_one() {
+fn the_smoothing_decay_is_per_level_unless_given_and_names_a_bad_value() {
     let decay = |v: &str| TrainConfig::load(None, &[format!("model.smoothing_decay={v}")]).map(|c| c.model.smoothing_decay);
+    assert_eq!(TrainConfig::default().model.smoothing_decay, SmoothingDecay::Levels, "Neuralangelo's, the default");
     assert_eq!(decay("levels").unwrap(), SmoothingDecay::Levels);
     assert_eq!(decay("none").unwrap(), SmoothingDecay::None);
     let err = decay("often").unwrap_err().chain();

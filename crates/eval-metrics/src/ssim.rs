@@ -34,7 +34,13 @@ pub fn ssim(pred: &[[f32; 3]], target: &[[f32; 3]], width: usize, height: usize)
     for k in 0..3 {
         let quantity = |q: usize, i: usize| -> f64 {
             let (x, y) = (f64::from(pred[i][k]), f64::from(target[i][k]));
-            [x, y, x * x, y * y, x * y][q]
+            match q {
+                0 => x,
+                1 => y,
+                2 => x * x,
+                3 => y * y,
+                _ => x * y,
+            }
         };
         let mut sum = 0.0;
         for r in 0..height {

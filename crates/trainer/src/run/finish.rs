@@ -72,8 +72,8 @@ pub(super) fn finish(
     // Each phase's scratch buffers differ in size: the resident size is the largest phase's.
     sdf_backbone::scratch::release_all();
     validation_pictures(trainer, folder, trainer.state().step)?;
+    // `final_images` empties the pool after each view.
     let Some(images) = final_images(trainer, progress, &stopped)? else { return Ok(None) };
-    sdf_backbone::scratch::release_all();
     if stopped() {
         return Ok(None);
     }

@@ -547,6 +547,44 @@ mod tests {
         }
     }
 
+    /// The learned background's tables are left out of the chunks' gradient buffers and added
+    /// from the chunks' records (`BackgroundModel::add_deferred`): the gradient is the same, to the
+    /// bit, as one dense buffer per chunk summed in chunk order — on hashed levels whose entries
+    /// several points and chunks share, and with a level switched off.
+    #[test]
+    fn the_background_tables_gradient_from_records_is_the_per_chunk_sum_to_the_bit() {
+        let (mut backbone, mut params) = build(Preset::NeuralangeloCpu, 0.5, 3);
+        let grid = crate::HashGridConfig { levels: 3, features: 2, log2_table: 8, base_resolution: 4, finest_resolution: 24 };
+        backbone.add_learned_background(&mut params, crate::BackgroundModel::cpu(4, false).with_grid(grid), 6);
+        let rays: Vec<crate::pipeline::RayInput<f32>> = (0..44)
+            .map(|r| {
+                let a = r as f32 * 0.07;
+                crate::pipeline::RayInput {
+                    origin: [3.0 * a.cos(), 3.0 * a.sin(), 0.3],
+                    direction: glam::Vec3::new(-a.cos(), -a.sin(), 0.1 - 0.01 * r as f32).normalize().to_array(),
+                    depths: (0..=16).map(|i| 2.0 + 2.0 * i as f32 / 16.0).collect(),
+                    target: [0.3, 0.5, 0.7],
+                    mask: None,
+                    weight: 1.0,
+                }
+            })
+            .collect();
+        let n_def = DeferringModule::<f32>::deferred_params(&backbone.sdf);
+        let tables = backbone.layout().background_tables;
+        for active in [3, 2] {
+            backbone.background.as_mut().unwrap().grid.as_mut().unwrap().active_levels = active;
+            let mut split = vec![0.0f32; params.len() - n_def];
+            let (loss, _, _) = backbone.loss_parallel_split(&params, &rays, &mut split, 8, &crate::pipeline::NoSampleLoss);
+            let mut dense = vec![0.0f32; params.len() - n_def];
+            let reference = backbone.loss_split_dense_reference(&params, &rays, &mut dense, 8);
+            assert_eq!(loss.to_bits(), reference.to_bits());
+            let t = tables.start - n_def..tables.end - n_def;
+            assert!(split[t.clone()].iter().filter(|g| **g != 0.0).count() > 100, "the tables get a gradient");
+            let differ = split.iter().zip(&dense).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+            assert_eq!(differ, 0, "{active} levels: {differ} of {} gradients differ in their bits", split.len());
+        }
+    }
+
     #[test]
     fn coarse_to_fine_ties_the_normal_step_to_the_finest_active_level() {
         let (mut backbone, _) = build(Preset::NeuralangeloCpu, 0.5, 1);

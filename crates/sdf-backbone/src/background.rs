@@ -216,6 +216,23 @@ impl BackgroundModel {
 
     /// Adds the gradient of the loss into `d_params` from `d_colors` (∂L/∂C_bg per ray).
     pub fn backward<R: Real>(&self, params: &[R], pass: &BackgroundPass<R>, d_colors: &[[R; 3]], d_params: &mut [R]) {
+        let split = self.tables().start;
+        let (d_net, d_grid) = d_params.split_at_mut(split);
+        if let (Some(grid), Some((points, d_features))) = (&self.grid, self.backward_deferring(params, pass, d_colors, d_net)) {
+            grid.backward(&params[split..], &points, &[], &d_features, d_grid, None);
+        }
+    }
+
+    /// [`Self::backward`] into the network's parameters alone (`d_net`, the parameters before
+    /// [`Self::tables`]); with a grid, the record of its tables' gradient comes back — the grid's
+    /// points and their features' adjoints — for [`Self::add_deferred`].
+    pub fn backward_deferring<R: Real>(
+        &self,
+        params: &[R],
+        pass: &BackgroundPass<R>,
+        d_colors: &[[R; 3]],
+        d_net: &mut [R],
+    ) -> Option<(Buf<R>, Buf<R>)> {
         let k_n = self.samples;
         let mut d_raw = Buf::<R>::zeroed(pass.raw.len());
         for (r, dc) in d_colors.iter().enumerate() {
@@ -235,21 +252,37 @@ impl BackgroundModel {
                 behind_w += w;
             }
         }
-        let split = self.tables().start;
-        let (p_net, p_grid) = params.split_at(split);
-        let (d_net, d_grid) = d_params.split_at_mut(split);
-        let Some(grid) = &self.grid else {
+        let p_net = &params[..self.tables().start];
+        if self.grid.is_none() {
             self.net.backward(p_net, &pass.input, &pass.ctx, &d_raw, d_net, None);
-            return;
-        };
+            return None;
+        }
         let (n_in, columns) = (Module::<R>::n_inputs(&self.net), self.grid_columns());
         let mut d_input = Buf::<R>::zeroed(pass.input.len());
         self.net.backward(p_net, &pass.input, &pass.ctx, &d_raw, d_net, Some(&mut d_input));
-        let mut d_features = Buf::<R>::zeroed(d_input.len() / n_in * columns.len());
+        let mut d_features = Buf::<R>::to_overwrite(d_input.len() / n_in * columns.len());
         for (d, row) in d_features.chunks_exact_mut(columns.len()).zip(d_input.chunks_exact(n_in)) {
             d.copy_from_slice(&row[columns.clone()]);
         }
-        grid.backward(p_grid, &pass.points, &[], &d_features, d_grid, None);
+        let mut points = Buf::<R>::to_overwrite(pass.points.len());
+        points.copy_from_slice(&pass.points);
+        Some((points, d_features))
+    }
+
+    /// Adds the gradient of the grid's tables from the records of several work items
+    /// ([`Self::backward_deferring`], in order) to `d_tables` (the gradient of [`Self::tables`]),
+    /// bit for bit as a dense buffer per work item summed in that order
+    /// ([`HashGrid::add_level_gradient`]), in parallel over the levels. Without a grid, nothing.
+    pub fn add_deferred<R: Real>(&self, records: &[(Buf<R>, Buf<R>)], d_tables: &mut [R]) {
+        use rayon::prelude::*;
+        let Some(grid) = &self.grid else { return };
+        let levels = (0..grid.config().levels).map(|l| grid.level_params(l));
+        crate::module::split_blocks(d_tables, levels).into_par_iter().enumerate().for_each(|(level, d_level)| {
+            let mut scratch = Buf::<R>::zeroed(d_level.len());
+            for (points, d_features) in records {
+                grid.add_level_gradient(level, points, d_features, &mut scratch, d_level);
+            }
+        });
     }
 }
 

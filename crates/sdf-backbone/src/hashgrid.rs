@@ -549,6 +549,13 @@ impl HashGrid {
     /// then the scatter (sequential: rows share entries).
     #[inline(always)]
     fn scatter_level<R: Real>(&self, level: usize, input: &[R], d_output: &[R], d_table: &mut [R]) {
+        self.scatter_level_corners(level, input, d_output, d_table);
+    }
+
+    /// [`Self::scatter_level`], giving back each row's 8 corners (their entries in the level's
+    /// table).
+    #[inline(always)]
+    fn scatter_level_corners<R: Real>(&self, level: usize, input: &[R], d_output: &[R], d_table: &mut [R]) -> Buf<u32> {
         let f = self.config.features;
         let n_out = self.config.levels * f;
         let rows = input.len() / 3;
@@ -570,6 +577,35 @@ impl HashGrid {
                 }
             }
         }
+        idx
+    }
+
+    /// Adds one work item's gradient of level `level`'s table (rows `input`, feature adjoints
+    /// `d_output`) to `d_table`, bit for bit as [`Module::backward`] into a zeroed buffer of the
+    /// whole table and then added entry by entry would, at the cost of the entries the rows touch:
+    /// the item's sums are made in `scratch` (the level's size, zero on entry and again on return),
+    /// then each touched entry is added once (a second visit adds 0, which changes no sum).
+    /// Summing several items this way, in order, gives the bits of one dense buffer per item
+    /// summed in that order (the learned background's tables, `Pipeline::loss_parallel_split`).
+    pub fn add_level_gradient<R: Real>(&self, level: usize, input: &[R], d_output: &[R], scratch: &mut [R], d_table: &mut [R]) {
+        if level >= self.active_levels.min(self.config.levels) {
+            return;
+        }
+        let _span = crate::profile::span(crate::profile::Stage::HashScatter);
+        let f = self.config.features;
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || {
+                let idx = self.scatter_level_corners(level, input, d_output, scratch);
+                for &i in idx.iter() {
+                    let at = i as usize * f;
+                    for k in 0..f {
+                        d_table[at + k] += scratch[at + k];
+                        scratch[at + k] = R::ZERO;
+                    }
+                }
+            },
+        );
     }
 
     /// One level's table gradient through the features and their tangents along `v` (rows × 3):

@@ -17,6 +17,19 @@ use crate::scratch::Buf;
 
 mod terms;
 
+/// What a work item's backward pass leaves to be applied later: the SDF network's deferred
+/// record, and the learned background grid's when the item's gradient stops before its tables.
+pub(super) struct Records<R: Real> {
+    pub(super) sdf: Deferred<R>,
+    pub(super) background: Deferred<R>,
+}
+
+impl<R: Real> Default for Records<R> {
+    fn default() -> Self {
+        Records { sdf: None, background: None }
+    }
+}
+
 /// Colour-network inputs per row before the features: x (3), n (3), SH₄(d) (16).
 pub(super) const COLOR_IN_FIXED: usize = 22;
 
@@ -164,7 +177,7 @@ impl<S, C> Pipeline<S, C> {
         m: R,
         color_norm: R,
         extra: &dyn SampleLoss,
-    ) -> (R, Vec<RayOutput<R>>, Deferred<R>)
+    ) -> (R, Vec<RayOutput<R>>, Records<R>)
     where
         S: DeferringModule<R>,
         C: Module<R>,
@@ -188,19 +201,20 @@ impl<S, C> Pipeline<S, C> {
             total += loss / m;
             outputs.push(output);
         }
-        let Some(d_params) = d_params else { return (total, outputs, None) };
+        let Some(d_params) = d_params else { return (total, outputs, Records::default()) };
         let (d_sdf_params, rest) = d_params.split_at_mut(n_sdf - self.sdf.deferred_params());
         let (d_col_params, d_rest) = rest.split_at_mut(n_col);
         d_rest[0] += adj.variance;
-        let (d_color_in, d_sdf_out) = self.network_adjoints(p_col, &p_var[1..], &mut d_rest[1..], d_col_params, rays, &rows, &dims, &fwd, &adj);
-        let deferred = match &self.analytic {
+        let (d_color_in, d_sdf_out, background) =
+            self.network_adjoints(p_col, &p_var[1..], &mut d_rest[1..], d_col_params, rays, &rows, &dims, &fwd, &adj);
+        let sdf = match &self.analytic {
             Some(analytic) => {
                 let fns = R::tangent_fns(analytic);
                 self.sdf_tangent_backward(fns, p_sdf, rays, &rows, &dims, &fwd, &adj, &d_color_in, &d_sdf_out, d_sdf_params)
             }
             None => self.sdf_backward(p_sdf, &mut fwd, &d_sdf_out, d_sdf_params),
         };
-        (total, outputs, deferred)
+        (total, outputs, Records { sdf, background })
     }
 
     /// The sample points and probes of every ray through the SDF network: its outputs and
@@ -371,7 +385,9 @@ impl<S, C> Pipeline<S, C> {
     /// The background's and the colour network's backward passes, and the adjoints of the SDF
     /// network's outputs at every point: the render's, the features' (through the colour
     /// network), and the probes' (through the normals and the curvature). Returns the colour
-    /// network's input adjoints and the SDF outputs' adjoints.
+    /// network's input adjoints, the SDF outputs' adjoints, and the record of the background
+    /// grid's tables when `d_bg_params` stops before them (their gradient is then added later,
+    /// [`crate::BackgroundModel::add_deferred`]).
     #[allow(clippy::too_many_arguments)]
     fn network_adjoints<R: Real>(
         &self,
@@ -384,12 +400,18 @@ impl<S, C> Pipeline<S, C> {
         dims: &Dims,
         fwd: &Forward<R>,
         adj: &Adjoints<R>,
-    ) -> (Buf<R>, Buf<R>)
+    ) -> (Buf<R>, Buf<R>, Deferred<R>)
     where
         C: Module<R>,
     {
+        let mut background = None;
         if let (Some(model), Some(pass)) = (&self.background, &fwd.background) {
-            model.backward(p_bg, pass, &adj.background, d_bg_params);
+            if d_bg_params.len() == model.n_params() {
+                model.backward(p_bg, pass, &adj.background, d_bg_params);
+            } else {
+                debug_assert_eq!(d_bg_params.len(), model.tables().start, "the background's gradient: whole, or without its tables");
+                background = model.backward_deferring(p_bg, pass, &adj.background, d_bg_params);
+            }
         }
         let (n_out, c_in, np, h) = (dims.n_out, dims.c_in, dims.probes.len(), R::of(dims.h));
         let mut d_color_in = Buf::<R>::zeroed(rows.col * c_in);
@@ -417,7 +439,7 @@ impl<S, C> Pipeline<S, C> {
                 d_sdf_out[(b + i) * n_out] -= R::of(np as f64) * d_lap;
             }
         }
-        (d_color_in, d_sdf_out)
+        (d_color_in, d_sdf_out, background)
     }
 
     /// The SDF network's backward pass (numerical normals: the probes are rows like the

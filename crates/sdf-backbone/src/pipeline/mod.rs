@@ -40,7 +40,6 @@ mod deferred;
 mod inference;
 mod normals;
 pub use analytic::{AnalyticNormals, TangentFns, TangentPrecision};
-use deferred::Deferred;
 pub use deferred::DeferredGradient;
 pub use normals::{Differences, NormalScheme};
 
@@ -112,8 +111,9 @@ pub struct RayInput<R> {
     pub weight: R,
 }
 
-/// A chunk's loss, gradient (all but the deferred parameters), outputs and deferred record.
-type Part<R> = (R, Buf<R>, Vec<RayOutput<R>>, Deferred<R>);
+/// A chunk's loss, gradient (all but the deferred parameters and the background's tables),
+/// outputs and deferred records.
+type Part<R> = (R, Buf<R>, Vec<RayOutput<R>>, accumulate::Records<R>);
 
 /// Loss weights and numerics of the pipeline.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -269,8 +269,8 @@ impl<S, C> Pipeline<S, C> {
             Some(d_params) => {
                 let n_def = self.sdf.deferred_params();
                 let (d_deferred, d_rest) = d_params.split_at_mut(n_def);
-                let (loss, outputs, deferred) = self.accumulate(params, rays, 0, Some(d_rest), m, norm, extra);
-                self.deferred_gradient(deferred.into_iter().collect()).apply(&self.sdf, d_deferred);
+                let (loss, outputs, records) = self.accumulate(params, rays, 0, Some(d_rest), m, norm, extra);
+                self.deferred_gradient(records.sdf.into_iter().collect()).apply(&self.sdf, d_deferred);
                 (loss, outputs)
             }
         }
@@ -327,6 +327,11 @@ impl<S, C> Pipeline<S, C> {
         C: Module<R> + Sync,
     {
         use rayon::prelude::*;
+        // The learned background's tables (the last parameters) are left out of the chunks'
+        // buffers, which would otherwise be mostly zeros to clear and sum: their gradient is
+        // added from the chunks' records, to the same bits.
+        let n_tables = self.background.as_ref().map_or(0, |b| b.tables().len());
+        let (d_rest, d_tables) = d_rest.split_at_mut(d_rest.len() - n_tables);
         let n_rest = d_rest.len();
         let m = R::of(rays.len() as f64);
         let norm = self.color_normaliser::<R>(rays);
@@ -336,19 +341,20 @@ impl<S, C> Pipeline<S, C> {
             .enumerate()
             .map(|(i, c)| {
                 let mut g = Buf::<R>::zeroed(n_rest);
-                let (l, o, deferred) = self.accumulate(params, c, i * chunk, Some(&mut g), m, norm, extra);
-                (l, g, o, deferred)
+                let (l, o, records) = self.accumulate(params, c, i * chunk, Some(&mut g), m, norm, extra);
+                (l, g, o, records)
             })
             .collect();
         let mut loss = R::ZERO;
         let mut outputs = Vec::with_capacity(rays.len());
         let mut grads = Vec::with_capacity(parts.len());
-        let mut records = Vec::with_capacity(parts.len());
-        for (l, g, o, d) in parts {
+        let (mut records, mut background) = (Vec::with_capacity(parts.len()), Vec::new());
+        for (l, g, o, r) in parts {
             loss += l;
             grads.push(g);
             outputs.extend(o);
-            records.extend(d);
+            records.extend(r.sdf);
+            background.extend(r.background);
         }
         // Σ over chunks in chunk order, in parallel over the parameters.
         d_rest.par_chunks_mut(1 << 14).enumerate().for_each(|(block, d)| {
@@ -359,7 +365,29 @@ impl<S, C> Pipeline<S, C> {
                 }
             }
         });
+        if let Some(model) = &self.background {
+            model.add_deferred(&background, d_tables);
+        }
         (loss, outputs, self.deferred_gradient(records))
+    }
+
+    /// [`Self::loss_parallel_split`]'s loss and `d_rest` as one buffer of all of `d_rest`'s
+    /// parameters per chunk (the learned background's tables included), summed in chunk order:
+    /// the reference whose bits its records of the background's tables are tested against.
+    #[cfg(test)]
+    pub(crate) fn loss_split_dense_reference<R: Real>(&self, params: &[R], rays: &[RayInput<R>], d_rest: &mut [R], chunk: usize) -> R
+    where
+        S: DeferringModule<R>,
+        C: Module<R>,
+    {
+        let (m, norm) = (R::of(rays.len() as f64), self.color_normaliser::<R>(rays));
+        let mut loss = R::ZERO;
+        for (i, c) in rays.chunks(chunk).enumerate() {
+            let mut g = Buf::<R>::zeroed(d_rest.len());
+            loss += self.accumulate(params, c, i * chunk, Some(&mut g), m, norm, &NoSampleLoss).0;
+            d_rest.iter_mut().zip(g.iter()).for_each(|(d, g)| *d += *g);
+        }
+        loss
     }
 
     /// SDF values (first output of the SDF network) at `points` (xyz rows), in parallel chunks.

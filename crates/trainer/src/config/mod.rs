@@ -180,9 +180,10 @@ pub struct ModelConfig {
     /// leave the surface empty (docs/DECISIONS.md §23); surroundings are mostly diffuse.
     pub background_view: bool,
     /// Whether the learned background's network also reads a hash grid over the contracted
-    /// background (instant-nsr-pl's remedy; `sdf_backbone::BackgroundModel::cpu_grid`): a
-    /// backdrop's sharp edges learnt as fast as the object's network learns them, so the object's
-    /// network does not paint them as walls first.
+    /// background (instant-nsr-pl's remedy; `sdf_backbone::BackgroundModel::cpu_grid`; on by
+    /// default, docs/DECISIONS.md §42): a backdrop's detail learnt at its own depth as fast as the
+    /// object's network could paint it, so the object's network does not paint it inside the
+    /// bound (floaters before a near wall) and keep it for the detail the MLP alone lacks.
     pub background_grid: bool,
     /// A floor under the logistic scale s, rising geometrically over the run from the first
     /// value to the second (`[20, 400]`: 20 at the start, 400 at the end; `[]`: none). Without

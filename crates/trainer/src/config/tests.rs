@@ -53,18 +53,20 @@ fn background_model_reads_its_names_and_the_earlier_boolean_key() {
     assert!(err.chain().contains("sky"), "{}", err.chain());
 }
 
-/// The learned background's keys reach the model: by default 8 frequencies and no view
-/// direction (docs/DECISIONS.md §23); the earlier model on request; 0 frequencies is an error.
+/// The learned background's keys reach the model: by default 8 frequencies, no view direction
+/// (docs/DECISIONS.md §23) and a hash grid of its own (§42); the earlier model on request;
+/// 0 frequencies is an error.
 #[test]
-fn learned_background_defaults_to_eight_frequencies_without_the_view_direction() {
+fn learned_background_defaults_to_eight_frequencies_and_a_hash_grid_without_the_view_direction() {
     let model = |o: &[&str]| {
         let overrides: Vec<String> = o.iter().map(|s| s.to_string()).collect();
         crate::trainer::background_model(&TrainConfig::load(None, &overrides).unwrap())
     };
     let default = model(&[]);
     assert_eq!((default.frequencies, default.view_dependent), (8, false));
-    let earlier = model(&["model.background_frequencies=4", "model.background_view=true"]);
-    assert_eq!((earlier.frequencies, earlier.view_dependent), (4, true));
+    assert_eq!(default.grid.as_ref().map(|g| g.config().clone()), Some(sdf_backbone::BackgroundModel::cpu_grid()));
+    let earlier = model(&["model.background_frequencies=4", "model.background_view=true", "model.background_grid=false"]);
+    assert_eq!((earlier.frequencies, earlier.view_dependent, earlier.grid.is_none()), (4, true, true));
     assert_ne!(default.n_params(), earlier.n_params());
     let err = TrainConfig::load(None, &["model.background_frequencies=0".into()]).unwrap_err();
     assert!(err.chain().contains("model.background_frequencies"), "{}", err.chain());

@@ -61,7 +61,8 @@ fn train(extra: &[&str]) -> (f64, f64) {
 /// moving in from 3 bound radii over the first quarter (`model.background_near_start`) — guided
 /// and uniform runs land within 2× the masked twin's Chamfer with an F-score above half the
 /// twin's (issue #37's bounds). Measured on the Zen 4 (release build): twin 0.0160 (F 0.56);
-/// without masks guided 0.0224 (F 0.35), uniform 0.0201 (F 0.41); without the hold and the
+/// without masks guided 0.0224 (F 0.35), uniform 0.0201 (F 0.41); on the Xeon (uniform rays with
+/// the background's own grid, §42): twin 0.0154 (F 0.57), guided 0.0213 (F 0.37), uniform 0.0209 (F 0.40); without the hold and the
 /// moving background 0.0377 (F 0.05) and 0.0415 (F 0.02). With NeuS's sphere of radius 0.5 the
 /// sphere filled every view, the network painted the backdrop on it, and carving it away carved
 /// the object: no mesh near the object (Chamfer ∞, F 0) for both samplers; so did a first phase
@@ -81,11 +82,11 @@ fn without_masks_the_object_is_meshed_within_2x_its_masked_twins_chamfer() {
 /// Uniform rays spend most of a batch on a near wall's pixels while the background is still
 /// moving in (§35), and the object's network painted the wall's detail as floaters inside the
 /// bound, above the object, which it kept for the detail the background's MLP could not paint
-/// (issue #37's last failure). With the background's own hash grid (the default, §42) the
-/// background takes the detail at the wall's depth: within 1.5× the masked twin's Chamfer with an
-/// F-score above half the twin's. Measured on the Xeon (release build, the same settings): twin
-/// 0.0250 (F 0.274); without masks 0.0298 (F 0.243) with the grid, 0.0395 (F 0.082) without it
-/// (`model.background_grid=false`: 1.58×, F 0.30 of the twin's).
+/// (issue #37's last failure). With the background's own hash grid (uniform rays' default,
+/// docs/DECISIONS.md §42) the background takes the detail at the wall's depth: within 1.5× the
+/// masked twin's Chamfer with an F-score above half the twin's. Measured on the Xeon (release
+/// build, the same settings): twin 0.0250 (F 0.274); without masks 0.0304 (F 0.211) with the grid, 0.0395
+/// (F 0.082) without it (`model.background_grid=false`: 1.58×, F 0.30 of the twin's).
 #[test]
 fn uniform_rays_leave_no_floaters_before_a_near_wall() {
     let uniform = ["--sampler", "uniform"];

@@ -177,6 +177,63 @@ impl BackgroundModel {
     }
 }
 
+/// Whether the learned background's network also reads a hash grid of its own
+/// (`model.background_grid`; `sdf_backbone::BackgroundModel::cpu_grid`): in a file `"auto"`,
+/// `true` or `false`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(try_from = "BackgroundGridText")]
+pub enum BackgroundGrid {
+    /// With uniform rays, which spend most of a batch on the backdrop: without the grid the
+    /// object's network painted a near wall's detail as floaters inside the bound and kept it;
+    /// guided rays leave it to the MLP, which keeps thin parts better (docs/DECISIONS.md §42).
+    Auto,
+    /// Always.
+    On,
+    /// Never (the MLP alone).
+    Off,
+}
+
+/// How `model.background_grid` may be written: `"auto"`, or a boolean.
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum BackgroundGridText {
+    Name(String),
+    Flag(bool),
+}
+
+impl TryFrom<BackgroundGridText> for BackgroundGrid {
+    type Error = String;
+    fn try_from(text: BackgroundGridText) -> std::result::Result<Self, String> {
+        match text {
+            BackgroundGridText::Flag(true) => Ok(BackgroundGrid::On),
+            BackgroundGridText::Flag(false) => Ok(BackgroundGrid::Off),
+            BackgroundGridText::Name(n) if n == "auto" => Ok(BackgroundGrid::Auto),
+            BackgroundGridText::Name(other) => Err(format!("unknown background grid {other:?}: expected \"auto\", true or false")),
+        }
+    }
+}
+
+impl Serialize for BackgroundGrid {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> std::result::Result<S::Ok, S::Error> {
+        match self {
+            BackgroundGrid::Auto => serializer.serialize_str("auto"),
+            BackgroundGrid::On => serializer.serialize_bool(true),
+            BackgroundGrid::Off => serializer.serialize_bool(false),
+        }
+    }
+}
+
+impl BackgroundGrid {
+    /// Whether a run with `sampler` gives its learned background the grid.
+    pub fn used(self, sampler: SamplerKind) -> bool {
+        match self {
+            BackgroundGrid::Auto => sampler == SamplerKind::Uniform,
+            BackgroundGrid::On => true,
+            BackgroundGrid::Off => false,
+        }
+    }
+}
+
 /// Which hash grid the run's model has (`model.grid`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -60,7 +60,7 @@ impl Default for ModelConfig {
             background_model: BackgroundModel::Auto,
             background_frequencies: 8,
             background_view: false,
-            background_grid: true,
+            background_grid: BackgroundGrid::Auto,
             background_near: 1.0,
             background_near_start: Some(3.0),
             background_near_until: 0.25,

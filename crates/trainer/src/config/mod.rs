@@ -32,7 +32,9 @@ mod validate;
 pub use annotated::annotated_default;
 use budget::budget_from_short_keys;
 pub use budget::{Budget, parse_duration, positive_duration};
-pub use choices::{BackgroundModel, GridSize, InitRadius, MeshFilter, MeshResolution, MomentStorage, Normals, Products, SamplerKind, SmoothingDecay};
+pub use choices::{
+    BackgroundGrid, BackgroundModel, GridSize, InitRadius, MeshFilter, MeshResolution, MomentStorage, Normals, Products, SamplerKind, SmoothingDecay,
+};
 
 /// The default spacing of the points sampled on meshes for Chamfer (`output.chamfer_spacing`,
 /// normalised units): every table in BENCHMARKS.md so far was measured with it, against the
@@ -180,11 +182,11 @@ pub struct ModelConfig {
     /// leave the surface empty (docs/DECISIONS.md §23); surroundings are mostly diffuse.
     pub background_view: bool,
     /// Whether the learned background's network also reads a hash grid over the contracted
-    /// background (instant-nsr-pl's remedy; `sdf_backbone::BackgroundModel::cpu_grid`; on by
-    /// default, docs/DECISIONS.md §42): a backdrop's detail learnt at its own depth as fast as the
-    /// object's network could paint it, so the object's network does not paint it inside the
-    /// bound (floaters before a near wall) and keep it for the detail the MLP alone lacks.
-    pub background_grid: bool,
+    /// background (instant-nsr-pl's remedy; `sdf_backbone::BackgroundModel::cpu_grid`): a
+    /// backdrop's detail learnt at its own depth, so the object's network does not paint it
+    /// inside the bound (floaters before a near wall) and keep it for the detail the MLP alone
+    /// lacks. `auto` (the default): with uniform rays (docs/DECISIONS.md §42).
+    pub background_grid: BackgroundGrid,
     /// A floor under the logistic scale s, rising geometrically over the run from the first
     /// value to the second (`[20, 400]`: 20 at the start, 400 at the end; `[]`: none). Without
     /// masks nothing else keeps the foreground from settling as a translucent haze that the

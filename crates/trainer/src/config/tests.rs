@@ -54,22 +54,32 @@ fn background_model_reads_its_names_and_the_earlier_boolean_key() {
 }
 
 /// The learned background's keys reach the model: by default 8 frequencies, no view direction
-/// (docs/DECISIONS.md §23) and a hash grid of its own (§42); the earlier model on request;
-/// 0 frequencies is an error.
+/// (docs/DECISIONS.md §23), and a hash grid of its own for uniform rays only (§42); the earlier
+/// model on request; 0 frequencies and an unknown grid setting are errors; the setting survives a
+/// configuration file's round trip (`true` / `false` as earlier files wrote it).
 #[test]
-fn learned_background_defaults_to_eight_frequencies_and_a_hash_grid_without_the_view_direction() {
-    let model = |o: &[&str]| {
-        let overrides: Vec<String> = o.iter().map(|s| s.to_string()).collect();
-        crate::trainer::background_model(&TrainConfig::load(None, &overrides).unwrap())
-    };
-    let default = model(&[]);
-    assert_eq!((default.frequencies, default.view_dependent), (8, false));
-    assert_eq!(default.grid.as_ref().map(|g| g.config().clone()), Some(sdf_backbone::BackgroundModel::cpu_grid()));
+fn learned_background_defaults_to_eight_frequencies_and_a_hash_grid_for_uniform_rays() {
+    let config = |o: &[&str]| TrainConfig::load(None, &o.iter().map(|s| s.to_string()).collect::<Vec<_>>()).unwrap();
+    let model = |o: &[&str]| crate::trainer::background_model(&config(o));
+    let guided = model(&[]);
+    assert_eq!((guided.frequencies, guided.view_dependent, guided.grid.is_none()), (8, false, true));
+    let mut uniform = config(&["model.background_grid=\"auto\""]);
+    uniform.sampler = SamplerKind::Uniform;
+    let uniform = crate::trainer::background_model(&uniform);
+    assert_eq!(uniform.grid.as_ref().map(|g| g.config().clone()), Some(sdf_backbone::BackgroundModel::cpu_grid()));
+    assert!(model(&["model.background_grid=true"]).grid.is_some());
     let earlier = model(&["model.background_frequencies=4", "model.background_view=true", "model.background_grid=false"]);
     assert_eq!((earlier.frequencies, earlier.view_dependent, earlier.grid.is_none()), (4, true, true));
-    assert_ne!(default.n_params(), earlier.n_params());
+    assert_ne!(guided.n_params(), earlier.n_params());
     let err = TrainConfig::load(None, &["model.background_frequencies=0".into()]).unwrap_err();
     assert!(err.chain().contains("model.background_frequencies"), "{}", err.chain());
+    let err = TrainConfig::load(None, &["model.background_grid=\"sometimes\"".into()]).unwrap_err();
+    assert!(err.chain().contains("auto"), "{}", err.chain());
+    for grid in [BackgroundGrid::Auto, BackgroundGrid::On, BackgroundGrid::Off] {
+        let mut c = TrainConfig::default();
+        c.model.background_grid = grid;
+        assert_eq!(TrainConfig::from_toml(&c.to_toml()).unwrap().model.background_grid, grid);
+    }
 }
 
 /// `auto` (the default) may not choose a scheme the model cannot run: analytic needs a hash

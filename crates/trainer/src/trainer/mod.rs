@@ -189,7 +189,7 @@ fn fresh_adam(config: &TrainConfig, backbone: &Backbone, n: usize) -> Adam {
 pub fn background_model(config: &TrainConfig) -> sdf_backbone::BackgroundModel {
     let mut model = sdf_backbone::BackgroundModel::cpu(config.model.background_frequencies, config.model.background_view);
     model.near = config.model.background_near;
-    if config.model.background_grid {
+    if config.model.background_grid.used(config.sampler) {
         model = model.with_grid(sdf_backbone::BackgroundModel::cpu_grid());
     }
     model

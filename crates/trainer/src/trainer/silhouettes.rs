@@ -188,7 +188,7 @@ impl Trainer {
         // The probe's background is the MLP alone, whatever the run's (§42): with a grid of its
         // own the background also takes object pixels from a probe whose photos the object fills,
         // the sphere comes out small, and the run carves the object away (H1: 0.244 against 0.5).
-        config.model.background_grid = false;
+        config.model.background_grid = crate::config::BackgroundGrid::Off;
         // What could refuse the probe's configuration is checked before the views move (the rest
         // of `Trainer::new` accepted the run's own).
         config.validate()?;
@@ -344,14 +344,14 @@ mod tests {
     /// A near wall and floor behind the object (inside the bound, as DTU's table is) fill the
     /// photos: the sphere stays near the largest, as DTU scan 24 needs (a smaller one is carved
     /// away there before it learns anything). At this size the views reach 0.60–0.94 (0.44);
-    /// at 200 × 150 0.87–1.11 (0.5); the loose bound's 0.22. The run's background has its own
-    /// hash grid (the default, docs/DECISIONS.md §42); the probe's is the MLP alone — with the
+    /// at 200 × 150 0.87–1.11 (0.5); the loose bound's 0.22. Asked for, the run's background
+    /// has its own hash grid (docs/DECISIONS.md §42); the probe's is the MLP alone — with the
     /// grid this scene's sphere came out 0.295.
     #[test]
     fn photos_that_a_near_backdrop_fills_keep_the_largest_sphere() {
         let (mut config, _) = loose_bound(false);
         (config.data.builtin.bound, config.data.builtin.backdrop) = (1.0, datasets::golden::Backdrop::Wall);
-        assert!(config.model.background_grid, "the run's background has a grid; the probe's does not");
+        config.model.background_grid = crate::config::BackgroundGrid::On;
         let data = SceneData::builtin(&config).unwrap();
         let mut trainer = Trainer::new(config, data).unwrap();
         trainer.step().unwrap();

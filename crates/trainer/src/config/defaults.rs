@@ -146,7 +146,7 @@ impl Default for OutputConfig {
     fn default() -> Self {
         OutputConfig {
             validate_every: Some(100),
-            validate_share: 0.1,
+            validate_share: 0.03,
             validate_downscale: 2,
             eval_downscale: 1,
             eval_views: 3,

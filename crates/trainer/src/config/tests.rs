@@ -290,3 +290,18 @@ fn the_smoothing_decay_is_per_level_unless_given_and_names_a_bad_value() {
     let err = decay("often").unwrap_err().chain();
     assert!(err.contains("smoothing_decay") && err.contains("often"), "{err}");
 }
+
+/// The configuration is written through a `toml::Value` (one serialiser of it in the build, the
+/// one `differences` uses); with `toml`'s `preserve_order` that is the text the struct's own
+/// serialiser writes, sections and keys in the fields' order.
+#[test]
+fn the_configuration_is_written_in_its_fields_order() {
+    let given = ["steps=300", "model.opacity_guard=0.2", "output.snapshots=[120, 360]", "model.init_radius=0.3", "output.mesh_resolution=\"model\""];
+    let varied = TrainConfig::load(None, &given.map(String::from)).unwrap();
+    for config in [TrainConfig::default(), varied] {
+        let text = config.to_toml();
+        assert_eq!(text, toml::to_string_pretty(&config).unwrap());
+        assert!(text.find("[model]").unwrap() < text.find("[render]").unwrap(), "{text}");
+        assert_eq!(TrainConfig::from_toml(&text).unwrap().to_toml(), text);
+    }
+}

@@ -153,7 +153,7 @@ impl Default for OutputConfig {
             eval_train_views: 2,
             metrics_every: None,
             snapshots: Vec::new(),
-            checkpoint_every: Some(100),
+            checkpoint_every: Some(1000),
             log_every: 10,
             mesh_resolution: MeshResolution::Cells(192),
             mesh_filter: MeshFilter::Supported,

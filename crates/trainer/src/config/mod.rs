@@ -392,7 +392,9 @@ pub struct OutputConfig {
     /// F-score, PSNR of the evaluation views) in `snapshots/<seconds>s/` and the log, not counted
     /// in the training time — quality against time from one run. Empty: none.
     pub snapshots: Vec<f64>,
-    /// Checkpoint every n iterations (0: only at the end).
+    /// Checkpoint every n iterations (0: only at the end; a stop signal writes one too). 1000 by
+    /// default: the default model's checkpoint is 22 MB, and one every 100 iterations wrote
+    /// 1.4 GB and added 2.5 s to the 2-minute run.
     #[serde(with = "off::zero_is_none")]
     pub checkpoint_every: Option<u64>,
     /// Log scalars every n iterations.

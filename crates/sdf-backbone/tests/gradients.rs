@@ -512,6 +512,78 @@ fn every_pass_writes_all_of_the_buffers_it_is_given() {
     assert_writes_everything("positional network", &net, &random_params(Module::<f64>::n_params(&net), 0.5, 7));
 }
 
+/// Every output of `module`'s passes (forward, three tangents, backward, the input gradient, the
+/// reverse pass through values and tangents, to the input's adjoints where `to_input`), for
+/// [`no_pass_reads_what_a_pooled_buffer_held`].
+fn every_output<M: TangentModule<f64>>(module: &M, params: &[f64], to_input: bool) -> Vec<f64> {
+    let rows = 7;
+    let (n_in, n_out) = (module.n_inputs(), module.n_outputs());
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(9);
+    let mut draw = |n: usize| -> Vec<f64> { (0..n).map(|_| rng.random::<f64>() - 0.5).collect() };
+    let (input, d_output, d_tangent_out) = (draw(rows * n_in), draw(rows * n_out), draw(rows * n_out));
+    let (tangents_in, tangent_in) = (draw(rows * 3 * n_in), draw(rows * n_in));
+    let (mut output, mut ctx) = (vec![0.0; rows * n_out], vec![0.0; rows * module.ctx_per_row()]);
+    module.forward(params, &input, &mut output, &mut ctx);
+    let mut tangents = vec![0.0; rows * 3 * n_out];
+    module.forward_tangents(params, &input, &ctx, 3, &tangents_in, &mut tangents);
+    let (mut d_params, mut d_input) = (vec![0.0; params.len()], vec![0.0; rows * n_in]);
+    module.backward(params, &input, &ctx, &d_output, &mut d_params, Some(&mut d_input));
+    let mut reverse = vec![0.0; rows * n_in];
+    module.input_gradient(params, &input, &ctx, &d_output, &mut reverse);
+    let (mut t_params, mut t_input, mut t_tangent) = (vec![0.0; params.len()], vec![0.0; rows * n_in], vec![0.0; rows * n_in]);
+    let pass = TangentAdjoints { params, input: &input, ctx: &ctx, tangent_in: &tangent_in, d_output: &d_output, d_tangent_out: &d_tangent_out };
+    module.backward_tangent(pass, &mut t_params, to_input.then_some((&mut t_input[..], &mut t_tangent[..])));
+    [output, ctx, tangents, d_params, d_input, reverse, t_params, t_input, t_tangent].concat()
+}
+
+/// The passes' scratch buffers that are not zeroed first ([`sdf_backbone::scratch::Buf::to_overwrite`],
+/// the padded blocks of the MLP's tangents and adjoints) are written before they are read: with
+/// the pool full of NaN-filled buffers of every size, every output is the same to the bit as with
+/// a clean pool (a block's last column left unwritten changes 915 of 1 542 outputs).
+#[test]
+fn no_pass_reads_what_a_pooled_buffer_held() {
+    fn poison_the_pool() {
+        sdf_backbone::scratch::release_all();
+        let bufs: Vec<_> = (0..200)
+            .map(|i| {
+                let mut b = sdf_backbone::scratch::Buf::<f64>::to_overwrite((1.045f64.powi(i) as usize).max(i as usize + 1));
+                b.fill(f64::NAN);
+                b
+            })
+            .collect();
+        drop(bufs);
+    }
+    let mlp = |n_inputs, hidden_layers, skip, hidden_activation| {
+        Mlp::new(MlpConfig { n_inputs, width: 6, hidden_layers, n_outputs: 5, skip, hidden_activation, output_activation: Activation::Identity })
+    };
+    let softplus = Activation::Softplus { beta: 10.0 };
+    let nets = [
+        ("one hidden layer", mlp(19, 1, None, softplus)),
+        ("a skip", mlp(5, 3, Some(2), softplus)),
+        ("sigmoids", mlp(3, 2, None, Activation::Sigmoid)),
+    ];
+    for (name, net) in &nets {
+        let params = random_params(Module::<f64>::n_params(net), 0.5, 3);
+        sdf_backbone::scratch::release_all();
+        let clean = every_output(net, &params, true);
+        poison_the_pool();
+        let poisoned = every_output(net, &params, true);
+        let differ = clean.iter().zip(&poisoned).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+        assert_eq!(differ, 0, "{name}: {differ} of {} outputs depend on what the pool held", clean.len());
+    }
+    for features in [2, 3] {
+        let net = small_grid_network(features);
+        let params = random_params(Module::<f64>::n_params(&net), 0.5, 6);
+        sdf_backbone::scratch::release_all();
+        let clean = every_output(&net, &params, false);
+        poison_the_pool();
+        assert!(
+            clean.iter().zip(&every_output(&net, &params, false)).all(|(a, b)| a.to_bits() == b.to_bits()),
+            "hash-grid network, {features} features"
+        );
+    }
+}
+
 /// `forward_first` (an up-sampling's SDF values: the last layer's first row of weights alone)
 /// is the first column of `forward`, for MLPs with skips and output activations and for a
 /// hash-grid network, in f64 and f32.

@@ -2,7 +2,7 @@
 //! and the reverse pass through values and tangents together, for analytic normals.
 
 use super::Mlp;
-use super::backward::padded_rows;
+use super::backward::{padded_block, padded_rows};
 use crate::kernels::{Strided, gemm_in, pad};
 use crate::module::{TangentAdjoints, TangentModule};
 use crate::real::Real;
@@ -133,10 +133,7 @@ impl Mlp {
         let starts = self.ctx_starts(rows);
         let mut blocks: Vec<(Buf<R>, Buf<R>)> = Vec::with_capacity(self.layers.len());
         let ip0 = pad(n_x);
-        let mut a_dot = Buf::<R>::zeroed(t_rows * ip0);
-        for (dst, src) in a_dot.chunks_exact_mut(ip0).zip(tangents_in.chunks_exact(n_x)) {
-            dst[..n_x].copy_from_slice(src);
-        }
+        let mut a_dot = padded_rows(&tangents_in[..t_rows * n_x], n_x);
         let mut tangents_out = tangents_out;
         crate::kernels::dispatch(
             #[inline(always)]
@@ -163,18 +160,19 @@ impl Mlp {
                     }
                     // The next layer's input tangent: act'(Z) ⊙ Ż · scale (and ẋ/√2 after a skip).
                     let next_ip = pad(self.layers[l + 1].0);
-                    let mut next = Buf::<R>::zeroed(t_rows * next_ip);
-                    for (t, (dst, z)) in next.chunks_exact_mut(next_ip).zip(z_dot.chunks_exact(op)).enumerate() {
-                        let sl = &slope[(t / k) * op..(t / k) * op + op];
+                    let next = padded_block(t_rows, next_ip, |t, dst| {
+                        let (sl, z) = (&slope[(t / k) * op..(t / k) * op + op], &z_dot[t * op..t * op + op]);
                         for q in 0..n_out {
                             dst[q] = sl[q] * z[q] * scale;
                         }
-                        if self.config.skip == Some(l + 1) {
-                            for q in 0..n_x {
-                                dst[n_out + q] = tangents_in[t * n_x + q] * inv_sqrt2;
-                            }
+                        if self.config.skip != Some(l + 1) {
+                            return n_out;
                         }
-                    }
+                        for q in 0..n_x {
+                            dst[n_out + q] = tangents_in[t * n_x + q] * inv_sqrt2;
+                        }
+                        n_out + n_x
+                    });
                     blocks.push((std::mem::replace(&mut a_dot, next), z_dot));
                 }
             },

@@ -132,7 +132,6 @@ impl Mlp {
         let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
         let starts = self.ctx_starts(rows);
         let mut blocks: Vec<(Buf<R>, Buf<R>)> = Vec::with_capacity(self.layers.len());
-        let ip0 = pad(n_x);
         let mut a_dot = padded_rows(&tangents_in[..t_rows * n_x], n_x);
         let mut tangents_out = tangents_out;
         crate::kernels::dispatch(

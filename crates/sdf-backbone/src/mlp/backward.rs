@@ -156,9 +156,9 @@ pub(super) fn padded_rows<R: Real>(src: &[R], n: usize) -> Buf<R> {
 }
 
 /// A block of `rows` × `stride` values written once, without zeroing it first: `write(r, row)`
-/// fills row r's first columns and returns how many; the rest of the row (the padding the kernels
-/// read as zeros) is zeroed here. The memset of whole blocks that were then overwritten was
-/// ≈ 2 % of a training step.
+/// fills row r's first columns and returns how many; the rest of the row (its padding, zero in
+/// every padded block) is zeroed here. Zeroing whole blocks that were then overwritten cost a
+/// training step 7 % on the Xeon (BENCHMARKS.md, "Where a step's time goes").
 #[inline(always)]
 pub(super) fn padded_block<R: Real>(rows: usize, stride: usize, mut write: impl FnMut(usize, &mut [R]) -> usize) -> Buf<R> {
     let mut out = Buf::<R>::to_overwrite(rows * stride);

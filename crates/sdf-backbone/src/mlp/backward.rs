@@ -51,7 +51,7 @@ impl Mlp {
                     if l == 0 && d_input.is_none() {
                         break;
                     }
-                    let (_, wp, _) = self.packed(params, l);
+                    let wp = self.padded(params, l);
                     let da = self.input_adjoint(l, &wp, &dy, rows);
                     if l == 0 {
                         if let Some(d_in) = d_input.as_deref_mut() {

@@ -104,23 +104,24 @@ impl Mlp {
         rows * self.layers[..self.layers.len() - 1].iter().map(|(i, o, _)| pad(*i) + pad(*o)).sum::<usize>()
     }
 
-    /// Weights of layer `l` packed for the kernels: Wᵀ (n_in × out_pad), W (n_out × in_pad) and
-    /// the bias (out_pad), zero-padded.
-    fn packed<R: Real>(&self, params: &[R], l: usize) -> (Vec<R>, Vec<R>, Vec<R>) {
+    /// Wᵀ of layer `l` (n_in × out_pad) and its bias (out_pad), zero-padded: the weights of the
+    /// forward pass and the tangents.
+    fn transposed<R: Real>(&self, params: &[R], l: usize) -> (Buf<R>, Buf<R>) {
         let (n_in, n_out, off) = self.layers[l];
-        let (ip, op) = (pad(n_in), pad(n_out));
         let w = &params[off..off + n_in * n_out];
-        let mut wt = vec![R::ZERO; n_in * op];
-        let mut wp = vec![R::ZERO; n_out * ip];
-        for o in 0..n_out {
-            for i in 0..n_in {
-                wt[i * op + o] = w[o * n_in + i];
-                wp[o * ip + i] = w[o * n_in + i];
+        let wt = backward::padded_block(n_in, pad(n_out), |i, row| {
+            for o in 0..n_out {
+                row[o] = w[o * n_in + i];
             }
-        }
-        let mut bias = vec![R::ZERO; op];
-        bias[..n_out].copy_from_slice(&params[off + n_in * n_out..off + n_in * n_out + n_out]);
-        (wt, wp, bias)
+            n_out
+        });
+        (wt, backward::padded_rows(&params[off + n_in * n_out..off + n_in * n_out + n_out], n_out))
+    }
+
+    /// W of layer `l` (n_out × in_pad), zero-padded: the weights of the input adjoints.
+    fn padded<R: Real>(&self, params: &[R], l: usize) -> Buf<R> {
+        let (n_in, n_out, off) = self.layers[l];
+        backward::padded_rows(&params[off..off + n_in * n_out], n_in)
     }
 }
 
@@ -171,7 +172,7 @@ impl Mlp {
             return;
         }
         let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
-        let packed: Vec<(Vec<R>, Vec<R>, Vec<R>)> = (0..self.layers.len()).map(|l| self.packed(params, l)).collect();
+        let packed: Vec<(Buf<R>, Buf<R>)> = (0..self.layers.len()).map(|l| self.transposed(params, l)).collect();
         // The first layer's input block: the input, padded.
         let ip0 = pad(n_x);
         for (dst, src) in ctx[..rows * ip0].chunks_exact_mut(ip0).zip(input.chunks_exact(n_x)) {
@@ -185,7 +186,7 @@ impl Mlp {
                 let mut at = 0;
                 for (l, &(n_in, n_out, _)) in self.layers.iter().enumerate() {
                     let (ip, op) = (pad(n_in), pad(n_out));
-                    let (wt, _, bias) = &packed[l];
+                    let (wt, bias) = &packed[l];
                     let (head, rest) = ctx[at..].split_at_mut(rows * ip);
                     let (d, next) = rest.split_at_mut(rows * op);
                     let a = &*head;

@@ -59,7 +59,7 @@ impl<R: Real> TangentModule<R> for Mlp {
                     if l == 0 && d_input.is_none() {
                         break;
                     }
-                    let (_, wp, _) = self.packed(params, l);
+                    let wp = self.padded(params, l);
                     let (da, da_dot) = (self.input_adjoint(l, &wp, &dy, rows), self.input_adjoint(l, &wp, &du, rows));
                     if l == 0 {
                         if let Some((d_in, d_in_tangent)) = d_input.as_mut() {
@@ -139,7 +139,7 @@ impl Mlp {
             || {
                 for (l, &(n_in, n_out, _)) in self.layers.iter().enumerate() {
                     let (ip, op) = (pad(n_in), pad(n_out));
-                    let (wt, _, _) = self.packed(params, l);
+                    let (wt, _) = self.transposed(params, l);
                     // Ż = Ȧ Wᵀ (no bias).
                     let mut z_dot = Buf::<R>::to_overwrite(t_rows * op);
                     gemm_in(self.in_bf16(l), &mut z_dot, op, Strided { data: &a_dot, sm: ip, sk: 1 }, &wt, op, t_rows, op, n_in, false);

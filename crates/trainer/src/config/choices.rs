@@ -131,7 +131,7 @@ pub enum MeshFilter {
 /// What is behind the object. In a file also `learned_background = true | false` (the key
 /// of earlier versions: learned | fixed).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase", try_from = "BackgroundModelText")]
+#[serde(rename_all = "lowercase", try_from = "NameOrFlag")]
 pub enum BackgroundModel {
     /// Learned when the run does not use masks (a capture's real surroundings must be
     /// explained by something other than the object), fixed when it does.
@@ -142,21 +142,22 @@ pub enum BackgroundModel {
     Fixed,
 }
 
-/// How a background model may be written: its name, or the earlier boolean.
+/// How a choice with a boolean form may be written: its name, or `true` / `false` (a background
+/// model's earlier boolean, `model.background_grid`).
 #[derive(Deserialize)]
 #[serde(untagged)]
-enum BackgroundModelText {
+enum NameOrFlag {
     Name(String),
-    Learned(bool),
+    Flag(bool),
 }
 
-impl TryFrom<BackgroundModelText> for BackgroundModel {
+impl TryFrom<NameOrFlag> for BackgroundModel {
     type Error = String;
-    fn try_from(text: BackgroundModelText) -> std::result::Result<Self, String> {
+    fn try_from(text: NameOrFlag) -> std::result::Result<Self, String> {
         match text {
-            BackgroundModelText::Learned(true) => Ok(BackgroundModel::Learned),
-            BackgroundModelText::Learned(false) => Ok(BackgroundModel::Fixed),
-            BackgroundModelText::Name(n) => match n.as_str() {
+            NameOrFlag::Flag(true) => Ok(BackgroundModel::Learned),
+            NameOrFlag::Flag(false) => Ok(BackgroundModel::Fixed),
+            NameOrFlag::Name(n) => match n.as_str() {
                 "auto" => Ok(BackgroundModel::Auto),
                 "learned" => Ok(BackgroundModel::Learned),
                 "fixed" => Ok(BackgroundModel::Fixed),
@@ -181,7 +182,7 @@ impl BackgroundModel {
 /// (`model.background_grid`; `sdf_backbone::BackgroundModel::cpu_grid`): in a file `"auto"`,
 /// `true` or `false`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(try_from = "BackgroundGridText")]
+#[serde(try_from = "NameOrFlag")]
 pub enum BackgroundGrid {
     /// With uniform rays, which spend most of a batch on the backdrop: without the grid the
     /// object's network painted a near wall's detail as floaters inside the bound and kept it;
@@ -193,22 +194,14 @@ pub enum BackgroundGrid {
     Off,
 }
 
-/// How `model.background_grid` may be written: `"auto"`, or a boolean.
-#[derive(Deserialize)]
-#[serde(untagged)]
-enum BackgroundGridText {
-    Name(String),
-    Flag(bool),
-}
-
-impl TryFrom<BackgroundGridText> for BackgroundGrid {
+impl TryFrom<NameOrFlag> for BackgroundGrid {
     type Error = String;
-    fn try_from(text: BackgroundGridText) -> std::result::Result<Self, String> {
+    fn try_from(text: NameOrFlag) -> std::result::Result<Self, String> {
         match text {
-            BackgroundGridText::Flag(true) => Ok(BackgroundGrid::On),
-            BackgroundGridText::Flag(false) => Ok(BackgroundGrid::Off),
-            BackgroundGridText::Name(n) if n == "auto" => Ok(BackgroundGrid::Auto),
-            BackgroundGridText::Name(other) => Err(format!("unknown background grid {other:?}: expected \"auto\", true or false")),
+            NameOrFlag::Flag(true) => Ok(BackgroundGrid::On),
+            NameOrFlag::Flag(false) => Ok(BackgroundGrid::Off),
+            NameOrFlag::Name(n) if n == "auto" => Ok(BackgroundGrid::Auto),
+            NameOrFlag::Name(other) => Err(format!("unknown background grid {other:?}: expected \"auto\", true or false")),
         }
     }
 }

@@ -274,4 +274,7 @@ pub fn fit_sphere(sdf: &SdfNet, params: &mut [f32], radius: f64, steps: u64, see
             adam.update(network, &grads, schedule.at(step));
         }
     }
+    // The chunks' pooled gradients (a whole parameter vector each) are not a training step's
+    // buffers: give their memory back rather than carry it into the run.
+    crate::scratch::release_all();
 }

@@ -220,9 +220,7 @@ fn restore_run(dir: &Path, config: TrainConfig, data: SceneData) -> Result<Train
     let len = file.metadata().with_context(|| format!("{}", ckpt_path.display()))?.len();
     let mut input = std::io::BufReader::new(file);
     let reader = CheckpointReader::open(&mut input, len).with_context(|| format!("{} is truncated or corrupt", ckpt_path.display()))?;
-    let mut trainer = Trainer::new(config, data)?;
-    trainer.restore(&reader, &mut input).with_context(|| format!("restoring {}", ckpt_path.display()))?;
-    Ok(trainer)
+    Trainer::from_checkpoint(config, data, &reader, &mut input).with_context(|| format!("restoring {}", ckpt_path.display()))
 }
 
 /// Runs `request`: the library's entry point. Everything that can fail on input fails before

@@ -146,10 +146,32 @@ impl SampleLoss for SurfaceHook<'_> {
     }
 }
 
-/// The configured backbone with its initial parameters.
+/// Where a trainer's parameters come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Parameters {
+    /// The preset's initialisation (a sphere of the initial radius; the fit takes ≈ 1 s).
+    Initial,
+    /// A checkpoint read over them at once ([`Trainer::from_checkpoint`]): zeros until then.
+    Restored,
+}
+
+/// The configured backbone with its initial parameters (or zeros for a checkpoint to overwrite).
 fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&GridChoice>, radius: f64) -> Result<(Backbone, Vec<f32>)> {
+    configured(config, use_masks, grid, radius, Parameters::Initial)
+}
+
+/// [`configured_backbone`], the parameters from `parameters`.
+fn configured(config: &TrainConfig, use_masks: bool, grid: Option<&GridChoice>, radius: f64, parameters: Parameters) -> Result<(Backbone, Vec<f32>)> {
     let (model, seed) = (&config.model, config.seed);
-    let (mut backbone, mut params) = sdf_backbone::build_varied(model.preset, &crate::sizing::variation(model, grid), radius, seed)?;
+    let variation = crate::sizing::variation(model, grid);
+    let (mut backbone, mut params) = match parameters {
+        Parameters::Initial => sdf_backbone::build_varied(model.preset, &variation, radius, seed)?,
+        Parameters::Restored => {
+            let backbone = sdf_backbone::architecture_varied(model.preset, &variation)?;
+            let n = backbone.layout().variance + 1;
+            (backbone, vec![0.0; n])
+        }
+    };
     if config.model.background_model.learned(use_masks) {
         backbone.add_learned_background(&mut params, background_model(config), config.seed + 4);
     }
@@ -213,6 +235,26 @@ pub fn estimator_config(config: &TrainConfig) -> EstimatorConfig {
 impl Trainer {
     /// A fresh run: the configured backbone at its initial parameters, no grids yet.
     pub fn new(config: TrainConfig, data: SceneData) -> Result<Trainer> {
+        Trainer::with_parameters(config, data, Parameters::Initial)
+    }
+
+    /// The run of `config` on `data` at the checkpoint `reader` reads from `input` (see
+    /// [`Trainer::restore`]): [`Trainer::new`] then [`Trainer::restore`], the same state to the
+    /// bit, without initialising the parameters that the checkpoint overwrites (the preset's
+    /// sphere fit: ≈ 1 s of every `eval --run` and resumed run).
+    pub fn from_checkpoint(
+        config: TrainConfig,
+        data: SceneData,
+        reader: &CheckpointReader,
+        input: &mut (impl std::io::Read + std::io::Seek),
+    ) -> Result<Trainer> {
+        let mut trainer = Trainer::with_parameters(config, data, Parameters::Restored)?;
+        trainer.restore(reader, input)?;
+        Ok(trainer)
+    }
+
+    /// [`Trainer::new`] with its parameters from `parameters`.
+    fn with_parameters(config: TrainConfig, data: SceneData, parameters: Parameters) -> Result<Trainer> {
         config.validate()?;
         // Every render the run will make must have pixels: fail now, not after the budget.
         let smallest = data.scene.views.iter().map(|v| v.camera.width.min(v.camera.height)).min().unwrap_or(0);
@@ -229,7 +271,7 @@ impl Trainer {
         let grid = crate::sizing::grid_choice(&config.model, footprint)?;
         let mesh_resolution = crate::sizing::mesh_resolution(config.output.mesh_resolution, &config.model, footprint)?;
         let init_radius = config.model.init_radius.resolve(data.scene.views.iter().map(|v| &v.camera), use_masks);
-        let (backbone, params) = configured_backbone(&config, use_masks, grid.as_ref(), init_radius)?;
+        let (backbone, params) = configured(&config, use_masks, grid.as_ref(), init_radius, parameters)?;
         let cameras: Vec<_> = split.train.iter().map(|&i| data.scene.views[i].camera).collect();
         let miner = crate::mining::error_map(&config, &cameras);
         let estimator = Estimator::new(cameras, estimator_config(&config)).context("the guide's configuration")?;

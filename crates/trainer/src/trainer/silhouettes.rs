@@ -323,6 +323,32 @@ mod tests {
         resumed
     }
 
+    /// `Trainer::from_checkpoint` skips the initial fit that a checkpoint overwrites: the guard
+    /// that it skips nothing else. Against `new` then `restore`, on a run without masks (its
+    /// first phase done, a learned background): the same checkpoint to the byte, and the same
+    /// parameters to the bit after another step.
+    #[test]
+    fn a_trainer_from_a_checkpoint_is_the_one_restored_over_fresh_parameters() {
+        let (config, data) = loose_bound(false);
+        let mut trainer = Trainer::new(config.clone(), data.clone()).unwrap();
+        trainer.step().unwrap();
+        let mut bytes = Vec::new();
+        trainer.write_checkpoint(&mut bytes).unwrap();
+        let mut input = std::io::Cursor::new(&bytes);
+        let reader = sdf_backbone::CheckpointReader::open(&mut input, bytes.len() as u64).unwrap();
+        let mut direct = Trainer::from_checkpoint(config.clone(), data.clone(), &reader, &mut input).unwrap();
+        let mut restored = resumed_from(&trainer, config, data);
+        let checkpoint = |t: &Trainer| {
+            let mut out = Vec::new();
+            t.write_checkpoint(&mut out).unwrap();
+            out
+        };
+        assert!(checkpoint(&direct) == checkpoint(&restored), "the checkpoints written back differ");
+        direct.step().unwrap();
+        restored.step().unwrap();
+        assert_eq!(direct.state().params, restored.state().params);
+    }
+
     #[test]
     fn the_first_step_without_masks_sizes_the_sphere_from_the_photos_and_a_resumed_run_does_not() {
         let (config, data) = loose_bound(false);

@@ -111,6 +111,34 @@ impl GridChoice {
     }
 }
 
+/// One line for the run's log when the model keeps its preset's hash grid (`model.grid =
+/// "preset"`): how the finest cell compares with the photos' pixel footprint at the region of
+/// interest, and the grid `model.grid = "footprint"` would give. A finest cell many pixels wide
+/// leaves detail the photos hold unmodelled (DTU at full resolution: ≈ 8 pixels a cell); one far
+/// below a pixel models more than the photos can tell. `None` without a hash grid or a footprint.
+pub fn describe_preset_grid(model: &ModelConfig, footprint: Option<f64>) -> Option<String> {
+    if model.grid != GridSize::Preset {
+        return None;
+    }
+    let preset = model.preset.hash_grid()?;
+    let footprint = footprint.filter(|f| *f > 0.0)?;
+    let sized = grid_choice(&ModelConfig { grid: GridSize::Footprint, ..model.clone() }, Some(footprint)).ok()??;
+    let cell = 2.0 / f64::from(preset.finest_resolution);
+    let g = &sized.grid;
+    Some(format!(
+        "the preset's hash grid, {} levels {} → {}: a finest cell spans {cell:.5}, a pixel {footprint:.5} at the region of interest (median over the views), {:.1} pixel(s) per finest cell; model.grid = \"footprint\" would give {} levels {} → {}, 2^{} entries per level ({} pixel(s) per cell)",
+        preset.levels,
+        preset.base_resolution,
+        preset.finest_resolution,
+        cell / footprint,
+        g.levels,
+        g.base_resolution,
+        g.finest_resolution,
+        g.log2_table,
+        model.pixels_per_cell
+    ))
+}
+
 /// The grid `model` asks for on views whose median footprint is `footprint`: `None` for the
 /// preset's own grid, an error when the footprint is needed and there is none.
 pub fn grid_choice(model: &ModelConfig, footprint: Option<f64>) -> Result<Option<GridChoice>> {
@@ -195,6 +223,19 @@ pub fn explain_size_mismatch(model: &ModelConfig, error: sdf_backbone::BackboneE
 mod tests {
     use super::*;
     use camera_geom::{Intrinsics, PixelCenters};
+
+    #[test]
+    fn the_preset_grid_is_described_against_the_photos_footprint() {
+        let model = ModelConfig::default();
+        // A pixel of 2/512 against the preset's finest cell of 2/256: two pixels a cell, and a
+        // grid sized at one pixel a cell reaches 512 with a table 2² times as large.
+        let line = describe_preset_grid(&model, Some(2.0 / 512.0)).unwrap();
+        assert!(line.contains("8 levels 16 → 256") && line.contains("2.0 pixel(s) per finest cell"), "{line}");
+        assert!(line.contains("→ 512, 2^18 entries per level (1 pixel(s) per cell)"), "{line}");
+        assert_eq!(describe_preset_grid(&model, None), None);
+        let sized = ModelConfig { grid: GridSize::Footprint, ..ModelConfig::default() };
+        assert_eq!(describe_preset_grid(&sized, Some(0.004)), None, "a sized grid has its own line");
+    }
 
     #[test]
     fn a_checkpoint_of_the_two_layer_sdf_network_is_named() {

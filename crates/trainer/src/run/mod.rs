@@ -288,6 +288,8 @@ fn run_folder(mut trainer: Trainer, folder: &RunFolder, options: &RunOptions, st
     );
     if let Some(choice) = trainer.grid_choice() {
         eprintln!("model: {}", choice.describe());
+    } else if let Some(line) = crate::sizing::describe_preset_grid(&config.model, trainer.pixel_footprint()) {
+        eprintln!("model: {line}");
     }
     if config.model.init_radius == crate::config::InitRadius::Auto && trainer.init_radius() < crate::sizing::MAX_INITIAL_RADIUS {
         eprintln!(

@@ -117,6 +117,9 @@ pub struct Trainer {
     grid: Option<GridChoice>,
     /// The meshes' marching-cubes resolution (`output.mesh_resolution` resolved).
     mesh_resolution: u32,
+    /// The median pixel footprint at the region of interest over the views (`None`: no view
+    /// has it in front of its camera).
+    footprint: Option<f64>,
     /// The initial sphere's radius (`model.init_radius` resolved).
     init_radius: f64,
     /// The first step sizes the initial sphere from the photos first ([`silhouettes`]).
@@ -288,6 +291,7 @@ impl Trainer {
             miner,
             grid,
             mesh_resolution,
+            footprint,
             init_radius,
             sphere_pending: config_asks_photos,
             sphere_fit: None,
@@ -308,6 +312,12 @@ impl Trainer {
     /// The hash grid sized by the views (`model.grid = "footprint"`; `None`: the preset's).
     pub fn grid_choice(&self) -> Option<&GridChoice> {
         self.grid.as_ref()
+    }
+
+    /// The median pixel footprint at the region of interest over the views, in the normalised
+    /// frame (`None`: no view has the region's centre in front of its camera).
+    pub fn pixel_footprint(&self) -> Option<f64> {
+        self.footprint
     }
 
     /// The initial sphere's radius (`model.init_radius`, `auto` resolved).

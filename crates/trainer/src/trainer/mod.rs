@@ -150,10 +150,14 @@ impl SampleLoss for SurfaceHook<'_> {
 }
 
 /// Where a trainer's parameters come from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Parameters {
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) enum Parameters {
     /// The preset's initialisation (a sphere of the initial radius; the fit takes ≈ 1 s).
     Initial,
+    /// The preset's initialisation made already, for the same model, seed and radius (a fresh
+    /// run's, for its first phase's probe): the networks' and the scale's parameters, then
+    /// anything after them, which is dropped (the background is made anew).
+    Initialised(Vec<f32>),
     /// A checkpoint read over them at once ([`Trainer::from_checkpoint`]): zeros until then.
     Restored,
 }
@@ -169,6 +173,16 @@ fn configured(config: &TrainConfig, use_masks: bool, grid: Option<&GridChoice>, 
     let variation = crate::sizing::variation(model, grid);
     let (mut backbone, mut params) = match parameters {
         Parameters::Initial => sdf_backbone::build_varied(model.preset, &variation, radius, seed)?,
+        Parameters::Initialised(mut params) => {
+            let backbone = sdf_backbone::architecture_varied(model.preset, &variation)?;
+            let n = backbone.layout().variance + 1;
+            if params.len() < n {
+                // Not this model's: made anew.
+                return configured(config, use_masks, grid, radius, Parameters::Initial);
+            }
+            params.truncate(n);
+            (backbone, params)
+        }
         Parameters::Restored => {
             let backbone = sdf_backbone::architecture_varied(model.preset, &variation)?;
             let n = backbone.layout().variance + 1;
@@ -257,7 +271,7 @@ impl Trainer {
     }
 
     /// [`Trainer::new`] with its parameters from `parameters`.
-    fn with_parameters(config: TrainConfig, data: SceneData, parameters: Parameters) -> Result<Trainer> {
+    pub(crate) fn with_parameters(config: TrainConfig, data: SceneData, parameters: Parameters) -> Result<Trainer> {
         config.validate()?;
         // Every render the run will make must have pixels: fail now, not after the budget.
         let smallest = data.scene.views.iter().map(|v| v.camera.width.min(v.camera.height)).min().unwrap_or(0);

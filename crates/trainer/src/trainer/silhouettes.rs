@@ -176,28 +176,15 @@ impl Trainer {
     /// left as it was, its first phase still to come.
     pub(super) fn fit_sphere_to_photos(&mut self) -> Result<()> {
         let start = Instant::now();
-        let mut config = self.config.clone();
-        config.budget = Budget::Steps(PROBE_STEPS);
-        config.sampler = SamplerKind::Guided;
-        config.model.init_radius = InitRadius::Radius(MAX_INITIAL_RADIUS);
-        config.model.init_s = Some(PROBE_INIT_S);
-        config.model.background_near = PROBE_BACKGROUND_NEAR;
-        config.model.background_near_start = None;
-        config.model.geometry_after = None;
-        config.model.opacity_guard = None;
-        // The probe's background is the MLP alone, whatever the run's (§42): with a grid of its
-        // own the background also takes object pixels from a probe whose photos the object fills,
-        // the sphere comes out small, and the run carves the object away (H1: 0.244 against 0.5).
-        config.model.background_grid = crate::config::BackgroundGrid::Off;
-        // What could refuse the probe's configuration is checked before the views move (the rest
-        // of `Trainer::new` accepted the run's own).
-        config.validate()?;
-        // The run's parameters and moments make way for the probe's (its peak is the run's).
-        self.state.params = Vec::new();
+        let config = self.probe_config()?;
+        // The run's parameters and moments make way for the probe's (its peak is the run's). The
+        // run's are the preset's sphere at the probe's radius, unchanged before the first step:
+        // the probe starts from them rather than fitting the same sphere again.
+        let initial = std::mem::take(&mut self.state.params);
         self.state.adam = sdf_backbone::Adam::new(0);
         let stand_in = self.data.without_views();
         let data = std::mem::replace(&mut self.data, stand_in);
-        let mut probe = Trainer::new(config, data)?;
+        let mut probe = Trainer::with_parameters(config, data, super::Parameters::Initialised(initial))?;
         let silhouettes = probe_silhouettes(&mut probe);
         self.data = probe.data;
         let (reach, radius) = match &silhouettes {
@@ -220,6 +207,27 @@ impl Trainer {
         self.first_phase_seconds = seconds;
         self.sphere_fit = Some(SphereFit { radius, reach, views, steps: PROBE_STEPS, seconds });
         Ok(())
+    }
+
+    /// The first phase's probe configuration: the run's own with the probe's steps, sampler,
+    /// sphere, translucent start and far background. What could refuse it is checked here, before
+    /// the views move (the rest of `Trainer::new` accepted the run's own).
+    fn probe_config(&self) -> Result<crate::config::TrainConfig> {
+        let mut config = self.config.clone();
+        config.budget = Budget::Steps(PROBE_STEPS);
+        config.sampler = SamplerKind::Guided;
+        config.model.init_radius = InitRadius::Radius(MAX_INITIAL_RADIUS);
+        config.model.init_s = Some(PROBE_INIT_S);
+        config.model.background_near = PROBE_BACKGROUND_NEAR;
+        config.model.background_near_start = None;
+        config.model.geometry_after = None;
+        config.model.opacity_guard = None;
+        // The probe's background is the MLP alone, whatever the run's (§42): with a grid of its
+        // own the background also takes object pixels from a probe whose photos the object fills,
+        // the sphere comes out small, and the run carves the object away (H1: 0.244 against 0.5).
+        config.model.background_grid = crate::config::BackgroundGrid::Off;
+        config.validate()?;
+        Ok(config)
     }
 
     /// How the first phase sized the initial sphere (`None`: the run did not have one).
@@ -347,6 +355,19 @@ mod tests {
         direct.step().unwrap();
         restored.step().unwrap();
         assert_eq!(direct.state().params, restored.state().params);
+    }
+
+    /// The probe starts from the run's initial parameters instead of fitting the sphere again:
+    /// they are the ones the fit would make, to the bit (the background aside, made anew).
+    #[test]
+    fn the_probe_from_the_runs_initial_parameters_is_the_probe_fitted_anew() {
+        let (config, data) = loose_bound(false);
+        let run = Trainer::new(config, data.clone()).unwrap();
+        let probe = run.probe_config().unwrap();
+        let fresh = Trainer::new(probe.clone(), data.clone()).unwrap();
+        let reused = Trainer::with_parameters(probe, data, super::super::Parameters::Initialised(run.state().params.clone())).unwrap();
+        let bits = |t: &Trainer| t.state().params.iter().map(|p| p.to_bits()).collect::<Vec<_>>();
+        assert!(bits(&fresh) == bits(&reused), "the probe's parameters differ");
     }
 
     #[test]

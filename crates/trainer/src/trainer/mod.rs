@@ -150,7 +150,7 @@ impl SampleLoss for SurfaceHook<'_> {
 }
 
 /// Where a trainer's parameters come from.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub(crate) enum Parameters {
     /// The preset's initialisation (a sphere of the initial radius; the fit takes ≈ 1 s).
     Initial,
@@ -162,7 +162,7 @@ pub(crate) enum Parameters {
     Restored,
 }
 
-/// The configured backbone with its initial parameters (or zeros for a checkpoint to overwrite).
+/// The configured backbone with its initial parameters.
 fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&GridChoice>, radius: f64) -> Result<(Backbone, Vec<f32>)> {
     configured(config, use_masks, grid, radius, Parameters::Initial)
 }

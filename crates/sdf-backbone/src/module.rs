@@ -446,7 +446,8 @@ impl<R: Real, A: ScatterTangent<R>, B: TangentModule<R>> DeferringTangentModule<
 /// `loss` gets each chunk's (input, output) and writes ∂L/∂output; it returns the chunk's loss.
 /// Returns the total loss; gradients are *added* to `d_params`. The chunks' buffers are pooled
 /// ([`Buf`]): a fresh gradient of every parameter per chunk cost page faults on each call (half of
-/// [`crate::presets::fit_sphere`]'s time on a hash-grid network).
+/// the sphere fit's time on a hash-grid network, which now sums its tables over the entries each
+/// chunk touches instead, [`crate::presets::fit_sphere`]).
 pub fn batch_gradients<R: Real, M: Module<R>>(
     module: &M,
     params: &[R],

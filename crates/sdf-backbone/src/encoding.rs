@@ -341,7 +341,7 @@ impl<R: Real, M: ScatterTangent<R>> ScatterTangent<R> for WithInput<M> {
 
 impl<M> WithInput<M> {
     /// The encoding's share of each part's output gradient (the raw input's columns dropped).
-    fn encoding_parts<R: Real>(&self, parts: &[(&[R], &[R])]) -> Vec<crate::scratch::Buf<R>>
+    pub(crate) fn encoding_parts<R: Real>(&self, parts: &[(&[R], &[R])]) -> Vec<crate::scratch::Buf<R>>
     where
         M: Module<R>,
     {

@@ -266,7 +266,7 @@ pub fn fit_sphere(sdf: &SdfNet, params: &mut [f32], radius: f64, steps: u64, see
         let x: Vec<f32> = (0..3 * batch).map(|i| (rng.random::<f32>() * 2.0 - 1.0) * if i < 3 * batch / 4 { 0.15 } else { 1.0 }).collect();
         grads.fill(0.0);
         if let (true, InputEncoding::HashGrid(grid)) = (joint, &sdf.a) {
-            grid_network_gradients(sdf, &grid.encoding, params, &x, &mut grads, l1(3));
+            grid_network_gradients(sdf, grid, params, &x, &mut grads, l1(3));
             adam.update(params, &grads, schedule.at(step));
         } else if joint {
             batch_gradients(sdf, params, &x, 256, &mut grads, l1(3));
@@ -292,7 +292,7 @@ pub fn fit_sphere(sdf: &SdfNet, params: &mut [f32], radius: f64, steps: u64, see
 /// of the CPU preset per chunk was most of the fit's time.
 fn grid_network_gradients(
     sdf: &SdfNet,
-    grid: &HashGrid,
+    grid: &WithInput<HashGrid>,
     params: &[f32],
     x: &[f32],
     grads: &mut [f32],
@@ -301,11 +301,13 @@ fn grid_network_gradients(
     use crate::module::DeferringModule;
     use crate::scratch::Buf;
     use rayon::prelude::*;
+    // Rows per chunk, as `fit_sphere`'s `batch_gradients` has them.
+    const CHUNK: usize = 256;
     let n_enc = Module::<f32>::n_params(&sdf.a);
     let (n_out, n_ctx) = (Module::<f32>::n_outputs(sdf), Module::<f32>::ctx_per_row(sdf));
-    let (width, n_features) = (DeferringModule::<f32>::deferred_width(sdf), Module::<f32>::n_outputs(grid));
+    let width = DeferringModule::<f32>::deferred_width(sdf);
     let parts: Vec<(Buf<f32>, Buf<f32>)> = x
-        .par_chunks(256 * 3)
+        .par_chunks(CHUNK * 3)
         .map(|x| {
             let rows = x.len() / 3;
             let (mut out, mut ctx) = (Buf::<f32>::to_overwrite(rows * n_out), Buf::<f32>::to_overwrite(rows * n_ctx));
@@ -314,12 +316,7 @@ fn grid_network_gradients(
             loss(x, &out, &mut d_out);
             let (mut d_net, mut record) = (Buf::<f32>::zeroed(params.len() - n_enc), Buf::<f32>::zeroed(rows * width));
             sdf.backward_deferring(params, x, &ctx, &d_out, &mut d_net, &mut record);
-            // The grid's columns of the record (the network's input is [x, features]).
-            let mut d_features = Buf::<f32>::to_overwrite(rows * n_features);
-            for (dst, src) in d_features.chunks_exact_mut(n_features).zip(record.chunks_exact(width)) {
-                dst.copy_from_slice(&src[width - n_features..]);
-            }
-            (d_net, d_features)
+            (d_net, record)
         })
         .collect();
     for (d_net, _) in &parts {
@@ -327,12 +324,16 @@ fn grid_network_gradients(
             *g += *d;
         }
     }
+    // The grid's columns of each record (the network's input is [x, features]).
+    let records: Vec<(&[f32], &[f32])> = x.chunks(CHUNK * 3).zip(&parts).map(|(x, (_, record))| (x, &record[..])).collect();
+    let d_features = grid.encoding_parts(&records);
+    let grid = &grid.encoding;
     let mut scratch = Vec::new();
     for level in 0..grid.config().levels {
         let range = grid.level_params(level);
         scratch.clear();
         scratch.resize(range.len(), 0.0f32);
-        for ((_, d_features), x) in parts.iter().zip(x.chunks(256 * 3)) {
+        for ((x, _), d_features) in records.iter().zip(&d_features) {
             grid.add_level_gradient(level, x, d_features, &mut scratch, &mut grads[range.clone()]);
         }
     }
@@ -366,7 +367,7 @@ mod tests {
         let start: Vec<f32> = (0..n).map(|i| if i % 7 == 0 { 1e-3 * (i % 13) as f32 } else { 0.0 }).collect();
         let (mut dense, mut sparse) = (start.clone(), start);
         batch_gradients(sdf, &params[..n], &x, 256, &mut dense, loss);
-        grid_network_gradients(sdf, &grid.encoding, &params[..n], &x, &mut sparse, loss);
+        grid_network_gradients(sdf, grid, &params[..n], &x, &mut sparse, loss);
         let differ = dense.iter().zip(&sparse).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
         assert_eq!(differ, 0, "{differ} of {n} gradients differ");
         assert!(dense.iter().zip(&params).filter(|(g, _)| **g != 0.0).count() > 1000, "the loss reaches the tables");

@@ -171,23 +171,21 @@ fn configured_backbone(config: &TrainConfig, use_masks: bool, grid: Option<&Grid
 fn configured(config: &TrainConfig, use_masks: bool, grid: Option<&GridChoice>, radius: f64, parameters: Parameters) -> Result<(Backbone, Vec<f32>)> {
     let (model, seed) = (&config.model, config.seed);
     let variation = crate::sizing::variation(model, grid);
-    let (mut backbone, mut params) = match parameters {
-        Parameters::Initial => sdf_backbone::build_varied(model.preset, &variation, radius, seed)?,
-        Parameters::Initialised(mut params) => {
-            let backbone = sdf_backbone::architecture_varied(model.preset, &variation)?;
-            let n = backbone.layout().variance + 1;
-            if params.len() < n {
-                // Not this model's: made anew.
-                return configured(config, use_masks, grid, radius, Parameters::Initial);
+    let (mut backbone, mut params) = if let Parameters::Initial = parameters {
+        sdf_backbone::build_varied(model.preset, &variation, radius, seed)?
+    } else {
+        let backbone = sdf_backbone::architecture_varied(model.preset, &variation)?;
+        let n = backbone.layout().variance + 1;
+        let params = match parameters {
+            Parameters::Initialised(mut params) if params.len() >= n => {
+                params.truncate(n);
+                params
             }
-            params.truncate(n);
-            (backbone, params)
-        }
-        Parameters::Restored => {
-            let backbone = sdf_backbone::architecture_varied(model.preset, &variation)?;
-            let n = backbone.layout().variance + 1;
-            (backbone, vec![0.0; n])
-        }
+            // Not this model's: made anew.
+            Parameters::Initialised(_) => return configured(config, use_masks, grid, radius, Parameters::Initial),
+            _ => vec![0.0; n],
+        };
+        (backbone, params)
     };
     if config.model.background_model.learned(use_masks) {
         backbone.add_learned_background(&mut params, background_model(config), config.seed + 4);

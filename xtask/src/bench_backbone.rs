@@ -206,9 +206,9 @@ fn profile_step(preset: Preset, normals: NormalScheme, products: sdf_backbone::P
     let threads = rayon::current_num_threads();
     let cpu = wall * threads as f64;
     let of = |stage: Stage| stages.iter().find(|(s, _)| *s == stage).map_or(0.0, |(_, t)| *t);
-    // The MLP stages' FLOP (2·MACs forward, 4·MACs backward per row; analytic normals: the SDF
-    // network's backward is in its tangent stage: 3 · 2 forward tangents, then 2 for the tangent
-    // along ∂L/∂n and 2 · 4 for values and tangents).
+    // The MLP stages' FLOP (2·MACs forward, 4·MACs backward per row; analytic normals: the
+    // normal by one reverse pass, 2, in the backward stage; the SDF network's backward in its
+    // tangent stage: 2 for the tangent along ∂L/∂n and 2 · 4 for values and tangents).
     let sdf_macs = mlp_macs(&backbone.sdf.b);
     let color_macs = mlp_macs(&backbone.color);
     let analytic = normals == NormalScheme::Analytic;
@@ -216,9 +216,9 @@ fn profile_step(preset: Preset, normals: NormalScheme, products: sdf_backbone::P
     let col_rows = (n_rays * n_samples) as f64;
     let flop = |stage: Stage| match stage {
         Stage::MlpForward => 2.0 * (sdf_rows * sdf_macs + col_rows * color_macs),
-        Stage::MlpBackward if analytic => 4.0 * col_rows * color_macs,
+        Stage::MlpBackward if analytic => 2.0 * sdf_rows * sdf_macs + 4.0 * col_rows * color_macs,
         Stage::MlpBackward => 4.0 * (sdf_rows * sdf_macs + col_rows * color_macs),
-        Stage::MlpTangents if analytic => 16.0 * sdf_rows * sdf_macs,
+        Stage::MlpTangents if analytic => 10.0 * sdf_rows * sdf_macs,
         _ => 0.0,
     };
     let inside = [Stage::HashForward, Stage::HashTangents, Stage::MlpForward, Stage::MlpTangents, Stage::MlpBackward];
@@ -298,11 +298,13 @@ fn preset_figures(preset: Preset, reps: usize, gemm_best: f64, only: Option<Norm
         let step = time_step(&backbone, &mut params, &rays, reps);
         let samples = (n_rays * n_samples) as f64;
         // Forward 2·MACs, backward 4·MACs (input and weight gradients) per SDF row: 1 + probes
-        // rows per sample. Analytic normals: forward 2 (values) + 3·2 (tangents along x, y, z),
-        // backward 2 (the tangent along ∂L/∂n) + 2·4 (values and tangents): 18 MACs, as 3 rows.
-        let sdf_rows_per_sample = if normals == NormalScheme::Analytic { 3 } else { 1 + normals.probe_count() };
-        let flop_per_sample = 6.0 * (sdf_rows_per_sample as f64 * sdf_macs + color_macs);
-        let sdf_rows = n_rays * (sdf_rows_per_sample * n_samples + 1);
+        // rows per sample. Analytic normals: forward 2 (values) + 2 (the normal by one reverse
+        // pass), backward 2 (the tangent along ∂L/∂n) + 2·4 (values and tangents): 14 MACs, as
+        // 7/3 rows (the networks' nominal MACs: the products over columns whose adjoint is zero,
+        // which the tangents' reverse pass skips, are counted).
+        let (rows_num, rows_den) = if normals == NormalScheme::Analytic { (7, 3) } else { (1 + normals.probe_count(), 1) };
+        let flop_per_sample = 6.0 * (rows_num as f64 / rows_den as f64 * sdf_macs + color_macs);
+        let sdf_rows = n_rays * (rows_num * n_samples / rows_den + 1);
         let t_mlp = time_mlp(&sdf_mlp, &params[layout.sdf_mlp.clone()], sdf_rows)
             + time_mlp(&backbone.color, &params[layout.color.clone()], n_rays * n_samples);
         let mlp_gflops = flop_per_sample * samples / t_mlp / 1e9;

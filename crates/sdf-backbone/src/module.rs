@@ -235,6 +235,11 @@ impl Activation {
         }
     }
 
+    /// Whether [`Activation::second_derivative`] is zero everywhere (identity, ReLU).
+    pub fn is_piecewise_linear(self) -> bool {
+        matches!(self, Activation::Identity | Activation::Relu)
+    }
+
     /// Whether [`Activation::second_derivative`] reads y (the sigmoid).
     pub fn second_needs_value(self) -> bool {
         matches!(self, Activation::Sigmoid)

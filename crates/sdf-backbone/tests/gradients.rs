@@ -284,12 +284,17 @@ fn with_input_gradients_match() {
 /// [`TangentModule::input_gradient`], against central differences of L = Σ r ⊙ y(x) + Σ q ⊙
 /// (∂y/∂x · v) (of its first sum, for the input gradient). Returns the largest relative error.
 fn tangent_check<M: TangentModule<f64>>(module: &M, params: &[f64], rows: usize, check_input: bool, seed: u64) -> f64 {
+    tangent_check_of(module, params, rows, check_input, seed, usize::MAX)
+}
+
+/// [`tangent_check`] with the adjoints r and q zero past their first `used` columns in every row.
+fn tangent_check_of<M: TangentModule<f64>>(module: &M, params: &[f64], rows: usize, check_input: bool, seed: u64, used: usize) -> f64 {
     let mut rng = Xoshiro256PlusPlus::seed_from_u64(seed);
     let (n_in, n_out) = (module.n_inputs(), module.n_outputs());
     let input: Vec<f64> = (0..rows * n_in).map(|_| rng.random::<f64>() * 1.6 - 0.8).collect();
     let v: Vec<f64> = (0..rows * n_in).map(|_| rng.random::<f64>() * 2.0 - 1.0).collect();
-    let r: Vec<f64> = (0..rows * n_out).map(|_| rng.random::<f64>() * 2.0 - 1.0).collect();
-    let q: Vec<f64> = (0..rows * n_out).map(|_| rng.random::<f64>() * 2.0 - 1.0).collect();
+    let mut adjoint = |_| (0..rows * n_out).map(|i| if i % n_out < used { rng.random::<f64>() * 2.0 - 1.0 } else { 0.0 }).collect::<Vec<f64>>();
+    let (r, q) = (adjoint(()), adjoint(()));
     let run = |p: &[f64], x: &[f64], t: &[f64]| {
         let mut out = vec![0.0; rows * n_out];
         let mut ctx = vec![0.0; rows * module.ctx_per_row()];
@@ -408,6 +413,34 @@ fn mlp_tangents_and_their_backward_match_finite_differences() {
     let params = random_params(Module::<f64>::n_params(&sigmoid), 0.8, 25);
     let worst = tangent_check(&sigmoid, &params, 5, true, 26);
     assert!(worst < 1e-6, "sigmoid: relative error {worst:e}");
+}
+
+/// The reverse passes leave out of the output layer's products the adjoint's columns that are
+/// zero in every row (a normal's reverse pass starts from the SDF output alone): with adjoints in
+/// the first column only, and in the first two of four, for a linear output (whose Ż the tangents'
+/// reverse pass does not compute) and a sigmoid one (whose Ż it reads).
+#[test]
+fn mlp_reverse_passes_from_the_first_outputs_alone_match_finite_differences() {
+    for output in [Activation::Identity, Activation::Relu, Activation::Sigmoid] {
+        let mlp = deep_mlp(None, output);
+        let params = random_params(Module::<f64>::n_params(&mlp), 0.6, 27);
+        for used in [1, 2] {
+            let worst = tangent_check_of(&mlp, &params, 6, true, 28, used);
+            assert!(worst < 1e-6, "{output:?}, {used} column(s): relative error {worst:e}");
+        }
+    }
+}
+
+/// Identity and ReLU, and only they, have a second derivative that is zero everywhere.
+#[test]
+fn piecewise_linear_activations_have_no_second_derivative() {
+    for act in [Activation::Identity, Activation::Relu, Activation::Softplus { beta: 10.0 }, Activation::Sigmoid] {
+        let zero = [-1.0f64, -0.1, 0.3, 2.0].iter().all(|&z| {
+            let (slope, value) = (act.derivative(z), act.apply(z));
+            act.second_derivative(slope, value) == 0.0
+        });
+        assert_eq!(act.is_piecewise_linear(), zero, "{act:?}");
+    }
 }
 
 /// The positional encoding's tangents and their reverse pass (second derivatives of sin and

@@ -33,6 +33,9 @@ impl Mlp {
             #[inline(always)]
             || {
                 let mut dy = padded_rows(d_output, self.config.n_outputs);
+                // The output adjoint's columns past the last nonzero one (a normal's reverse pass
+                // starts from the SDF output alone) are left out of the last layer's products.
+                let mut used = used_columns(d_output, self.config.n_outputs);
                 let mut d_skip: Option<Buf<R>> = None;
                 for l in (0..self.layers.len()).rev() {
                     let (n_in, n_out, _) = self.layers[l];
@@ -52,7 +55,8 @@ impl Mlp {
                         break;
                     }
                     let wp = self.padded(params, l);
-                    let da = self.input_adjoint(l, &wp, &dy, rows);
+                    let da = self.input_adjoint_of(l, &wp, &dy, rows, used);
+                    used = usize::MAX;
                     if l == 0 {
                         if let Some(d_in) = d_input.as_deref_mut() {
                             self.write_input_adjoint(&da, d_skip.as_deref(), d_in);
@@ -90,13 +94,20 @@ impl Mlp {
         }
     }
 
-    /// dA = dZ W of layer `l` (rows × in_pad), `wp` its packed weights ([`Mlp::packed`]).
+    /// dA = dZ W of layer `l` (rows × in_pad), `wp` its padded weights ([`Mlp::padded`]).
     #[inline(always)]
     pub(super) fn input_adjoint<R: Real>(&self, l: usize, wp: &[R], dz: &[R], rows: usize) -> Buf<R> {
+        self.input_adjoint_of(l, wp, dz, rows, self.layers[l].1)
+    }
+
+    /// [`Mlp::input_adjoint`] of a `dz` whose columns from `used` on are zero in every row: the
+    /// product over its first `used` columns alone.
+    #[inline(always)]
+    pub(super) fn input_adjoint_of<R: Real>(&self, l: usize, wp: &[R], dz: &[R], rows: usize, used: usize) -> Buf<R> {
         let (n_in, n_out, _) = self.layers[l];
         let (ip, op) = (pad(n_in), pad(n_out));
         let mut da = Buf::<R>::to_overwrite(rows * ip);
-        gemm_in(self.in_bf16(l), &mut da, ip, Strided { data: dz, sm: op, sk: 1 }, wp, ip, rows, ip, n_out, false);
+        gemm_in(self.in_bf16(l), &mut da, ip, Strided { data: dz, sm: op, sk: 1 }, wp, ip, rows, ip, used.min(n_out), false);
         da
     }
 
@@ -144,6 +155,13 @@ impl Mlp {
             }
         }
     }
+}
+
+/// How many of the first columns of `d` (rows × n) hold a nonzero value in some row: the columns
+/// after them are zero in every row.
+#[inline(always)]
+pub(super) fn used_columns<R: Real>(d: &[R], n: usize) -> usize {
+    d.chunks_exact(n).fold(0, |used, row| row.iter().rposition(|&v| v != R::ZERO).map_or(used, |q| used.max(q + 1)))
 }
 
 /// `src` (rows × n) as rows × pad(n), zero-padded.

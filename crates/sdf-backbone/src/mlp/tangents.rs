@@ -2,7 +2,7 @@
 //! and the reverse pass through values and tangents together, for analytic normals.
 
 use super::Mlp;
-use super::backward::{padded_block, padded_rows};
+use super::backward::{padded_block, padded_rows, used_columns};
 use crate::kernels::{Strided, gemm_in, pad};
 use crate::module::{TangentAdjoints, TangentModule};
 use crate::real::Real;
@@ -29,11 +29,14 @@ impl<R: Real> TangentModule<R> for Mlp {
         }
         let starts = self.ctx_starts(rows);
         let tangents = self.tangent_pass(params, ctx, rows, 1, tangent_in, None);
+        // The output tangent's adjoint is often zero past its first columns (a normal is the
+        // SDF output's gradient alone): the last layer's products over those columns are skipped.
+        let n_y = self.config.n_outputs;
+        let du_used = used_columns(&d_tangent_out[..rows * n_y], n_y);
         let mut d_input = d_input;
         crate::kernels::dispatch(
             #[inline(always)]
             || {
-                let n_y = self.config.n_outputs;
                 let (mut dy, mut du) = (padded_rows(d_output, n_y), padded_rows(d_tangent_out, n_y));
                 let (mut d_skip, mut d_skip_tangent): (Option<Buf<R>>, Option<Buf<R>>) = (None, None);
                 for l in (0..self.layers.len()).rev() {
@@ -43,24 +46,31 @@ impl<R: Real> TangentModule<R> for Mlp {
                     let a = &ctx[starts[l].0..starts[l].0 + rows * ip];
                     let slope = &ctx[starts[l].1..starts[l].1 + rows * op];
                     let (a_dot, z_dot) = &tangents[l];
-                    let values = act.second_needs_value().then(|| self.layer_values(params, ctx, &starts, rows, l));
-                    // Z̄ and Ż̄ in place of ȳ and ū.
-                    for i in 0..rows * op {
-                        let second = act.second_derivative(slope[i], values.as_ref().map_or(R::ZERO, |v| v[i]));
-                        let (g, u) = (dy[i], du[i]);
-                        dy[i] = slope[i] * g + second * z_dot[i] * u;
-                        du[i] = slope[i] * u;
+                    // Z̄ and Ż̄ in place of ȳ and ū (Ż only where act'' is not zero).
+                    if act.is_piecewise_linear() {
+                        for i in 0..rows * op {
+                            (dy[i], du[i]) = (slope[i] * dy[i], slope[i] * du[i]);
+                        }
+                    } else {
+                        let values = act.second_needs_value().then(|| self.layer_values(params, ctx, &starts, rows, l));
+                        for i in 0..rows * op {
+                            let second = act.second_derivative(slope[i], values.as_ref().map_or(R::ZERO, |v| v[i]));
+                            let (g, u) = (dy[i], du[i]);
+                            dy[i] = slope[i] * g + second * z_dot[i] * u;
+                            du[i] = slope[i] * u;
+                        }
                     }
+                    let used = if l + 1 == self.layers.len() { du_used } else { n_out };
                     let mut dw = Buf::<R>::to_overwrite(n_out * ip);
                     let in_bf16 = self.in_bf16(l);
                     gemm_in(in_bf16, &mut dw, ip, Strided { data: &dy, sm: 1, sk: op }, a, ip, n_out, ip, rows, false);
-                    gemm_in(in_bf16, &mut dw, ip, Strided { data: &du, sm: 1, sk: op }, a_dot, ip, n_out, ip, rows, true);
+                    gemm_in(in_bf16, &mut dw, ip, Strided { data: &du, sm: 1, sk: op }, a_dot, ip, used, ip, rows, true);
                     self.add_layer_gradient(l, &dw, &dy, d_params);
                     if l == 0 && d_input.is_none() {
                         break;
                     }
                     let wp = self.padded(params, l);
-                    let (da, da_dot) = (self.input_adjoint(l, &wp, &dy, rows), self.input_adjoint(l, &wp, &du, rows));
+                    let (da, da_dot) = (self.input_adjoint(l, &wp, &dy, rows), self.input_adjoint_of(l, &wp, &du, rows, used));
                     if l == 0 {
                         if let Some((d_in, d_in_tangent)) = d_input.as_mut() {
                             self.write_input_adjoint(&da, d_skip.as_deref(), d_in);
@@ -116,7 +126,8 @@ impl Mlp {
 
     /// Forward-mode pass of `t_rows` tangent rows, `k` per input row (row r's tangents are rows
     /// r·k … r·k + k − 1): `tangents_in` (t_rows × n_inputs). Returns, per layer, the padded
-    /// tangent of its input (t_rows × in_pad) and of its pre-activation Ż (t_rows × out_pad);
+    /// tangent of its input (t_rows × in_pad) and of its pre-activation Ż (t_rows × out_pad; empty
+    /// for the output layer when `tangents_out` is `None` and its activation piecewise linear);
     /// the output tangents go to `tangents_out` (t_rows × n_outputs) when given.
     fn tangent_pass<R: Real>(
         &self,
@@ -139,12 +150,17 @@ impl Mlp {
             || {
                 for (l, &(n_in, n_out, _)) in self.layers.iter().enumerate() {
                     let (ip, op) = (pad(n_in), pad(n_out));
+                    let (act, scale) = self.layer_activation::<R>(l);
+                    if l == self.layers.len() - 1 && tangents_out.is_none() && act.is_piecewise_linear() {
+                        // Nothing reads the output's Ż: the reverse pass needs it for act'' alone.
+                        blocks.push((std::mem::replace(&mut a_dot, Buf::zeroed(0)), Buf::zeroed(0)));
+                        break;
+                    }
                     let (wt, _) = self.transposed(params, l);
                     // Ż = Ȧ Wᵀ (no bias).
                     let mut z_dot = Buf::<R>::to_overwrite(t_rows * op);
                     gemm_in(self.in_bf16(l), &mut z_dot, op, Strided { data: &a_dot, sm: ip, sk: 1 }, &wt, op, t_rows, op, n_in, false);
                     let slope = &ctx[starts[l].1..starts[l].1 + rows * op];
-                    let (_, scale) = self.layer_activation::<R>(l);
                     if l == self.layers.len() - 1 {
                         if let Some(out) = tangents_out.as_deref_mut() {
                             for (t, (o, z)) in out.chunks_exact_mut(n_out).zip(z_dot.chunks_exact(op)).enumerate() {

@@ -128,17 +128,19 @@ struct Scale<R> {
     backward: bool,
 }
 
-/// The derivatives of the SDF network's `n_out` outputs along x, y and z at every row of
-/// `points` (rows × 3 × n_out; the SDF's are ∇ₓS), by its tangent pass from the forward's `ctx`.
-pub(super) fn axis_tangents<S, R: Real>(fns: &TangentFns<S, R>, sdf: &S, p_sdf: &[R], points: &[R], ctx: &[R], n_out: usize) -> Buf<R> {
+/// ∇ₓS at every row of `points` (rows × 3) by one reverse pass of the SDF network from its first
+/// output, from the forward's `ctx` ([`crate::module::TangentModule::input_gradient`]): a third
+/// of the work of three forward tangents through every layer and every output, and all that a
+/// normal needs — the loss's reverse pass takes its own tangent along ∂L/∂n (§45).
+pub(super) fn sdf_gradients<S, R: Real>(fns: &TangentFns<S, R>, sdf: &S, p_sdf: &[R], points: &[R], ctx: &[R], n_out: usize) -> Buf<R> {
     let rows = points.len() / 3;
-    let mut axes = Buf::<R>::zeroed(rows * 9);
-    for row in axes.chunks_exact_mut(9) {
-        (row[0], row[4], row[8]) = (R::ONE, R::ONE, R::ONE);
+    let mut d_sdf = Buf::<R>::zeroed(rows * n_out);
+    for row in d_sdf.chunks_exact_mut(n_out) {
+        row[0] = R::ONE;
     }
-    let mut out = Buf::<R>::to_overwrite(rows * 3 * n_out);
-    (fns.forward)(sdf, p_sdf, points, ctx, 3, &axes, &mut out);
-    out
+    let mut gradients = Buf::<R>::to_overwrite(rows * 3);
+    (fns.input_gradient)(sdf, p_sdf, points, ctx, &d_sdf, &mut gradients);
+    gradients
 }
 
 /// A normal by differences: `Σⱼ vⱼ wⱼ S(x + h vⱼ) / h` over the probes (offset v, weight w),
@@ -218,8 +220,7 @@ impl<S, C> Pipeline<S, C> {
     }
 
     /// The sample points and probes of every ray through the SDF network: its outputs and
-    /// context, and with analytic normals the outputs' derivatives along x, y, z at every point
-    /// (rows × 3 × n_out; the SDF's are ∇ₓS).
+    /// context, and with analytic normals ∇ₓS at every point (rows × 3).
     fn sdf_pass<R: Real>(&self, p_sdf: &[R], rays: &[RayInput<R>], rows: &Rows, dims: &Dims) -> (Buf<R>, Buf<R>, Buf<R>, Option<Buf<R>>)
     where
         S: Module<R>,
@@ -249,7 +250,7 @@ impl<S, C> Pipeline<S, C> {
         let mut sdf_ctx = Buf::<R>::to_overwrite(rows.sdf * self.sdf.ctx_per_row());
         self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
         let gradients =
-            self.analytic.as_ref().map(|analytic| axis_tangents(R::tangent_fns(analytic), &self.sdf, p_sdf, &points, &sdf_ctx, dims.n_out));
+            self.analytic.as_ref().map(|analytic| sdf_gradients(R::tangent_fns(analytic), &self.sdf, p_sdf, &points, &sdf_ctx, dims.n_out));
         (points, sdf_out, sdf_ctx, gradients)
     }
 
@@ -283,7 +284,7 @@ impl<S, C> Pipeline<S, C> {
             sh.push(sh_d);
             for i in 0..n {
                 let nrm = match gradients.as_deref() {
-                    Some(grad) => [0, 1, 2].map(|k| grad[((b + i) * 3 + k) * n_out]),
+                    Some(grad) => [0, 1, 2].map(|k| grad[(b + i) * 3 + k]),
                     None => probe_normal(dims.probes, h, |j| sdf_out[(b + n + 1 + np * i + j) * n_out]),
                 };
                 normals.push(nrm);

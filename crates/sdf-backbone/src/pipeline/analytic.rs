@@ -27,8 +27,6 @@ use crate::module::TangentModule;
 use crate::module::{DeferringTangentModule, TangentAdjoints};
 use crate::real::Real;
 
-/// [`TangentModule::forward_tangents`] of a network `S`.
-pub type ForwardTangentsFn<S, R> = fn(&S, &[R], &[R], &[R], usize, &[R], &mut [R]);
 /// [`TangentModule::backward_tangent`] without the input's adjoints.
 pub type BackwardTangentFn<S, R> = fn(&S, TangentAdjoints<'_, R>, &mut [R]);
 /// [`DeferringTangentModule::backward_tangent_deferring`].
@@ -40,15 +38,13 @@ pub type InputGradientFn<S, R> = fn(&S, &[R], &[R], &[R], &[R], &mut [R]);
 
 /// The tangent passes of a network `S` in precision `R`.
 pub struct TangentFns<S, R> {
-    /// The outputs' derivatives along input directions.
-    pub forward: ForwardTangentsFn<S, R>,
     /// The reverse pass through values and one tangent per row.
     pub backward: BackwardTangentFn<S, R>,
     /// The same with the leading parameters' gradient deferred.
     pub backward_deferring: BackwardTangentDeferringFn<S, R>,
     /// One block of the deferred gradient from the records.
     pub apply_block: ApplyTangentBlockFn<S, R>,
-    /// The input's adjoint by one reverse pass (a render's normals: no gradient to carry on).
+    /// The input's adjoint by one reverse pass (the normals ∇ₓS: no gradient to carry on).
     pub input_gradient: InputGradientFn<S, R>,
 }
 
@@ -62,7 +58,6 @@ impl<S, R> Copy for TangentFns<S, R> {}
 impl<S: DeferringTangentModule<R>, R: Real> TangentFns<S, R> {
     fn of() -> Self {
         TangentFns {
-            forward: |net, params, input, ctx, k, tangents_in, tangents_out| net.forward_tangents(params, input, ctx, k, tangents_in, tangents_out),
             backward: |net, pass, d_params| net.backward_tangent(pass, d_params, None),
             backward_deferring: |net, pass, d_params, deferred| net.backward_tangent_deferring(pass, d_params, deferred),
             apply_block: |net, parts, block, d_block| net.apply_deferred_tangent_block(parts, block, d_block),
@@ -72,8 +67,9 @@ impl<S: DeferringTangentModule<R>, R: Real> TangentFns<S, R> {
 }
 
 /// Proof that the SDF network `S` has tangents, and its tangent passes in f32 and f64: a
-/// [`crate::Pipeline`] with one takes its normals as the exact gradient ∇ₓS by forward-mode
-/// derivatives ([`crate::NormalScheme::Analytic`]).
+/// [`crate::Pipeline`] with one takes its normals as the exact gradient ∇ₓS by one reverse pass,
+/// and the loss's gradient through them by a forward-mode tangent and the reverse pass through
+/// it ([`crate::NormalScheme::Analytic`]).
 pub struct AnalyticNormals<S> {
     f32: TangentFns<S, f32>,
     f64: TangentFns<S, f64>,

@@ -16,7 +16,7 @@
 //! pass, no loss terms, no allocation per ray, and most rows of the loss pass never evaluated
 //! (a ray's last sample, the samples that carry no weight, the background of opaque rays).
 
-use super::accumulate::{COLOR_IN_FIXED, color_row, probe_normal};
+use super::accumulate::{COLOR_IN_FIXED, color_row, probe_normal, sdf_gradients};
 use super::{Pipeline, RayInput, RayOutput, scale_from_variance};
 use crate::encoding::SphericalHarmonics;
 use crate::module::Module;
@@ -114,13 +114,8 @@ impl<S, C> Pipeline<S, C> {
         self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
         let normals: Vec<[R; 3]> = match &self.analytic {
             Some(analytic) => {
-                // ∇ₓS by one reverse pass from the SDF output (no probes with analytic normals).
-                let mut d_sdf = Buf::<R>::zeroed(rows * n_out);
-                for row in d_sdf.chunks_exact_mut(n_out) {
-                    row[0] = R::ONE;
-                }
-                let mut grad = Buf::<R>::to_overwrite(rows * 3);
-                (R::tangent_fns(analytic).input_gradient)(&self.sdf, p_sdf, &points, &sdf_ctx, &d_sdf, &mut grad);
+                // No probes with analytic normals.
+                let grad = sdf_gradients(R::tangent_fns(analytic), &self.sdf, p_sdf, &points, &sdf_ctx, n_out);
                 grad.chunks_exact(3).map(|g| [g[0], g[1], g[2]]).collect()
             }
             None => (0..rows).map(|j| probe_normal(probes, h, |p| sdf_out[(rows + np * j + p) * n_out])).collect(),

@@ -9,11 +9,12 @@
 //! tetrahedral stencil is only first-order: since v_x v_y v_z = 1 at all four vertices, its
 //! error is h·(∂²S/∂y∂z, ∂²S/∂x∂z, ∂²S/∂x∂y) + O(h²), which vanishes where the mixed second
 //! derivatives do (a plane, and at h → 0). Or analytic ([`NormalScheme::Analytic`]):
-//! `nᵢ = ∇ₓS(xᵢ)` exactly, by forward-mode derivatives along x, y, z through the hash grid (the
-//! trilinear weights' gradients on the same 8 corners) and the MLP (`Ż = Ȧ Wᵀ`, `Ȧ' = act'(Z) ⊙
-//! Ż`), with no probe rows; the backward pass needs one tangent only — along `vᵢ = ∂L/∂nᵢ`,
-//! since `vᵢ · δnᵢ = δ(∂S/∂x · vᵢ)` — and runs the reverse of the values and that tangent
-//! together (act'' from act', the tables' gradient `w_c ȳ + (∇w_c · v) ẏ̄`). The
+//! `nᵢ = ∇ₓS(xᵢ)` exactly, by one reverse pass from the SDF output through the MLP (`dA = dZ W`)
+//! and the hash grid (the trilinear weights' gradients on the same 8 corners), with no probe
+//! rows; the backward pass needs one tangent only — along `vᵢ = ∂L/∂nᵢ`, since `vᵢ · δnᵢ =
+//! δ(∂S/∂x · vᵢ)` — by forward-mode derivatives along it (`Ż = Ȧ Wᵀ`, `Ȧ' = act'(Z) ⊙ Ż`), and
+//! runs the reverse of the values and that tangent together (act'' from act', the tables'
+//! gradient `w_c ȳ + (∇w_c · v) ẏ̄`). The
 //! colour network maps `[xᵢ, nᵢ, SH₄(d), featuresᵢ]` to the colour of interval i; the ray is
 //! rendered with [`render_ray`](crate::render::render_ray) at scale `s = exp(10·v)` (NeuS's learnt variance v). The loss is
 //! the colour error (L1 as NeuS, or L2) of `colour + (1 − opacity)·background`, plus

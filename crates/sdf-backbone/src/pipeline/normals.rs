@@ -1,5 +1,5 @@
 //! How the pipeline takes normals from the SDF network: numerical differences on probes around
-//! each sample (central, tetrahedral) or the exact gradient by forward-mode derivatives.
+//! each sample (central, tetrahedral) or the exact gradient by a reverse pass.
 
 #[cfg(doc)]
 use crate::module::TangentModule;
@@ -42,9 +42,10 @@ pub enum NormalScheme {
     Central,
     /// Tetrahedral differences: 4 probes per sample.
     Tetrahedral,
-    /// The exact gradient ∇ₓS by forward-mode derivatives through the network
-    /// ([`TangentModule::forward_tangents`]), and the reverse pass through them: no probes. Needs a
-    /// network with tangents and no curvature loss (its Laplacian comes from the probes).
+    /// The exact gradient ∇ₓS by one reverse pass through the network
+    /// ([`TangentModule::input_gradient`]), and the loss's gradient through it by one forward-mode
+    /// tangent and the reverse pass through it ([`TangentModule::backward_tangent`]): no probes.
+    /// Needs a network with tangents and no curvature loss (its Laplacian comes from the probes).
     Analytic,
 }
 

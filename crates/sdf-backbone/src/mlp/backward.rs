@@ -63,7 +63,7 @@ impl Mlp {
                         }
                         break;
                     }
-                    let (next, skip) = self.previous_adjoint(l, rows, &da, d_input.is_some());
+                    let (next, skip) = self.previous_adjoint(l, rows, da, d_input.is_some());
                     d_skip = skip.or(d_skip);
                     dy = next;
                 }
@@ -113,15 +113,21 @@ impl Mlp {
 
     /// Layer `l`'s (≥ 1) input adjoint `da` split into the previous layer's output adjoint (rows
     /// × its out_pad; × 1/√2 at the skip layer) and, at the skip layer when `skip_share`, the raw
-    /// input's share of the concatenation (rows × n_inputs, × 1/√2), added at layer 0.
+    /// input's share of the concatenation (rows × n_inputs, × 1/√2), added at layer 0. Away from
+    /// the skip layer `da` is that adjoint as it is (its padding columns are products with the
+    /// weights' zero padding): no copy.
     #[inline(always)]
-    pub(super) fn previous_adjoint<R: Real>(&self, l: usize, rows: usize, da: &[R], skip_share: bool) -> (Buf<R>, Option<Buf<R>>) {
+    pub(super) fn previous_adjoint<R: Real>(&self, l: usize, rows: usize, da: Buf<R>, skip_share: bool) -> (Buf<R>, Option<Buf<R>>) {
         let (n_x, ip) = (self.config.n_inputs, pad(self.layers[l].0));
         let prev_out = self.layers[l - 1].1;
         let prev_op = pad(prev_out);
-        let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
         let skip = self.config.skip == Some(l);
-        let share = (skip && skip_share).then(|| {
+        if !skip {
+            debug_assert_eq!(ip, prev_op, "a layer's input is the previous layer's output");
+            return (da, None);
+        }
+        let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
+        let share = skip_share.then(|| {
             let mut g = Buf::<R>::to_overwrite(rows * n_x);
             for (dst, src) in g.chunks_exact_mut(n_x).zip(da.chunks_exact(ip)) {
                 for k in 0..n_x {
@@ -130,11 +136,10 @@ impl Mlp {
             }
             g
         });
-        let scale = if skip { inv_sqrt2 } else { R::ONE };
         let next = padded_block(rows, prev_op, |r, dst| {
             let src = &da[r * ip..r * ip + prev_out];
             for k in 0..prev_out {
-                dst[k] = src[k] * scale;
+                dst[k] = src[k] * inv_sqrt2;
             }
             prev_out
         });

@@ -78,8 +78,8 @@ impl<R: Real> TangentModule<R> for Mlp {
                         }
                         break;
                     }
-                    let (next, skip) = self.previous_adjoint(l, rows, &da, d_input.is_some());
-                    let (next_u, skip_tangent) = self.previous_adjoint(l, rows, &da_dot, d_input.is_some());
+                    let (next, skip) = self.previous_adjoint(l, rows, da, d_input.is_some());
+                    let (next_u, skip_tangent) = self.previous_adjoint(l, rows, da_dot, d_input.is_some());
                     (d_skip, d_skip_tangent) = (skip.or(d_skip), skip_tangent.or(d_skip_tangent));
                     (dy, du) = (next, next_u);
                 }

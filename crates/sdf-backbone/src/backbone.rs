@@ -96,16 +96,16 @@ impl<R: Real> ScatterGradient<R> for InputEncoding {
             InputEncoding::Positional(p) => ScatterGradient::<R>::gradient_block_range(p, block),
         }
     }
-    fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
+    fn backward_parts(&self, parts: &[(&[R], &[R])], lead: usize, d_params: &mut [R]) {
         match self {
-            InputEncoding::HashGrid(g) => g.backward_parts(parts, d_params),
-            InputEncoding::Positional(p) => p.backward_parts(parts, d_params),
+            InputEncoding::HashGrid(g) => g.backward_parts(parts, lead, d_params),
+            InputEncoding::Positional(p) => p.backward_parts(parts, lead, d_params),
         }
     }
-    fn backward_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
+    fn backward_parts_block(&self, parts: &[(&[R], &[R])], lead: usize, block: usize, d_block: &mut [R]) {
         match self {
-            InputEncoding::HashGrid(g) => g.backward_parts_block(parts, block, d_block),
-            InputEncoding::Positional(p) => p.backward_parts_block(parts, block, d_block),
+            InputEncoding::HashGrid(g) => g.backward_parts_block(parts, lead, block, d_block),
+            InputEncoding::Positional(p) => p.backward_parts_block(parts, lead, block, d_block),
         }
     }
 }
@@ -133,10 +133,10 @@ impl<R: Real> TangentModule<R> for InputEncoding {
 }
 
 impl<R: Real> ScatterTangent<R> for InputEncoding {
-    fn tangent_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
+    fn tangent_parts_block(&self, parts: &[(&[R], &[R])], lead: usize, block: usize, d_block: &mut [R]) {
         match self {
-            InputEncoding::HashGrid(g) => g.tangent_parts_block(parts, block, d_block),
-            InputEncoding::Positional(p) => p.tangent_parts_block(parts, block, d_block),
+            InputEncoding::HashGrid(g) => g.tangent_parts_block(parts, lead, block, d_block),
+            InputEncoding::Positional(p) => p.tangent_parts_block(parts, lead, block, d_block),
         }
     }
 }

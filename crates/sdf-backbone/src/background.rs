@@ -280,7 +280,7 @@ impl BackgroundModel {
         crate::module::split_blocks(d_tables, levels).into_par_iter().enumerate().for_each(|(level, d_level)| {
             let mut scratch = Buf::<R>::zeroed(d_level.len());
             for (points, d_features) in records {
-                grid.add_level_gradient(level, points, d_features, &mut scratch, d_level);
+                grid.add_level_gradient(level, points, d_features, 0, &mut scratch, d_level);
             }
         });
     }

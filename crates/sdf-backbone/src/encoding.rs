@@ -110,12 +110,12 @@ impl<R: Real> ScatterGradient<R> for PositionalEncoding {
     fn gradient_block_range(&self, _: usize) -> std::ops::Range<usize> {
         0..0
     }
-    fn backward_parts_block(&self, _: &[(&[R], &[R])], _: usize, _: &mut [R]) {}
+    fn backward_parts_block(&self, _: &[(&[R], &[R])], _: usize, _: usize, _: &mut [R]) {}
 }
 
 /// No parameters: nothing to scatter.
 impl<R: Real> ScatterTangent<R> for PositionalEncoding {
-    fn tangent_parts_block(&self, _: &[(&[R], &[R])], _: usize, _: &mut [R]) {}
+    fn tangent_parts_block(&self, _: &[(&[R], &[R])], _: usize, _: usize, _: &mut [R]) {}
 }
 
 /// Real spherical harmonics of a unit direction up to degree 4 (16 outputs, tiny-cuda-nn's
@@ -258,15 +258,12 @@ impl<R: Real, M: ScatterGradient<R>> ScatterGradient<R> for WithInput<M> {
     fn gradient_block_range(&self, block: usize) -> std::ops::Range<usize> {
         self.encoding.gradient_block_range(block)
     }
-    fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
-        let inner = self.encoding_parts(parts);
-        let inner: Vec<(&[R], &[R])> = parts.iter().zip(&inner).map(|((input, _), d)| (*input, &d[..])).collect();
-        self.encoding.backward_parts(&inner, d_params);
+    /// The encoding's adjoints follow the raw input's in each row: `n_inputs` more to pass by.
+    fn backward_parts(&self, parts: &[(&[R], &[R])], lead: usize, d_params: &mut [R]) {
+        self.encoding.backward_parts(parts, lead + self.encoding.n_inputs(), d_params);
     }
-    fn backward_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
-        let inner = self.encoding_parts(parts);
-        let inner: Vec<(&[R], &[R])> = parts.iter().zip(&inner).map(|((input, _), d)| (*input, &d[..])).collect();
-        self.encoding.backward_parts_block(&inner, block, d_block);
+    fn backward_parts_block(&self, parts: &[(&[R], &[R])], lead: usize, block: usize, d_block: &mut [R]) {
+        self.encoding.backward_parts_block(parts, lead + self.encoding.n_inputs(), block, d_block);
     }
 }
 
@@ -316,7 +313,7 @@ impl<R: Real, M: TangentModule<R>> TangentModule<R> for WithInput<M> {
         let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
         let rows = input.len() / n_in;
         let n_out = n_in + n_enc;
-        let mut d_enc = crate::scratch::Buf::<R>::zeroed(rows * n_enc);
+        let mut d_enc = crate::scratch::Buf::<R>::to_overwrite(rows * n_enc);
         for (dst, src) in d_enc.chunks_exact_mut(n_enc).zip(d_output.chunks_exact(n_out)) {
             dst.copy_from_slice(&src[n_in..]);
         }
@@ -330,32 +327,9 @@ impl<R: Real, M: TangentModule<R>> TangentModule<R> for WithInput<M> {
 }
 
 impl<R: Real, M: ScatterTangent<R>> ScatterTangent<R> for WithInput<M> {
-    fn tangent_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
-        // Each record is two blocks of rows (output adjoints, then tangent adjoints), so dropping
-        // the raw input's columns row by row drops them from both.
-        let inner = self.encoding_parts(parts);
-        let inner: Vec<(&[R], &[R])> = parts.iter().zip(&inner).map(|((input, _), d)| (*input, &d[..])).collect();
-        self.encoding.tangent_parts_block(&inner, block, d_block);
-    }
-}
-
-impl<M> WithInput<M> {
-    /// The encoding's share of each part's output gradient (the raw input's columns dropped).
-    pub(crate) fn encoding_parts<R: Real>(&self, parts: &[(&[R], &[R])]) -> Vec<crate::scratch::Buf<R>>
-    where
-        M: Module<R>,
-    {
-        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
-        let n_out = n_in + n_enc;
-        parts
-            .iter()
-            .map(|(_, d_output)| {
-                let mut d = crate::scratch::Buf::<R>::zeroed(d_output.len() / n_out * n_enc);
-                for (dst, src) in d.chunks_exact_mut(n_enc).zip(d_output.chunks_exact(n_out)) {
-                    dst.copy_from_slice(&src[n_in..]);
-                }
-                d
-            })
-            .collect()
+    /// As [`ScatterGradient::backward_parts_block`]: the raw input's columns passed by in both
+    /// halves of each record (output adjoints, then tangent adjoints).
+    fn tangent_parts_block(&self, parts: &[(&[R], &[R])], lead: usize, block: usize, d_block: &mut [R]) {
+        self.encoding.tangent_parts_block(parts, lead + self.encoding.n_inputs(), block, d_block);
     }
 }

@@ -213,7 +213,7 @@ impl<R: Real> ScatterGradient<R> for HashGrid {
     fn gradient_block_range(&self, block: usize) -> std::ops::Range<usize> {
         self.level_params(block)
     }
-    fn backward_parts_block(&self, parts: &[(&[R], &[R])], level: usize, d_table: &mut [R]) {
+    fn backward_parts_block(&self, parts: &[(&[R], &[R])], lead: usize, level: usize, d_table: &mut [R]) {
         if level >= self.active_levels.min(self.config.levels) {
             return;
         }
@@ -222,7 +222,7 @@ impl<R: Real> ScatterGradient<R> for HashGrid {
             #[inline(always)]
             || {
                 for (input, d_output) in parts {
-                    self.scatter_level(level, input, d_output, d_table);
+                    self.scatter_level(level, input, d_output, lead, d_table);
                 }
             },
         );
@@ -268,7 +268,7 @@ impl<R: Real> TangentModule<R> for HashGrid {
             b.fill(R::ZERO);
         }
         for level in 0..self.active_levels.min(self.config.levels) {
-            self.scatter_tangent_level(level, input, tangent_in, d_output, d_tangent_out, &mut d_params[self.level_params(level)]);
+            self.scatter_tangent_level(level, input, tangent_in, (d_output, d_tangent_out), 0, &mut d_params[self.level_params(level)]);
         }
     }
     /// x̄ = Σ_levels Σ_c (T\[c\] · ȳ) ∇ₓw_c: the corners' gradients of the tangents, read once per
@@ -283,20 +283,26 @@ impl<R: Real> TangentModule<R> for HashGrid {
 }
 
 impl<R: Real> ScatterTangent<R> for HashGrid {
-    fn tangent_parts_block(&self, parts: &[(&[R], &[R])], level: usize, d_table: &mut [R]) {
+    fn tangent_parts_block(&self, parts: &[(&[R], &[R])], lead: usize, level: usize, d_table: &mut [R]) {
         if level >= self.active_levels.min(self.config.levels) {
             return;
         }
         let _span = crate::profile::span(crate::profile::Stage::HashTangentScatter);
         for (points, record) in parts {
             let (x, v) = points.split_at(points.len() / 2);
-            let (d_output, d_tangent_out) = record.split_at(record.len() / 2);
-            self.scatter_tangent_level(level, x, v, d_output, d_tangent_out, d_table);
+            self.scatter_tangent_level(level, x, v, record.split_at(record.len() / 2), lead, d_table);
         }
     }
 }
 
 impl HashGrid {
+    /// (Values per row, the first of `level`'s columns) of adjoint rows that hold `lead` values
+    /// before the features' ([`ScatterGradient::backward_parts_block`]).
+    fn adjoint_columns(&self, lead: usize, level: usize) -> (usize, usize) {
+        let f = self.config.features;
+        (lead + self.config.levels * f, lead + level * f)
+    }
+
     /// [`level_tangents`] for any feature count, a row at a time.
     #[inline(always)]
     fn level_tangents_any<R: Real>(&self, level: usize, table: &[R], input: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
@@ -320,9 +326,17 @@ impl HashGrid {
     /// [`level_tangent_scatter`] for any feature count, a row at a time.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    fn level_tangent_scatter_any<R: Real>(&self, level: usize, input: &[R], v: &[R], d_output: &[R], d_tangent_out: &[R], d_table: &mut [R]) {
+    fn level_tangent_scatter_any<R: Real>(
+        &self,
+        level: usize,
+        input: &[R],
+        v: &[R],
+        (d_output, d_tangent_out): (&[R], &[R]),
+        lead: usize,
+        d_table: &mut [R],
+    ) {
         let f = self.config.features;
-        let (n_out, at) = (self.config.levels * f, level * f);
+        let (n_out, at) = self.adjoint_columns(lead, level);
         for (r, x) in input.chunks_exact(3).enumerate() {
             let (idx, w, dw) = self.corners(level, x);
             let t = &v[3 * r..3 * r + 3];
@@ -548,16 +562,16 @@ impl HashGrid {
     /// Adds one level's table gradient for `rows` points: corners of every row (vectorised),
     /// then the scatter (sequential: rows share entries).
     #[inline(always)]
-    fn scatter_level<R: Real>(&self, level: usize, input: &[R], d_output: &[R], d_table: &mut [R]) {
-        self.scatter_level_corners(level, input, d_output, d_table);
+    fn scatter_level<R: Real>(&self, level: usize, input: &[R], d_output: &[R], lead: usize, d_table: &mut [R]) {
+        self.scatter_level_corners(level, input, d_output, lead, d_table);
     }
 
     /// [`Self::scatter_level`], giving back each row's 8 corners (their entries in the level's
     /// table).
     #[inline(always)]
-    fn scatter_level_corners<R: Real>(&self, level: usize, input: &[R], d_output: &[R], d_table: &mut [R]) -> Buf<u32> {
+    fn scatter_level_corners<R: Real>(&self, level: usize, input: &[R], d_output: &[R], lead: usize, d_table: &mut [R]) -> Buf<u32> {
         let f = self.config.features;
-        let n_out = self.config.levels * f;
+        let (n_out, at) = self.adjoint_columns(lead, level);
         let rows = input.len() / 3;
         let mut idx = Buf::<u32>::to_overwrite(rows * 8);
         let mut w = Buf::<R>::to_overwrite(rows * 8);
@@ -569,11 +583,11 @@ impl HashGrid {
             level_corners::<R, false>(n, mask, input, &mut idx, &mut w);
         }
         for ((ri, rw), dy) in idx.chunks_exact(8).zip(w.chunks_exact(8)).zip(d_output.chunks_exact(n_out)) {
-            let dy = &dy[level * f..level * f + f];
+            let dy = &dy[at..at + f];
             for c in 0..8 {
-                let at = ri[c] as usize * f;
+                let entry = ri[c] as usize * f;
                 for k in 0..f {
-                    d_table[at + k] = rw[c].mul_add(dy[k], d_table[at + k]);
+                    d_table[entry + k] = rw[c].mul_add(dy[k], d_table[entry + k]);
                 }
             }
         }
@@ -587,7 +601,9 @@ impl HashGrid {
     /// then each touched entry is added once (a second visit adds 0, which changes no sum).
     /// Summing several items this way, in order, gives the bits of one dense buffer per item
     /// summed in that order (the learned background's tables, `Pipeline::loss_parallel_split`).
-    pub fn add_level_gradient<R: Real>(&self, level: usize, input: &[R], d_output: &[R], scratch: &mut [R], d_table: &mut [R]) {
+    /// Each row of `d_output` holds `lead` values before the features' adjoints
+    /// ([`ScatterGradient::backward_parts_block`]).
+    pub fn add_level_gradient<R: Real>(&self, level: usize, input: &[R], d_output: &[R], lead: usize, scratch: &mut [R], d_table: &mut [R]) {
         if level >= self.active_levels.min(self.config.levels) {
             return;
         }
@@ -596,7 +612,7 @@ impl HashGrid {
         crate::kernels::dispatch(
             #[inline(always)]
             || {
-                let idx = self.scatter_level_corners(level, input, d_output, scratch);
+                let idx = self.scatter_level_corners(level, input, d_output, lead, scratch);
                 for &i in idx.iter() {
                     let at = i as usize * f;
                     for k in 0..f {
@@ -610,9 +626,10 @@ impl HashGrid {
 
     /// One level's table gradient through the features and their tangents along `v` (rows × 3):
     /// T̄[c] += w_c ȳ + (∇ₓw_c · v) ẏ̄.
-    fn scatter_tangent_level<R: Real>(&self, level: usize, input: &[R], v: &[R], d_output: &[R], d_tangent_out: &[R], d_table: &mut [R]) {
+    fn scatter_tangent_level<R: Real>(&self, level: usize, input: &[R], v: &[R], adjoints: (&[R], &[R]), lead: usize, d_table: &mut [R]) {
         let f = self.config.features;
-        let n_out = self.config.levels * f;
+        let (n_out, at) = self.adjoint_columns(lead, level);
+        let (d_output, d_tangent_out) = adjoints;
         let mask = (self.table - 1) as u32;
         let (n, dense) = (self.resolutions[level], self.dense[level]);
         crate::kernels::dispatch(
@@ -621,8 +638,8 @@ impl HashGrid {
                 by_kernel!(
                     f,
                     dense,
-                    |F, DENSE| level_tangent_scatter::<R, F, DENSE>(n, mask, input, v, d_output, d_tangent_out, n_out, level * f, d_table),
-                    self.level_tangent_scatter_any(level, input, v, d_output, d_tangent_out, d_table)
+                    |F, DENSE| level_tangent_scatter::<R, F, DENSE>(n, mask, input, v, d_output, d_tangent_out, n_out, at, d_table),
+                    self.level_tangent_scatter_any(level, input, v, adjoints, lead, d_table)
                 );
             },
         );
@@ -631,7 +648,7 @@ impl HashGrid {
     #[inline(always)]
     fn backward_rows<R: Real>(&self, params: &[R], input: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
         for level in 0..self.active_levels.min(self.config.levels) {
-            self.scatter_level(level, input, d_output, &mut d_params[self.level_params(level)]);
+            self.scatter_level(level, input, d_output, 0, &mut d_params[self.level_params(level)]);
         }
         if let Some(d_in) = d_input {
             self.input_adjoint_rows(params, input, d_output, d_in);

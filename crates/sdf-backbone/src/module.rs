@@ -76,15 +76,18 @@ pub trait ScatterGradient<R: Real>: Module<R> {
 
     /// Adds block `block` of the parameter gradient of several work items, `parts` = (input,
     /// d_output) each, in order, to `d_block` (that block's gradient; so blocks can be done in
-    /// parallel, or one at a time into a small buffer).
-    fn backward_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]);
+    /// parallel, or one at a time into a small buffer). Each row of a `d_output` holds `lead`
+    /// values before this module's outputs' adjoints (rows of `lead` + n_outputs: a
+    /// [`crate::encoding::WithInput`]'s raw input columns), which are not read: a record of a
+    /// wider module's input adjoints is read where it lies, not copied once per block.
+    fn backward_parts_block(&self, parts: &[(&[R], &[R])], lead: usize, block: usize, d_block: &mut [R]);
 
     /// Every block of [`ScatterGradient::backward_parts_block`] into `d_params`, in parallel over
     /// blocks: the same bits for any thread count.
-    fn backward_parts(&self, parts: &[(&[R], &[R])], d_params: &mut [R]) {
+    fn backward_parts(&self, parts: &[(&[R], &[R])], lead: usize, d_params: &mut [R]) {
         use rayon::prelude::*;
         let blocks = split_blocks(d_params, (0..self.gradient_blocks()).map(|b| self.gradient_block_range(b)));
-        blocks.into_par_iter().enumerate().for_each(|(block, d)| self.backward_parts_block(parts, block, d));
+        blocks.into_par_iter().enumerate().for_each(|(block, d)| self.backward_parts_block(parts, lead, block, d));
     }
 }
 
@@ -116,8 +119,8 @@ pub trait TangentModule<R: Real>: Module<R> {
 pub trait ScatterTangent<R: Real>: ScatterGradient<R> + TangentModule<R> {
     /// The tangent counterpart of [`ScatterGradient::backward_parts_block`]: `parts` =
     /// ([inputs block; input tangents block], [output adjoints block; output-tangent adjoints
-    /// block]) per work item.
-    fn tangent_parts_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]);
+    /// block]) per work item, `lead` as there.
+    fn tangent_parts_block(&self, parts: &[(&[R], &[R])], lead: usize, block: usize, d_block: &mut [R]);
 }
 
 /// A network whose leading parameters' gradient can be left out of its backward pass and
@@ -382,7 +385,7 @@ impl<R: Real, A: ScatterGradient<R>, B: Module<R>> DeferringModule<R> for Chain<
         self.b.backward(pb, mid, cb, d_output, d_params, Some(deferred));
     }
     fn apply_deferred(&self, parts: &[(&[R], &[R])], d_deferred: &mut [R]) {
-        self.a.backward_parts(parts, d_deferred);
+        self.a.backward_parts(parts, 0, d_deferred);
     }
     fn deferred_blocks(&self) -> usize {
         self.a.gradient_blocks()
@@ -391,7 +394,7 @@ impl<R: Real, A: ScatterGradient<R>, B: Module<R>> DeferringModule<R> for Chain<
         self.a.gradient_block_range(block)
     }
     fn apply_deferred_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
-        self.a.backward_parts_block(parts, block, d_block);
+        self.a.backward_parts_block(parts, 0, block, d_block);
     }
 }
 
@@ -442,7 +445,7 @@ impl<R: Real, A: ScatterTangent<R>, B: TangentModule<R>> DeferringTangentModule<
         self.b.backward_tangent(outer, d_params, Some((d_mid, d_mid_tangent)));
     }
     fn apply_deferred_tangent_block(&self, parts: &[(&[R], &[R])], block: usize, d_block: &mut [R]) {
-        self.a.tangent_parts_block(parts, block, d_block);
+        self.a.tangent_parts_block(parts, 0, block, d_block);
     }
 }
 

@@ -324,17 +324,17 @@ fn grid_network_gradients(
             *g += *d;
         }
     }
-    // The grid's columns of each record (the network's input is [x, features]).
+    // The grid's columns of each record follow the raw input's (the network's input is [x, features]).
     let records: Vec<(&[f32], &[f32])> = x.chunks(CHUNK * 3).zip(&parts).map(|(x, (_, record))| (x, &record[..])).collect();
-    let d_features = grid.encoding_parts(&records);
+    let lead = Module::<f32>::n_inputs(&grid.encoding);
     let grid = &grid.encoding;
     let mut scratch = Vec::new();
     for level in 0..grid.config().levels {
         let range = grid.level_params(level);
         scratch.clear();
         scratch.resize(range.len(), 0.0f32);
-        for ((x, _), d_features) in records.iter().zip(&d_features) {
-            grid.add_level_gradient(level, x, d_features, &mut scratch, &mut grads[range.clone()]);
+        for (x, record) in &records {
+            grid.add_level_gradient(level, x, record, lead, &mut scratch, &mut grads[range.clone()]);
         }
     }
 }

@@ -112,6 +112,18 @@ impl<R: Real> ScatterGradient<R> for InputEncoding {
 
 /// Analytic normals through either encoding.
 impl<R: Real> TangentModule<R> for InputEncoding {
+    fn tangent_ctx_per_row(&self) -> usize {
+        match self {
+            InputEncoding::HashGrid(g) => TangentModule::<R>::tangent_ctx_per_row(g),
+            InputEncoding::Positional(p) => TangentModule::<R>::tangent_ctx_per_row(p),
+        }
+    }
+    fn forward_keeping_tangents(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
+        match self {
+            InputEncoding::HashGrid(g) => g.forward_keeping_tangents(params, input, output, ctx),
+            InputEncoding::Positional(p) => p.forward_keeping_tangents(params, input, output, ctx),
+        }
+    }
     fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
         match self {
             InputEncoding::HashGrid(g) => g.forward_tangents(params, input, ctx, k, tangents_in, tangents_out),

@@ -218,15 +218,10 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
         self.encoding.ctx_per_row() + self.encoding.n_outputs()
     }
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
-        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
-        let rows = input.len() / n_in;
+        let rows = input.len() / self.encoding.n_inputs();
         let (enc_ctx, enc_out) = ctx.split_at_mut(rows * self.encoding.ctx_per_row());
         self.encoding.forward(params, input, enc_out, enc_ctx);
-        let n_out = n_in + n_enc;
-        for r in 0..rows {
-            output[r * n_out..r * n_out + n_in].copy_from_slice(&input[r * n_in..(r + 1) * n_in]);
-            output[r * n_out + n_in..(r + 1) * n_out].copy_from_slice(&enc_out[r * n_enc..(r + 1) * n_enc]);
-        }
+        self.join(input, enc_out, output);
     }
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
         let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
@@ -267,13 +262,38 @@ impl<R: Real, M: ScatterGradient<R>> ScatterGradient<R> for WithInput<M> {
     }
 }
 
+impl<M> WithInput<M> {
+    /// The output rows `[x, m(x)]` from the input and the encoding's rows.
+    fn join<R: Real>(&self, input: &[R], encoded: &[R], output: &mut [R])
+    where
+        M: Module<R>,
+    {
+        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
+        for ((out, x), e) in output.chunks_exact_mut(n_in + n_enc).zip(input.chunks_exact(n_in)).zip(encoded.chunks_exact(n_enc)) {
+            out[..n_in].copy_from_slice(x);
+            out[n_in..].copy_from_slice(e);
+        }
+    }
+}
+
+/// The context of [`TangentModule::forward_keeping_tangents`]: the encoding's tangent context,
+/// then its outputs.
 impl<R: Real, M: TangentModule<R>> TangentModule<R> for WithInput<M> {
+    fn tangent_ctx_per_row(&self) -> usize {
+        self.encoding.tangent_ctx_per_row() + self.encoding.n_outputs()
+    }
+    fn forward_keeping_tangents(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
+        let rows = input.len() / self.encoding.n_inputs();
+        let (enc_ctx, enc_out) = ctx.split_at_mut(rows * self.encoding.tangent_ctx_per_row());
+        self.encoding.forward_keeping_tangents(params, input, enc_out, enc_ctx);
+        self.join(input, enc_out, output);
+    }
     /// `[ẋ, ∂m/∂x · ẋ]`.
     fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
         let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
         let rows = input.len() / n_in;
         let mut enc = crate::scratch::Buf::<R>::to_overwrite(rows * k * n_enc);
-        self.encoding.forward_tangents(params, input, &ctx[..rows * self.encoding.ctx_per_row()], k, tangents_in, &mut enc);
+        self.encoding.forward_tangents(params, input, &ctx[..rows * self.encoding.tangent_ctx_per_row()], k, tangents_in, &mut enc);
         let n_out = n_in + n_enc;
         for ((out, t), e) in tangents_out.chunks_exact_mut(n_out).zip(tangents_in.chunks_exact(n_in)).zip(enc.chunks_exact(n_enc)) {
             out[..n_in].copy_from_slice(t);
@@ -293,7 +313,7 @@ impl<R: Real, M: TangentModule<R>> TangentModule<R> for WithInput<M> {
             e
         };
         let (d_enc, d_enc_tangent) = (strip(d_output), strip(d_tangent_out));
-        let enc_ctx = &ctx[..rows * self.encoding.ctx_per_row()];
+        let enc_ctx = &ctx[..rows * self.encoding.tangent_ctx_per_row()];
         let inner = TangentAdjoints { params, input, ctx: enc_ctx, tangent_in, d_output: &d_enc, d_tangent_out: &d_enc_tangent };
         match d_input {
             Some((d_in, d_in_tangent)) => {
@@ -317,7 +337,7 @@ impl<R: Real, M: TangentModule<R>> TangentModule<R> for WithInput<M> {
         for (dst, src) in d_enc.chunks_exact_mut(n_enc).zip(d_output.chunks_exact(n_out)) {
             dst.copy_from_slice(&src[n_in..]);
         }
-        self.encoding.input_gradient(params, input, &ctx[..rows * self.encoding.ctx_per_row()], &d_enc, d_input);
+        self.encoding.input_gradient(params, input, &ctx[..rows * self.encoding.tangent_ctx_per_row()], &d_enc, d_input);
         for (d_in, dy) in d_input.chunks_exact_mut(n_in).zip(d_output.chunks_exact(n_out)) {
             for (d, &g) in d_in.iter_mut().zip(&dy[..n_in]) {
                 *d += g;

@@ -192,7 +192,7 @@ impl<R: Real> Module<R> for HashGrid {
         let _span = crate::profile::span(crate::profile::Stage::HashForward);
         crate::kernels::dispatch(
             #[inline(always)]
-            || self.forward_rows(params, input, output),
+            || self.forward_rows(params, input, output, None),
         );
     }
     fn backward(&self, params: &[R], input: &[R], _: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
@@ -229,31 +229,28 @@ impl<R: Real> ScatterGradient<R> for HashGrid {
     }
 }
 
+/// The context of [`TangentModule::forward_keeping_tangents`]: the features' Jacobian ∂y/∂x,
+/// rows × n_outputs × 3 (§46), which the forward's visit to the corners gives for 48 more
+/// multiply-adds a level; the tangents and the input's adjoint are then contractions with it,
+/// where they were another pass over every level's 8 corners (their hashing, their gathers).
 impl<R: Real> TangentModule<R> for HashGrid {
-    /// ∂(features)/∂x · ẋ = Σ_c (∇ₓw_c · ẋ) T\[c\]: the same 8 corners as the features, weighted by
-    /// the trilinear weights' gradients (zero outside the grid, where inputs are clamped).
-    /// Kernels compiled for 1, 2, 4 and 8 features (every preset's); other counts take a
-    /// per-row loop.
-    fn forward_tangents(&self, params: &[R], input: &[R], _: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
-        let _span = crate::profile::span(crate::profile::Stage::HashTangents);
-        let f = self.config.features;
-        let n_out = self.config.levels * f;
-        tangents_out.fill(R::ZERO);
-        let mask = (self.table - 1) as u32;
+    fn tangent_ctx_per_row(&self) -> usize {
+        3 * self.config.levels * self.config.features
+    }
+    fn forward_keeping_tangents(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
+        let _span = crate::profile::span(crate::profile::Stage::HashForward);
         crate::kernels::dispatch(
             #[inline(always)]
-            || {
-                for level in 0..self.active_levels.min(self.config.levels) {
-                    let table = &params[self.level_params(level)];
-                    let (n, dense) = (self.resolutions[level], self.dense[level]);
-                    by_kernel!(
-                        f,
-                        dense,
-                        |F, DENSE| level_tangents::<R, F, DENSE>(table, n, mask, input, k, tangents_in, tangents_out, n_out, level * f),
-                        self.level_tangents_any(level, table, input, k, tangents_in, tangents_out)
-                    );
-                }
-            },
+            || self.forward_rows(params, input, output, Some(ctx)),
+        );
+    }
+    /// ∂(features)/∂x · ẋ: the Jacobian times each direction.
+    fn forward_tangents(&self, _: &[R], _: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
+        let _span = crate::profile::span(crate::profile::Stage::HashTangents);
+        let n_out = self.config.levels * self.config.features;
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || jacobian_tangents(ctx, n_out, k, tangents_in, tangents_out),
         );
     }
     /// The tables' gradient: T̄\[c\] += w_c ȳ + (∇ₓw_c · v) ẏ̄. The adjoint of the input is not
@@ -271,13 +268,13 @@ impl<R: Real> TangentModule<R> for HashGrid {
             self.scatter_tangent_level(level, input, tangent_in, (d_output, d_tangent_out), 0, &mut d_params[self.level_params(level)]);
         }
     }
-    /// x̄ = Σ_levels Σ_c (T\[c\] · ȳ) ∇ₓw_c: the corners' gradients of the tangents, read once per
-    /// row instead of once per direction.
-    fn input_gradient(&self, params: &[R], input: &[R], _: &[R], d_output: &[R], d_input: &mut [R]) {
+    /// x̄ = (∂y/∂x)ᵀ ȳ.
+    fn input_gradient(&self, _: &[R], _: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
         let _span = crate::profile::span(crate::profile::Stage::HashTangents);
+        let n_out = self.config.levels * self.config.features;
         crate::kernels::dispatch(
             #[inline(always)]
-            || self.input_adjoint_rows(params, input, d_output, d_input),
+            || jacobian_adjoint(ctx, n_out, d_output, d_input),
         );
     }
 }
@@ -303,20 +300,26 @@ impl HashGrid {
         (lead + self.config.levels * f, lead + level * f)
     }
 
-    /// [`level_tangents`] for any feature count, a row at a time.
-    #[inline(always)]
-    fn level_tangents_any<R: Real>(&self, level: usize, table: &[R], input: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
+    /// [`level_features`] (and with `jacobian` [`level_features_jacobian`]) for any feature
+    /// count, a row at a time.
+    fn level_features_any<R: Real>(&self, level: usize, table: &[R], input: &[R], out: &mut [R], mut jacobian: Option<&mut [R]>) {
         let f = self.config.features;
-        let (n_out, at) = (self.config.levels * f, level * f);
-        for (r, x) in input.chunks_exact(3).enumerate() {
-            let (idx, _, dw) = self.corners(level, x);
-            for j in 0..k {
-                let t = &tangents_in[3 * (r * k + j)..3 * (r * k + j) + 3];
-                let o = (r * k + j) * n_out + at;
-                for c in 0..8 {
-                    let s = dw[c][0] * t[0] + dw[c][1] * t[1] + dw[c][2] * t[2];
-                    for q in 0..f {
-                        tangents_out[o + q] = s.mul_add(table[idx[c] * f + q], tangents_out[o + q]);
+        let n_out = self.config.levels * f;
+        for (r, (x, y)) in input.chunks_exact(3).zip(out.chunks_exact_mut(f)).enumerate() {
+            let (idx, w, dw) = self.corners(level, x);
+            y.fill(R::ZERO);
+            let mut grad = jacobian.as_deref_mut().map(|jac| &mut jac[3 * (r * n_out + level * f)..3 * (r * n_out + level * f + f)]);
+            if let Some(g) = grad.as_deref_mut() {
+                g.fill(R::ZERO);
+            }
+            for c in 0..8 {
+                for k in 0..f {
+                    let t = table[idx[c] * f + k];
+                    y[k] = w[c].mul_add(t, y[k]);
+                    if let Some(g) = grad.as_deref_mut() {
+                        for d in 0..3 {
+                            g[3 * k + d] = dw[c][d].mul_add(t, g[3 * k + d]);
+                        }
                     }
                 }
             }
@@ -398,41 +401,67 @@ fn corner_gradients<R: Real, const DENSE: bool>(p: &[R], n: u32, mask: u32) -> (
     (idx, w, dw)
 }
 
-/// One level's output tangents for every row: `k` directions per row (`tangents_in`, rows × k ×
-/// 3) into columns `at..at + F` of `tangents_out` (rows × k × `n_out`).
+/// One level's features (rows × F into `out`, as [`level_features`], to the same bits) and
+/// their Jacobian: ∂y_(at+q)/∂x_d at `(r · n_out + at + q) · 3 + d` of `jacobian` (rows × n_out ×
+/// 3), from the same corners and table values.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn level_tangents<R: Real, const F: usize, const DENSE: bool>(
+fn level_features_jacobian<R: Real, const F: usize, const DENSE: bool>(
     table: &[R],
     n: u32,
     mask: u32,
     input: &[R],
-    k: usize,
-    tangents_in: &[R],
-    tangents_out: &mut [R],
+    out: &mut [R],
+    jacobian: &mut [R],
     n_out: usize,
     at: usize,
 ) {
-    for (r, p) in input.chunks_exact(3).enumerate() {
-        let (idx, _, dw) = corner_gradients::<R, DENSE>(p, n, mask);
-        let mut values = [[R::ZERO; F]; 8];
+    for ((p, o), jac) in input.chunks_exact(3).zip(out.chunks_exact_mut(F)).zip(jacobian.chunks_exact_mut(3 * n_out)) {
+        let (idx, w, dw) = corner_gradients::<R, DENSE>(p, n, mask);
+        let mut acc = [R::ZERO; F];
+        let mut grad = [[R::ZERO; 3]; F];
         for c in 0..8 {
+            let entry = idx[c] as usize * F;
             for q in 0..F {
-                values[c][q] = table.get(idx[c] as usize * F + q).copied().unwrap_or(R::ZERO);
-            }
-        }
-        for j in 0..k {
-            let t = &tangents_in[3 * (r * k + j)..3 * (r * k + j) + 3];
-            let mut acc = [R::ZERO; F];
-            for c in 0..8 {
-                let s = dw[c][0] * t[0] + dw[c][1] * t[1] + dw[c][2] * t[2];
-                for q in 0..F {
-                    acc[q] = s.mul_add(values[c][q], acc[q]);
+                let t = table.get(entry + q).copied().unwrap_or(R::ZERO);
+                acc[q] = w[c].mul_add(t, acc[q]);
+                for d in 0..3 {
+                    grad[q][d] = dw[c][d].mul_add(t, grad[q][d]);
                 }
             }
-            let o = (r * k + j) * n_out + at;
-            tangents_out[o..o + F].copy_from_slice(&acc);
         }
+        o.copy_from_slice(&acc);
+        for q in 0..F {
+            jac[3 * (at + q)..3 * (at + q) + 3].copy_from_slice(&grad[q]);
+        }
+    }
+}
+
+/// `k` tangents a row from the Jacobian rows (rows × n_out × 3): ẏ = (∂y/∂x) ẋ, `tangents_in`
+/// rows × k × 3, `tangents_out` rows × k × n_out (written).
+#[inline(always)]
+fn jacobian_tangents<R: Real>(jacobian: &[R], n_out: usize, k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
+    for ((jac, t), y) in jacobian.chunks_exact(3 * n_out).zip(tangents_in.chunks_exact(3 * k)).zip(tangents_out.chunks_exact_mut(k * n_out)) {
+        for (t, y) in t.chunks_exact(3).zip(y.chunks_exact_mut(n_out)) {
+            for (y, g) in y.iter_mut().zip(jac.chunks_exact(3)) {
+                *y = g[2].mul_add(t[2], g[1].mul_add(t[1], g[0] * t[0]));
+            }
+        }
+    }
+}
+
+/// The input's adjoint from the Jacobian rows: x̄ = (∂y/∂x)ᵀ ȳ, `d_output` rows × n_out,
+/// `d_input` rows × 3 (written).
+#[inline(always)]
+fn jacobian_adjoint<R: Real>(jacobian: &[R], n_out: usize, d_output: &[R], d_input: &mut [R]) {
+    for ((jac, dy), d_in) in jacobian.chunks_exact(3 * n_out).zip(d_output.chunks_exact(n_out)).zip(d_input.chunks_exact_mut(3)) {
+        let mut g = [R::ZERO; 3];
+        for (&y, j) in dy.iter().zip(jac.chunks_exact(3)) {
+            for d in 0..3 {
+                g[d] = y.mul_add(j[d], g[d]);
+            }
+        }
+        d_in.copy_from_slice(&g);
     }
 }
 
@@ -531,28 +560,34 @@ fn level_corners<R: Real, const DENSE: bool>(n: u32, mask: u32, input: &[R], idx
 impl HashGrid {
     /// Level-major, one level's table (512 KB for the CPU preset) at a time, so that its
     /// gathers and scatters stay in the cache; the rows of a level are vectorised (gathers).
+    /// With `jacobian` (rows × n_out × 3), the features' Jacobian too
+    /// ([`TangentModule::forward_keeping_tangents`]).
     #[inline(always)]
-    fn forward_rows<R: Real>(&self, params: &[R], input: &[R], output: &mut [R]) {
+    fn forward_rows<R: Real>(&self, params: &[R], input: &[R], output: &mut [R], mut jacobian: Option<&mut [R]>) {
         let f = self.config.features;
         let n_out = self.config.levels * f;
         let rows = input.len() / 3;
+        let active = self.active_levels.min(self.config.levels);
         output.fill(R::ZERO);
+        if let Some(jac) = jacobian.as_deref_mut().filter(|_| active < self.config.levels) {
+            jac.fill(R::ZERO);
+        }
         let mut level_out = Buf::<R>::to_overwrite(rows * f);
         let mask = (self.table - 1) as u32;
-        for level in 0..self.active_levels.min(self.config.levels) {
+        for level in 0..active {
             let table = &params[self.level_params(level)];
             let (n, dense) = (self.resolutions[level], self.dense[level]);
-            by_kernel!(f, dense, |F, DENSE| level_features::<R, F, DENSE>(table, n, mask, input, &mut level_out), {
-                for (x, y) in input.chunks_exact(3).zip(level_out.chunks_exact_mut(f)) {
-                    let (idx, w, _) = self.corners(level, x);
-                    y.fill(R::ZERO);
-                    for c in 0..8 {
-                        for k in 0..f {
-                            y[k] = w[c].mul_add(table[idx[c] * f + k], y[k]);
-                        }
-                    }
-                }
-            });
+            match jacobian.as_deref_mut() {
+                None => by_kernel!(f, dense, |F, DENSE| level_features::<R, F, DENSE>(table, n, mask, input, &mut level_out), {
+                    self.level_features_any(level, table, input, &mut level_out, None)
+                }),
+                Some(jac) => by_kernel!(
+                    f,
+                    dense,
+                    |F, DENSE| level_features_jacobian::<R, F, DENSE>(table, n, mask, input, &mut level_out, jac, n_out, level * f),
+                    self.level_features_any(level, table, input, &mut level_out, Some(jac))
+                ),
+            }
             for (y, l) in output.chunks_exact_mut(n_out).zip(level_out.chunks_exact(f)) {
                 y[level * f..level * f + f].copy_from_slice(l);
             }

@@ -94,7 +94,21 @@ pub trait ScatterGradient<R: Real>: Module<R> {
 /// Forward-mode derivatives with respect to the input (analytic normals ∇ₓS), and the reverse
 /// pass through them.
 pub trait TangentModule<R: Real>: Module<R> {
-    /// After [`Module::forward`] (with its `ctx`): the outputs' derivatives along `k` input
+    /// Context values per row that [`TangentModule::forward_keeping_tangents`] writes (the
+    /// forward's own, [`Module::ctx_per_row`], unless the module keeps more for its tangents).
+    fn tangent_ctx_per_row(&self) -> usize {
+        self.ctx_per_row()
+    }
+
+    /// [`Module::forward`], keeping in `ctx` (rows × [`TangentModule::tangent_ctx_per_row`])
+    /// what this module's tangent passes read: every other method of this trait takes the `ctx`
+    /// of this call. A hash grid keeps its features' Jacobian (§46), which its corners give in
+    /// the forward's one visit; a module without such a store forwards as [`Module::forward`].
+    fn forward_keeping_tangents(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
+        self.forward(params, input, output, ctx);
+    }
+
+    /// After [`TangentModule::forward_keeping_tangents`] (with its `ctx`): the outputs' derivatives along `k` input
     /// directions per row. `tangents_in` is rows × k × n_inputs (direction j of row r at
     /// `(r·k + j)·n_inputs`), `tangents_out` rows × k × n_outputs, every value written.
     fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]);
@@ -106,7 +120,7 @@ pub trait TangentModule<R: Real>: Module<R> {
     /// a network need not: the pipeline's inputs are not learnt).
     fn backward_tangent(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], d_input: Option<(&mut [R], &mut [R])>);
 
-    /// After [`Module::forward`] (with its `ctx`): the input's adjoint `d_input` (rows ×
+    /// After [`TangentModule::forward_keeping_tangents`] (with its `ctx`): the input's adjoint `d_input` (rows ×
     /// n_inputs, written) for the outputs' adjoints `d_output` (rows × n_outputs), and no
     /// parameter gradient. The gradient of one output (a render's analytic normal ∇ₓS) is one
     /// such reverse pass, where [`TangentModule::forward_tangents`] takes one forward pass per
@@ -323,7 +337,23 @@ impl<A, B> Chain<A, B> {
     where
         A: Module<R>,
     {
-        let (ca, rest) = ctx.split_at(rows * self.a.ctx_per_row());
+        self.split_at_a(ctx, rows, self.a.ctx_per_row())
+    }
+
+    /// [`Self::split_ctx`] of [`TangentModule::forward_keeping_tangents`]'s context.
+    fn split_tangent_ctx<'c, R: Real>(&self, ctx: &'c [R], rows: usize) -> (&'c [R], &'c [R], &'c [R])
+    where
+        A: TangentModule<R>,
+    {
+        self.split_at_a(ctx, rows, self.a.tangent_ctx_per_row())
+    }
+
+    /// The three blocks when a's context takes `a_ctx` values a row.
+    fn split_at_a<'c, R: Real>(&self, ctx: &'c [R], rows: usize, a_ctx: usize) -> (&'c [R], &'c [R], &'c [R])
+    where
+        A: Module<R>,
+    {
+        let (ca, rest) = ctx.split_at(rows * a_ctx);
         let (mid, cb) = rest.split_at(rows * self.a.n_outputs());
         (ca, mid, cb)
     }
@@ -398,11 +428,24 @@ impl<R: Real, A: ScatterGradient<R>, B: Module<R>> DeferringModule<R> for Chain<
     }
 }
 
+/// The context of [`TangentModule::forward_keeping_tangents`]: `[a's, a's outputs, b's]`, as
+/// [`Module::forward`]'s with each module's tangent context.
 impl<R: Real, A: TangentModule<R>, B: TangentModule<R>> TangentModule<R> for Chain<A, B> {
+    fn tangent_ctx_per_row(&self) -> usize {
+        self.a.tangent_ctx_per_row() + self.a.n_outputs() + self.b.tangent_ctx_per_row()
+    }
+    fn forward_keeping_tangents(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
+        let rows = input.len() / self.a.n_inputs();
+        let (pa, pb) = params.split_at(self.a.n_params());
+        let (ca, rest) = ctx.split_at_mut(rows * self.a.tangent_ctx_per_row());
+        let (mid, cb) = rest.split_at_mut(rows * self.a.n_outputs());
+        self.a.forward_keeping_tangents(pa, input, mid, ca);
+        self.b.forward_keeping_tangents(pb, mid, output, cb);
+    }
     fn forward_tangents(&self, params: &[R], input: &[R], ctx: &[R], k: usize, tangents_in: &[R], tangents_out: &mut [R]) {
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
-        let (ca, mid, cb) = self.split_ctx(ctx, rows);
+        let (ca, mid, cb) = self.split_tangent_ctx(ctx, rows);
         let mut mid_tangents = crate::scratch::Buf::<R>::to_overwrite(rows * k * self.a.n_outputs());
         self.a.forward_tangents(pa, input, ca, k, tangents_in, &mut mid_tangents);
         self.b.forward_tangents(pb, mid, cb, k, &mid_tangents, tangents_out);
@@ -412,7 +455,7 @@ impl<R: Real, A: TangentModule<R>, B: TangentModule<R>> TangentModule<R> for Cha
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
         let (dpa, dpb) = d_params.split_at_mut(self.a.n_params());
-        let (ca, mid, cb) = self.split_ctx(ctx, rows);
+        let (ca, mid, cb) = self.split_tangent_ctx(ctx, rows);
         let mut mid_tangent = crate::scratch::Buf::<R>::to_overwrite(mid.len());
         self.a.forward_tangents(pa, input, ca, 1, tangent_in, &mut mid_tangent);
         let (mut d_mid, mut d_mid_tangent) = (crate::scratch::Buf::<R>::zeroed(mid.len()), crate::scratch::Buf::<R>::zeroed(mid.len()));
@@ -424,7 +467,7 @@ impl<R: Real, A: TangentModule<R>, B: TangentModule<R>> TangentModule<R> for Cha
     fn input_gradient(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
-        let (ca, mid, cb) = self.split_ctx(ctx, rows);
+        let (ca, mid, cb) = self.split_tangent_ctx(ctx, rows);
         let mut d_mid = crate::scratch::Buf::<R>::to_overwrite(mid.len());
         self.b.input_gradient(pb, mid, cb, d_output, &mut d_mid);
         self.a.input_gradient(pa, input, ca, &d_mid, d_input);
@@ -436,7 +479,7 @@ impl<R: Real, A: ScatterTangent<R>, B: TangentModule<R>> DeferringTangentModule<
         let TangentAdjoints { params, input, ctx, tangent_in, d_output, d_tangent_out } = pass;
         let rows = input.len() / self.a.n_inputs();
         let (pa, pb) = params.split_at(self.a.n_params());
-        let (ca, mid, cb) = self.split_ctx(ctx, rows);
+        let (ca, mid, cb) = self.split_tangent_ctx(ctx, rows);
         let mut mid_tangent = crate::scratch::Buf::<R>::to_overwrite(mid.len());
         self.a.forward_tangents(pa, input, ca, 1, tangent_in, &mut mid_tangent);
         // The record: ∂L/∂(first module's outputs), then ∂L/∂(their tangents).

@@ -297,8 +297,8 @@ fn tangent_check_of<M: TangentModule<f64>>(module: &M, params: &[f64], rows: usi
     let (r, q) = (adjoint(()), adjoint(()));
     let run = |p: &[f64], x: &[f64], t: &[f64]| {
         let mut out = vec![0.0; rows * n_out];
-        let mut ctx = vec![0.0; rows * module.ctx_per_row()];
-        module.forward(p, x, &mut out, &mut ctx);
+        let mut ctx = vec![0.0; rows * module.tangent_ctx_per_row()];
+        module.forward_keeping_tangents(p, x, &mut out, &mut ctx);
         let mut tangent = vec![0.0; rows * n_out];
         module.forward_tangents(p, x, &ctx, 1, t, &mut tangent);
         (out, tangent, ctx)
@@ -465,11 +465,14 @@ fn positional_encoding_tangents_and_their_backward_match_finite_differences() {
     assert!(worst < 1e-6, "relative error {worst:e}");
 }
 
-/// Two features per level (a compiled kernel) and three (the per-row loop for other counts).
+/// Two features per level (a compiled kernel) and three (the per-row loop for other counts);
+/// every level active, and the finest off (coarse to fine: its Jacobian columns zero).
 #[test]
 fn hash_grid_network_tangents_and_their_backward_match_finite_differences() {
     for features in [2, 3] {
-        check_hash_grid_network_tangents(features);
+        for active in [3, 2] {
+            check_hash_grid_network_tangents(features, active);
+        }
     }
 }
 
@@ -489,16 +492,18 @@ fn small_grid_network(features: usize) -> Chain<WithInput<HashGrid>, Mlp> {
     Chain { a: WithInput { encoding: grid }, b: mlp }
 }
 
-fn check_hash_grid_network_tangents(features: usize) {
-    let net = small_grid_network(features);
+fn check_hash_grid_network_tangents(features: usize, active: usize) {
+    let mut net = small_grid_network(features);
+    net.a.encoding.active_levels = active;
     let params = random_params(Module::<f64>::n_params(&net), 0.5, 31);
     let worst = tangent_check(&net, &params, 9, false, 32);
-    assert!(worst < 1e-6, "{features} features: relative error {worst:e}");
+    assert!(worst < 1e-6, "{features} features, {active} levels active: relative error {worst:e}");
 }
 
 /// Every pass that callers hand a buffer with stale values (`Buf::to_overwrite`) writes all of
-/// it: the outputs and context of `forward`, the output tangents, the input adjoints of
-/// `backward` and `input_gradient` — each buffer filled with NaN first, none left.
+/// it: the outputs and context of `forward` and of `forward_keeping_tangents`, the output
+/// tangents, the input adjoints of `backward` and `input_gradient` — each buffer filled with NaN
+/// first, none left; and both forwards give the same outputs to the bit.
 fn assert_writes_everything<M: TangentModule<f64>>(name: &str, module: &M, params: &[f64]) {
     let rows = 7;
     let (n_in, n_out) = (module.n_inputs(), module.n_outputs());
@@ -507,17 +512,26 @@ fn assert_writes_everything<M: TangentModule<f64>>(name: &str, module: &M, param
     let d_output: Vec<f64> = (0..rows * n_out).map(|_| rng.random::<f64>() - 0.5).collect();
     let (mut output, mut ctx) = (vec![f64::NAN; rows * n_out], vec![f64::NAN; rows * module.ctx_per_row()]);
     module.forward(params, &input, &mut output, &mut ctx);
+    let (mut kept, mut tangent_ctx) = (vec![f64::NAN; rows * n_out], vec![f64::NAN; rows * module.tangent_ctx_per_row()]);
+    module.forward_keeping_tangents(params, &input, &mut kept, &mut tangent_ctx);
     let k = 3;
     let tangents_in: Vec<f64> = (0..rows * k * n_in).map(|_| rng.random::<f64>() - 0.5).collect();
     let mut tangents = vec![f64::NAN; rows * k * n_out];
-    module.forward_tangents(params, &input, &ctx, k, &tangents_in, &mut tangents);
+    module.forward_tangents(params, &input, &tangent_ctx, k, &tangents_in, &mut tangents);
     let (mut d_input, mut reverse) = (vec![f64::NAN; rows * n_in], vec![f64::NAN; rows * n_in]);
     module.backward(params, &input, &ctx, &d_output, &mut vec![0.0; params.len()], Some(&mut d_input));
-    module.input_gradient(params, &input, &ctx, &d_output, &mut reverse);
-    for (what, values) in [("output", &output), ("context", &ctx), ("tangents", &tangents), ("input adjoint", &d_input), ("input gradient", &reverse)]
-    {
+    module.input_gradient(params, &input, &tangent_ctx, &d_output, &mut reverse);
+    for (what, values) in [
+        ("output", &output),
+        ("context", &ctx),
+        ("tangents' context", &tangent_ctx),
+        ("tangents", &tangents),
+        ("input adjoint", &d_input),
+        ("input gradient", &reverse),
+    ] {
         assert!(values.iter().all(|v| v.is_finite()), "{name}: its {what} is not written in full");
     }
+    assert!(output.iter().zip(&kept).all(|(a, b)| a.to_bits() == b.to_bits()), "{name}: the forward keeping tangents changes the outputs");
 }
 
 #[test]
@@ -538,8 +552,10 @@ fn every_pass_writes_all_of_the_buffers_it_is_given() {
         let grid = HashGrid::new(HashGridConfig { levels: 3, features, log2_table: 6, base_resolution: 2, finest_resolution: 9 });
         let params = random_params(Module::<f64>::n_params(&grid), 0.5, 4);
         assert_writes_everything("hash grid", &grid, &params);
-        let net = small_grid_network(features);
+        let mut net = small_grid_network(features);
         assert_writes_everything("hash-grid network", &net, &random_params(Module::<f64>::n_params(&net), 0.5, 6));
+        net.a.encoding.active_levels = 2;
+        assert_writes_everything("hash-grid network, a level off", &net, &random_params(Module::<f64>::n_params(&net), 0.5, 6));
     }
     let net = Chain { a: PositionalEncoding { frequencies: 2 }, b: mlp(15, 2, None, softplus) };
     assert_writes_everything("positional network", &net, &random_params(Module::<f64>::n_params(&net), 0.5, 7));
@@ -557,16 +573,19 @@ fn every_output<M: TangentModule<f64>>(module: &M, params: &[f64], to_input: boo
     let (tangents_in, tangent_in) = (draw(rows * 3 * n_in), draw(rows * n_in));
     let (mut output, mut ctx) = (vec![0.0; rows * n_out], vec![0.0; rows * module.ctx_per_row()]);
     module.forward(params, &input, &mut output, &mut ctx);
+    let (mut kept, mut tangent_ctx) = (vec![0.0; rows * n_out], vec![0.0; rows * module.tangent_ctx_per_row()]);
+    module.forward_keeping_tangents(params, &input, &mut kept, &mut tangent_ctx);
     let mut tangents = vec![0.0; rows * 3 * n_out];
-    module.forward_tangents(params, &input, &ctx, 3, &tangents_in, &mut tangents);
+    module.forward_tangents(params, &input, &tangent_ctx, 3, &tangents_in, &mut tangents);
     let (mut d_params, mut d_input) = (vec![0.0; params.len()], vec![0.0; rows * n_in]);
     module.backward(params, &input, &ctx, &d_output, &mut d_params, Some(&mut d_input));
     let mut reverse = vec![0.0; rows * n_in];
-    module.input_gradient(params, &input, &ctx, &d_output, &mut reverse);
+    module.input_gradient(params, &input, &tangent_ctx, &d_output, &mut reverse);
     let (mut t_params, mut t_input, mut t_tangent) = (vec![0.0; params.len()], vec![0.0; rows * n_in], vec![0.0; rows * n_in]);
-    let pass = TangentAdjoints { params, input: &input, ctx: &ctx, tangent_in: &tangent_in, d_output: &d_output, d_tangent_out: &d_tangent_out };
+    let pass =
+        TangentAdjoints { params, input: &input, ctx: &tangent_ctx, tangent_in: &tangent_in, d_output: &d_output, d_tangent_out: &d_tangent_out };
     module.backward_tangent(pass, &mut t_params, to_input.then_some((&mut t_input[..], &mut t_tangent[..])));
-    [output, ctx, tangents, d_params, d_input, reverse, t_params, t_input, t_tangent].concat()
+    [output, ctx, kept, tangent_ctx, tangents, d_params, d_input, reverse, t_params, t_input, t_tangent].concat()
 }
 
 /// The passes' scratch buffers that are not zeroed first ([`sdf_backbone::scratch::Buf::to_overwrite`],

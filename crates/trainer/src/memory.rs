@@ -13,7 +13,7 @@
 
 use crate::config::TrainConfig;
 use crate::data::SceneSize;
-use sdf_backbone::module::deferred_block_ranges;
+use sdf_backbone::module::{TangentModule, deferred_block_ranges};
 use sdf_backbone::{Backbone, DeferringModule, Module, NormalScheme};
 
 /// Bytes of f32.
@@ -106,6 +106,17 @@ impl MemoryEstimate {
     }
 }
 
+/// The SDF network's context values per row in a step: with analytic normals, what its
+/// tangent passes read ([`TangentModule::forward_keeping_tangents`]).
+fn sdf_ctx_per_row(backbone: &Backbone) -> f64 {
+    let per_row = if backbone.normal_scheme() == NormalScheme::Analytic {
+        TangentModule::<f32>::tangent_ctx_per_row(&backbone.sdf)
+    } else {
+        Module::<f32>::ctx_per_row(&backbone.sdf)
+    };
+    per_row as f64
+}
+
 /// Bytes of one work item's forward + backward buffers for `rays` rays of `samples` intervals.
 fn work_item_bytes(backbone: &Backbone, rays: usize, samples: usize, backward: bool) -> f64 {
     let probes = backbone.normal_scheme().probe_count();
@@ -116,9 +127,10 @@ fn work_item_bytes(backbone: &Backbone, rays: usize, samples: usize, backward: b
     let col_in = Module::<f32>::n_inputs(&backbone.color) as f64;
     let col_ctx = Module::<f32>::ctx_per_row(&backbone.color) as f64;
     let width = backbone.sdf.b.config().width as f64;
-    // Forward: points, outputs, contexts; backward: output gradients, the layers' temporaries
-    // (dZ, dA), the colour input gradient.
-    let forward = sdf_rows * (3.0 + sdf_out + sdf_ctx) + col_rows * (2.0 * col_in + col_ctx + 6.0);
+    // Forward: points, outputs, contexts (with analytic normals the tangent passes' context, a
+    // hash grid's Jacobian: §46); backward: output gradients, the layers' temporaries (dZ, dA),
+    // the colour input gradient.
+    let forward = sdf_rows * (3.0 + sdf_out + sdf_ctx_per_row(backbone)) + col_rows * (2.0 * col_in + col_ctx + 6.0);
     // Analytic normals: to train, the tangents along x, y, z of every layer (forward), then along
     // ∂L/∂n with their adjoints (backward); to render, one reverse pass for the input alone
     // (`input_gradient`: a layer's dZ and dA at a time).
@@ -192,7 +204,7 @@ pub fn estimate(
     let guide = if guided { views as f64 * cells * F32 * 3.0 } else { 0.0 } + scene_cells * 20.0 + mining;
     // The step's largest buffer, a work item's SDF context, against glibc's largest mmap
     // threshold (32 MiB on 64-bit Linux).
-    let sdf_ctx_bytes = F32 * rows_per_chunk * Module::<f32>::ctx_per_row(&backbone.sdf) as f64;
+    let sdf_ctx_bytes = F32 * rows_per_chunk * sdf_ctx_per_row(backbone);
     let step_retained = sdf_ctx_bytes < 32.0 * 1024.0 * 1024.0;
     // Parameters in f32; Adam's two moments in f32, or bf16 for the tables (`optim.table_moments`).
     let moments = match config.optim.table_moments {

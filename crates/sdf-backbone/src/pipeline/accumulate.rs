@@ -128,11 +128,36 @@ struct Scale<R> {
     backward: bool,
 }
 
+/// The SDF network's forward pass at `points` (its outputs into `out`): its context, and with
+/// analytic normals (`fns`) the context its tangent passes read and ∇ₓS ([`sdf_gradients`]).
+pub(super) fn sdf_forward<S: Module<R>, R: Real>(
+    fns: Option<&TangentFns<S, R>>,
+    sdf: &S,
+    p_sdf: &[R],
+    points: &[R],
+    out: &mut [R],
+) -> (Buf<R>, Option<Buf<R>>) {
+    let rows = points.len() / 3;
+    match fns {
+        Some(fns) => {
+            let mut ctx = Buf::<R>::to_overwrite(rows * (fns.ctx_per_row)(sdf));
+            (fns.forward)(sdf, p_sdf, points, out, &mut ctx);
+            let gradients = sdf_gradients(fns, sdf, p_sdf, points, &ctx, sdf.n_outputs());
+            (ctx, Some(gradients))
+        }
+        None => {
+            let mut ctx = Buf::<R>::to_overwrite(rows * sdf.ctx_per_row());
+            sdf.forward(p_sdf, points, out, &mut ctx);
+            (ctx, None)
+        }
+    }
+}
+
 /// ∇ₓS at every row of `points` (rows × 3) by one reverse pass of the SDF network from its first
 /// output, from the forward's `ctx` ([`crate::module::TangentModule::input_gradient`]): a third
 /// of the work of three forward tangents through every layer and every output, and all that a
 /// normal needs — the loss's reverse pass takes its own tangent along ∂L/∂n (§45).
-pub(super) fn sdf_gradients<S, R: Real>(fns: &TangentFns<S, R>, sdf: &S, p_sdf: &[R], points: &[R], ctx: &[R], n_out: usize) -> Buf<R> {
+fn sdf_gradients<S, R: Real>(fns: &TangentFns<S, R>, sdf: &S, p_sdf: &[R], points: &[R], ctx: &[R], n_out: usize) -> Buf<R> {
     let rows = points.len() / 3;
     let mut d_sdf = Buf::<R>::zeroed(rows * n_out);
     for row in d_sdf.chunks_exact_mut(n_out) {
@@ -247,10 +272,7 @@ impl<S, C> Pipeline<S, C> {
             }
         }
         let mut sdf_out = Buf::<R>::to_overwrite(rows.sdf * dims.n_out);
-        let mut sdf_ctx = Buf::<R>::to_overwrite(rows.sdf * self.sdf.ctx_per_row());
-        self.sdf.forward(p_sdf, &points, &mut sdf_out, &mut sdf_ctx);
-        let gradients =
-            self.analytic.as_ref().map(|analytic| sdf_gradients(R::tangent_fns(analytic), &self.sdf, p_sdf, &points, &sdf_ctx, dims.n_out));
+        let (sdf_ctx, gradients) = sdf_forward(self.analytic.as_ref().map(R::tangent_fns), &self.sdf, p_sdf, &points, &mut sdf_out);
         (points, sdf_out, sdf_ctx, gradients)
     }
 

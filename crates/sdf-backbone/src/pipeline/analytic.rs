@@ -35,9 +35,15 @@ pub type BackwardTangentDeferringFn<S, R> = fn(&S, TangentAdjoints<'_, R>, &mut 
 pub type ApplyTangentBlockFn<S, R> = fn(&S, &[(&[R], &[R])], usize, &mut [R]);
 /// [`TangentModule::input_gradient`].
 pub type InputGradientFn<S, R> = fn(&S, &[R], &[R], &[R], &[R], &mut [R]);
+/// [`TangentModule::forward_keeping_tangents`].
+pub type ForwardKeepingFn<S, R> = fn(&S, &[R], &[R], &mut [R], &mut [R]);
 
 /// The tangent passes of a network `S` in precision `R`.
 pub struct TangentFns<S, R> {
+    /// The forward pass whose context the others read.
+    pub forward: ForwardKeepingFn<S, R>,
+    /// Its context's values per row ([`TangentModule::tangent_ctx_per_row`]).
+    pub ctx_per_row: fn(&S) -> usize,
     /// The reverse pass through values and one tangent per row.
     pub backward: BackwardTangentFn<S, R>,
     /// The same with the leading parameters' gradient deferred.
@@ -58,6 +64,8 @@ impl<S, R> Copy for TangentFns<S, R> {}
 impl<S: DeferringTangentModule<R>, R: Real> TangentFns<S, R> {
     fn of() -> Self {
         TangentFns {
+            forward: |net, params, input, output, ctx| net.forward_keeping_tangents(params, input, output, ctx),
+            ctx_per_row: |net| net.tangent_ctx_per_row(),
             backward: |net, pass, d_params| net.backward_tangent(pass, d_params, None),
             backward_deferring: |net, pass, d_params, deferred| net.backward_tangent_deferring(pass, d_params, deferred),
             apply_block: |net, parts, block, d_block| net.apply_deferred_tangent_block(parts, block, d_block),

@@ -142,6 +142,12 @@ impl<R: Real> TangentModule<R> for InputEncoding {
             InputEncoding::Positional(p) => p.input_gradient(params, input, ctx, d_output, d_input),
         }
     }
+    fn input_gradient_of_forward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
+        match self {
+            InputEncoding::HashGrid(g) => g.input_gradient_of_forward(params, input, ctx, d_output, d_input),
+            InputEncoding::Positional(p) => p.input_gradient_of_forward(params, input, ctx, d_output, d_input),
+        }
+    }
 }
 
 impl<R: Real> ScatterTangent<R> for InputEncoding {

@@ -263,6 +263,25 @@ impl<R: Real, M: ScatterGradient<R>> ScatterGradient<R> for WithInput<M> {
 }
 
 impl<M> WithInput<M> {
+    /// `x̄ = ȳ[..n_in] + (∂m/∂x)ᵀ ȳ[n_in..]`, the encoding's share by `encoding(ȳ[n_in..], x̄)`.
+    fn input_gradient_by<R: Real>(&self, d_output: &[R], d_input: &mut [R], encoding: impl FnOnce(&[R], &mut [R]))
+    where
+        M: Module<R>,
+    {
+        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
+        let n_out = n_in + n_enc;
+        let mut d_enc = crate::scratch::Buf::<R>::to_overwrite(d_input.len() / n_in * n_enc);
+        for (dst, src) in d_enc.chunks_exact_mut(n_enc).zip(d_output.chunks_exact(n_out)) {
+            dst.copy_from_slice(&src[n_in..]);
+        }
+        encoding(&d_enc, d_input);
+        for (d_in, dy) in d_input.chunks_exact_mut(n_in).zip(d_output.chunks_exact(n_out)) {
+            for (d, &g) in d_in.iter_mut().zip(&dy[..n_in]) {
+                *d += g;
+            }
+        }
+    }
+
     /// The output rows `[x, m(x)]` from the input and the encoding's rows.
     fn join<R: Real>(&self, input: &[R], encoded: &[R], output: &mut [R])
     where
@@ -330,19 +349,12 @@ impl<R: Real, M: TangentModule<R>> TangentModule<R> for WithInput<M> {
     }
     /// `x̄ = ȳ[..n_in] + (∂m/∂x)ᵀ ȳ[n_in..]`.
     fn input_gradient(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
-        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
-        let rows = input.len() / n_in;
-        let n_out = n_in + n_enc;
-        let mut d_enc = crate::scratch::Buf::<R>::to_overwrite(rows * n_enc);
-        for (dst, src) in d_enc.chunks_exact_mut(n_enc).zip(d_output.chunks_exact(n_out)) {
-            dst.copy_from_slice(&src[n_in..]);
-        }
-        self.encoding.input_gradient(params, input, &ctx[..rows * self.encoding.tangent_ctx_per_row()], &d_enc, d_input);
-        for (d_in, dy) in d_input.chunks_exact_mut(n_in).zip(d_output.chunks_exact(n_out)) {
-            for (d, &g) in d_in.iter_mut().zip(&dy[..n_in]) {
-                *d += g;
-            }
-        }
+        let enc_ctx = &ctx[..input.len() / self.encoding.n_inputs() * self.encoding.tangent_ctx_per_row()];
+        self.input_gradient_by(d_output, d_input, |d_enc, d_input| self.encoding.input_gradient(params, input, enc_ctx, d_enc, d_input));
+    }
+    fn input_gradient_of_forward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
+        let enc_ctx = &ctx[..input.len() / self.encoding.n_inputs() * self.encoding.ctx_per_row()];
+        self.input_gradient_by(d_output, d_input, |d_enc, d_input| self.encoding.input_gradient_of_forward(params, input, enc_ctx, d_enc, d_input));
     }
 }
 

@@ -192,7 +192,7 @@ impl<R: Real> Module<R> for HashGrid {
         let _span = crate::profile::span(crate::profile::Stage::HashForward);
         crate::kernels::dispatch(
             #[inline(always)]
-            || self.forward_rows(params, input, output, None),
+            || self.forward_rows(params, input, output),
         );
     }
     fn backward(&self, params: &[R], input: &[R], _: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
@@ -241,7 +241,7 @@ impl<R: Real> TangentModule<R> for HashGrid {
         let _span = crate::profile::span(crate::profile::Stage::HashForward);
         crate::kernels::dispatch(
             #[inline(always)]
-            || self.forward_rows(params, input, output, Some(ctx)),
+            || self.forward_rows_keeping(params, input, output, ctx),
         );
     }
     /// ∂(features)/∂x · ẋ: the Jacobian times each direction.
@@ -267,6 +267,14 @@ impl<R: Real> TangentModule<R> for HashGrid {
         for level in 0..self.active_levels.min(self.config.levels) {
             self.scatter_tangent_level(level, input, tangent_in, (d_output, d_tangent_out), 0, &mut d_params[self.level_params(level)]);
         }
+    }
+    /// x̄ = Σ_levels Σ_c (T\[c\] · ȳ) ∇ₓw_c: the corners found again, one pass over the levels.
+    fn input_gradient_of_forward(&self, params: &[R], input: &[R], _: &[R], d_output: &[R], d_input: &mut [R]) {
+        let _span = crate::profile::span(crate::profile::Stage::HashTangents);
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || self.input_adjoint_rows(params, input, d_output, d_input),
+        );
     }
     /// x̄ = (∂y/∂x)ᵀ ȳ.
     fn input_gradient(&self, _: &[R], _: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
@@ -298,32 +306,6 @@ impl HashGrid {
     fn adjoint_columns(&self, lead: usize, level: usize) -> (usize, usize) {
         let f = self.config.features;
         (lead + self.config.levels * f, lead + level * f)
-    }
-
-    /// [`level_features`] (and with `jacobian` [`level_features_jacobian`]) for any feature
-    /// count, a row at a time.
-    fn level_features_any<R: Real>(&self, level: usize, table: &[R], input: &[R], out: &mut [R], mut jacobian: Option<&mut [R]>) {
-        let f = self.config.features;
-        let n_out = self.config.levels * f;
-        for (r, (x, y)) in input.chunks_exact(3).zip(out.chunks_exact_mut(f)).enumerate() {
-            let (idx, w, dw) = self.corners(level, x);
-            y.fill(R::ZERO);
-            let mut grad = jacobian.as_deref_mut().map(|jac| &mut jac[3 * (r * n_out + level * f)..3 * (r * n_out + level * f + f)]);
-            if let Some(g) = grad.as_deref_mut() {
-                g.fill(R::ZERO);
-            }
-            for c in 0..8 {
-                for k in 0..f {
-                    let t = table[idx[c] * f + k];
-                    y[k] = w[c].mul_add(t, y[k]);
-                    if let Some(g) = grad.as_deref_mut() {
-                        for d in 0..3 {
-                            g[3 * k + d] = dw[c][d].mul_add(t, g[3 * k + d]);
-                        }
-                    }
-                }
-            }
-        }
     }
 
     /// [`level_tangent_scatter`] for any feature count, a row at a time.
@@ -560,34 +542,70 @@ fn level_corners<R: Real, const DENSE: bool>(n: u32, mask: u32, input: &[R], idx
 impl HashGrid {
     /// Level-major, one level's table (512 KB for the CPU preset) at a time, so that its
     /// gathers and scatters stay in the cache; the rows of a level are vectorised (gathers).
-    /// With `jacobian` (rows × n_out × 3), the features' Jacobian too
-    /// ([`TangentModule::forward_keeping_tangents`]).
     #[inline(always)]
-    fn forward_rows<R: Real>(&self, params: &[R], input: &[R], output: &mut [R], mut jacobian: Option<&mut [R]>) {
+    fn forward_rows<R: Real>(&self, params: &[R], input: &[R], output: &mut [R]) {
         let f = self.config.features;
-        let n_out = self.config.levels * f;
-        let rows = input.len() / 3;
-        let active = self.active_levels.min(self.config.levels);
-        output.fill(R::ZERO);
-        if let Some(jac) = jacobian.as_deref_mut().filter(|_| active < self.config.levels) {
-            jac.fill(R::ZERO);
-        }
-        let mut level_out = Buf::<R>::to_overwrite(rows * f);
         let mask = (self.table - 1) as u32;
-        for level in 0..active {
+        output.fill(R::ZERO);
+        let mut level_out = Buf::<R>::to_overwrite(input.len() / 3 * f);
+        for level in 0..self.active_levels.min(self.config.levels) {
             let table = &params[self.level_params(level)];
             let (n, dense) = (self.resolutions[level], self.dense[level]);
-            match jacobian.as_deref_mut() {
-                None => by_kernel!(f, dense, |F, DENSE| level_features::<R, F, DENSE>(table, n, mask, input, &mut level_out), {
-                    self.level_features_any(level, table, input, &mut level_out, None)
-                }),
-                Some(jac) => by_kernel!(
-                    f,
-                    dense,
-                    |F, DENSE| level_features_jacobian::<R, F, DENSE>(table, n, mask, input, &mut level_out, jac, n_out, level * f),
-                    self.level_features_any(level, table, input, &mut level_out, Some(jac))
-                ),
+            by_kernel!(f, dense, |F, DENSE| level_features::<R, F, DENSE>(table, n, mask, input, &mut level_out), {
+                for (x, y) in input.chunks_exact(3).zip(level_out.chunks_exact_mut(f)) {
+                    let (idx, w, _) = self.corners(level, x);
+                    y.fill(R::ZERO);
+                    for c in 0..8 {
+                        for k in 0..f {
+                            y[k] = w[c].mul_add(table[idx[c] * f + k], y[k]);
+                        }
+                    }
+                }
+            });
+            let n_out = self.config.levels * f;
+            for (y, l) in output.chunks_exact_mut(n_out).zip(level_out.chunks_exact(f)) {
+                y[level * f..level * f + f].copy_from_slice(l);
             }
+        }
+    }
+
+    /// [`Self::forward_rows`] with the features' Jacobian into `jacobian` (rows × n_out × 3,
+    /// [`TangentModule::forward_keeping_tangents`]). A function of its own, its fallback for other
+    /// feature counts written out in it as the plain forward's is: with the two loops in one
+    /// function, or the fallback a method, the plain forward's gathers ran 2.3× slower (renders).
+    #[inline(always)]
+    fn forward_rows_keeping<R: Real>(&self, params: &[R], input: &[R], output: &mut [R], jacobian: &mut [R]) {
+        let f = self.config.features;
+        let n_out = self.config.levels * f;
+        let mask = (self.table - 1) as u32;
+        output.fill(R::ZERO);
+        if self.active_levels < self.config.levels {
+            jacobian.fill(R::ZERO);
+        }
+        let mut level_out = Buf::<R>::to_overwrite(input.len() / 3 * f);
+        for level in 0..self.active_levels.min(self.config.levels) {
+            let table = &params[self.level_params(level)];
+            let (n, dense) = (self.resolutions[level], self.dense[level]);
+            by_kernel!(
+                f,
+                dense,
+                |F, DENSE| level_features_jacobian::<R, F, DENSE>(table, n, mask, input, &mut level_out, jacobian, n_out, level * f),
+                for (r, (x, y)) in input.chunks_exact(3).zip(level_out.chunks_exact_mut(f)).enumerate() {
+                    let (idx, w, dw) = self.corners(level, x);
+                    let grad = &mut jacobian[3 * (r * n_out + level * f)..3 * (r * n_out + level * f + f)];
+                    y.fill(R::ZERO);
+                    grad.fill(R::ZERO);
+                    for c in 0..8 {
+                        for k in 0..f {
+                            let t = table[idx[c] * f + k];
+                            y[k] = w[c].mul_add(t, y[k]);
+                            for d in 0..3 {
+                                grad[3 * k + d] = dw[c][d].mul_add(t, grad[3 * k + d]);
+                            }
+                        }
+                    }
+                }
+            );
             for (y, l) in output.chunks_exact_mut(n_out).zip(level_out.chunks_exact(f)) {
                 y[level * f..level * f + f].copy_from_slice(l);
             }

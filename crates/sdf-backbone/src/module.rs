@@ -126,6 +126,15 @@ pub trait TangentModule<R: Real>: Module<R> {
     /// such reverse pass, where [`TangentModule::forward_tangents`] takes one forward pass per
     /// input direction.
     fn input_gradient(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]);
+
+    /// [`TangentModule::input_gradient`] after [`Module::forward`] (with its `ctx`): what
+    /// [`TangentModule::forward_keeping_tangents`] would have kept is found again, which costs
+    /// less where the tangents serve once (a render's normal) and the store costs a pass of its
+    /// own (a hash grid's Jacobian). The default reads `ctx` as the tangents' context: modules
+    /// that keep more for their tangents, and those that hold one, override it.
+    fn input_gradient_of_forward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
+        self.input_gradient(params, input, ctx, d_output, d_input);
+    }
 }
 
 /// A [`ScatterGradient`] module with tangents: the scatter of the reverse pass through values
@@ -471,6 +480,14 @@ impl<R: Real, A: TangentModule<R>, B: TangentModule<R>> TangentModule<R> for Cha
         let mut d_mid = crate::scratch::Buf::<R>::to_overwrite(mid.len());
         self.b.input_gradient(pb, mid, cb, d_output, &mut d_mid);
         self.a.input_gradient(pa, input, ca, &d_mid, d_input);
+    }
+    fn input_gradient_of_forward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
+        let rows = input.len() / self.a.n_inputs();
+        let (pa, pb) = params.split_at(self.a.n_params());
+        let (ca, mid, cb) = self.split_ctx(ctx, rows);
+        let mut d_mid = crate::scratch::Buf::<R>::to_overwrite(mid.len());
+        self.b.input_gradient_of_forward(pb, mid, cb, d_output, &mut d_mid);
+        self.a.input_gradient_of_forward(pa, input, ca, &d_mid, d_input);
     }
 }
 

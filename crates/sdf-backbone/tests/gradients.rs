@@ -333,14 +333,19 @@ fn tangent_check_of<M: TangentModule<f64>>(module: &M, params: &[f64], rows: usi
         }
     }
     // The input's adjoint alone (one reverse pass, no parameter gradient) is ∂(Σ r ⊙ y)/∂x.
+    // So is the same after the plain forward, whose context keeps nothing for the tangents.
     let mut reverse = vec![0.0; input.len()];
     module.input_gradient(params, &input, &ctx, &r, &mut reverse);
+    let (mut out, mut plain_ctx, mut found) = (vec![0.0; rows * n_out], vec![0.0; rows * module.ctx_per_row()], vec![0.0; input.len()]);
+    module.forward(params, &input, &mut out, &mut plain_ctx);
+    module.input_gradient_of_forward(params, &input, &plain_ctx, &r, &mut found);
     let values = |x: &[f64]| run(params, x, &v).0.iter().zip(&r).map(|(a, b)| a * b).sum::<f64>();
     for i in 0..input.len() {
         let (mut p, mut m) = (input.clone(), input.clone());
         p[i] += h;
         m[i] -= h;
-        worst = worst.max(rel(reverse[i], (values(&p) - values(&m)) / (2.0 * h)));
+        let numeric = (values(&p) - values(&m)) / (2.0 * h);
+        worst = worst.max(rel(reverse[i], numeric)).max(rel(found[i], numeric));
     }
     let mut d_params = vec![0.0; params.len()];
     let (mut d_input, mut d_tangent) = (vec![0.0; input.len()], vec![0.0; input.len()]);
@@ -521,6 +526,8 @@ fn assert_writes_everything<M: TangentModule<f64>>(name: &str, module: &M, param
     let (mut d_input, mut reverse) = (vec![f64::NAN; rows * n_in], vec![f64::NAN; rows * n_in]);
     module.backward(params, &input, &ctx, &d_output, &mut vec![0.0; params.len()], Some(&mut d_input));
     module.input_gradient(params, &input, &tangent_ctx, &d_output, &mut reverse);
+    let mut found = vec![f64::NAN; rows * n_in];
+    module.input_gradient_of_forward(params, &input, &ctx, &d_output, &mut found);
     for (what, values) in [
         ("output", &output),
         ("context", &ctx),
@@ -528,6 +535,7 @@ fn assert_writes_everything<M: TangentModule<f64>>(name: &str, module: &M, param
         ("tangents", &tangents),
         ("input adjoint", &d_input),
         ("input gradient", &reverse),
+        ("input gradient after the plain forward", &found),
     ] {
         assert!(values.iter().all(|v| v.is_finite()), "{name}: its {what} is not written in full");
     }
@@ -581,11 +589,13 @@ fn every_output<M: TangentModule<f64>>(module: &M, params: &[f64], to_input: boo
     module.backward(params, &input, &ctx, &d_output, &mut d_params, Some(&mut d_input));
     let mut reverse = vec![0.0; rows * n_in];
     module.input_gradient(params, &input, &tangent_ctx, &d_output, &mut reverse);
+    let mut found = vec![0.0; rows * n_in];
+    module.input_gradient_of_forward(params, &input, &ctx, &d_output, &mut found);
     let (mut t_params, mut t_input, mut t_tangent) = (vec![0.0; params.len()], vec![0.0; rows * n_in], vec![0.0; rows * n_in]);
     let pass =
         TangentAdjoints { params, input: &input, ctx: &tangent_ctx, tangent_in: &tangent_in, d_output: &d_output, d_tangent_out: &d_tangent_out };
     module.backward_tangent(pass, &mut t_params, to_input.then_some((&mut t_input[..], &mut t_tangent[..])));
-    [output, ctx, kept, tangent_ctx, tangents, d_params, d_input, reverse, t_params, t_input, t_tangent].concat()
+    [output, ctx, kept, tangent_ctx, tangents, d_params, d_input, reverse, found, t_params, t_input, t_tangent].concat()
 }
 
 /// The passes' scratch buffers that are not zeroed first ([`sdf_backbone::scratch::Buf::to_overwrite`],

@@ -6,6 +6,7 @@
 //! [`Pipeline::sdf_tangent_backward`]. All rays of the item go through each network together
 //! (one matrix product per layer), the per-ray work in between.
 
+use super::analytic::InputGradientFn;
 use super::deferred::Deferred;
 use super::{Pipeline, RayInput, RayOutput, SampleLoss, TangentFns, scale_derivative, scale_from_variance};
 use crate::background::BackgroundPass;
@@ -128,10 +129,20 @@ struct Scale<R> {
     backward: bool,
 }
 
+/// What the SDF network's forward pass keeps for analytic normals.
+#[derive(Clone, Copy, PartialEq)]
+pub(super) enum Tangents {
+    /// The context its tangent passes read (a training step: the normal and the loss's
+    /// backward both read a hash grid's Jacobian, §46).
+    Kept,
+    /// The forward's own (a render: one reverse pass for the normal finds the corners again).
+    Found,
+}
+
 /// The SDF network's forward pass at `points` (its outputs into `out`): its context, and with
-/// analytic normals (`fns`) the context its tangent passes read and ∇ₓS ([`sdf_gradients`]).
+/// analytic normals (`fns`) ∇ₓS ([`sdf_gradients`]), the context as `tangents` says.
 pub(super) fn sdf_forward<S: Module<R>, R: Real>(
-    fns: Option<&TangentFns<S, R>>,
+    fns: Option<(&TangentFns<S, R>, Tangents)>,
     sdf: &S,
     p_sdf: &[R],
     points: &[R],
@@ -139,10 +150,16 @@ pub(super) fn sdf_forward<S: Module<R>, R: Real>(
 ) -> (Buf<R>, Option<Buf<R>>) {
     let rows = points.len() / 3;
     match fns {
-        Some(fns) => {
+        Some((fns, Tangents::Kept)) => {
             let mut ctx = Buf::<R>::to_overwrite(rows * (fns.ctx_per_row)(sdf));
             (fns.forward)(sdf, p_sdf, points, out, &mut ctx);
-            let gradients = sdf_gradients(fns, sdf, p_sdf, points, &ctx, sdf.n_outputs());
+            let gradients = sdf_gradients(fns.input_gradient, sdf, p_sdf, points, &ctx);
+            (ctx, Some(gradients))
+        }
+        Some((fns, Tangents::Found)) => {
+            let mut ctx = Buf::<R>::to_overwrite(rows * sdf.ctx_per_row());
+            sdf.forward(p_sdf, points, out, &mut ctx);
+            let gradients = sdf_gradients(fns.input_gradient_of_forward, sdf, p_sdf, points, &ctx);
             (ctx, Some(gradients))
         }
         None => {
@@ -157,14 +174,14 @@ pub(super) fn sdf_forward<S: Module<R>, R: Real>(
 /// output, from the forward's `ctx` ([`crate::module::TangentModule::input_gradient`]): a third
 /// of the work of three forward tangents through every layer and every output, and all that a
 /// normal needs — the loss's reverse pass takes its own tangent along ∂L/∂n (§45).
-fn sdf_gradients<S, R: Real>(fns: &TangentFns<S, R>, sdf: &S, p_sdf: &[R], points: &[R], ctx: &[R], n_out: usize) -> Buf<R> {
-    let rows = points.len() / 3;
+fn sdf_gradients<S: Module<R>, R: Real>(input_gradient: InputGradientFn<S, R>, sdf: &S, p_sdf: &[R], points: &[R], ctx: &[R]) -> Buf<R> {
+    let (rows, n_out) = (points.len() / 3, sdf.n_outputs());
     let mut d_sdf = Buf::<R>::zeroed(rows * n_out);
     for row in d_sdf.chunks_exact_mut(n_out) {
         row[0] = R::ONE;
     }
     let mut gradients = Buf::<R>::to_overwrite(rows * 3);
-    (fns.input_gradient)(sdf, p_sdf, points, ctx, &d_sdf, &mut gradients);
+    input_gradient(sdf, p_sdf, points, ctx, &d_sdf, &mut gradients);
     gradients
 }
 
@@ -272,7 +289,8 @@ impl<S, C> Pipeline<S, C> {
             }
         }
         let mut sdf_out = Buf::<R>::to_overwrite(rows.sdf * dims.n_out);
-        let (sdf_ctx, gradients) = sdf_forward(self.analytic.as_ref().map(R::tangent_fns), &self.sdf, p_sdf, &points, &mut sdf_out);
+        let fns = self.analytic.as_ref().map(|a| (R::tangent_fns(a), Tangents::Kept));
+        let (sdf_ctx, gradients) = sdf_forward(fns, &self.sdf, p_sdf, &points, &mut sdf_out);
         (points, sdf_out, sdf_ctx, gradients)
     }
 

@@ -52,6 +52,8 @@ pub struct TangentFns<S, R> {
     pub apply_block: ApplyTangentBlockFn<S, R>,
     /// The input's adjoint by one reverse pass (the normals ∇ₓS: no gradient to carry on).
     pub input_gradient: InputGradientFn<S, R>,
+    /// The same after the plain forward ([`TangentModule::input_gradient_of_forward`]).
+    pub input_gradient_of_forward: InputGradientFn<S, R>,
 }
 
 impl<S, R> Clone for TangentFns<S, R> {
@@ -70,6 +72,9 @@ impl<S: DeferringTangentModule<R>, R: Real> TangentFns<S, R> {
             backward_deferring: |net, pass, d_params, deferred| net.backward_tangent_deferring(pass, d_params, deferred),
             apply_block: |net, parts, block, d_block| net.apply_deferred_tangent_block(parts, block, d_block),
             input_gradient: |net, params, input, ctx, d_output, d_input| net.input_gradient(params, input, ctx, d_output, d_input),
+            input_gradient_of_forward: |net, params, input, ctx, d_output, d_input| {
+                net.input_gradient_of_forward(params, input, ctx, d_output, d_input)
+            },
         }
     }
 }

@@ -16,7 +16,7 @@
 //! pass, no loss terms, no allocation per ray, and most rows of the loss pass never evaluated
 //! (a ray's last sample, the samples that carry no weight, the background of opaque rays).
 
-use super::accumulate::{COLOR_IN_FIXED, color_row, probe_normal, sdf_forward};
+use super::accumulate::{COLOR_IN_FIXED, Tangents, color_row, probe_normal, sdf_forward};
 use super::{Pipeline, RayInput, RayOutput, scale_from_variance};
 use crate::encoding::SphericalHarmonics;
 use crate::module::Module;
@@ -111,7 +111,8 @@ impl<S, C> Pipeline<S, C> {
         let n_out = self.sdf.n_outputs();
         let mut sdf_out = Buf::<R>::to_overwrite(rows * (1 + np) * n_out);
         // No probes with analytic normals.
-        let (_, gradients) = sdf_forward(self.analytic.as_ref().map(R::tangent_fns), &self.sdf, p_sdf, &points, &mut sdf_out);
+        let fns = self.analytic.as_ref().map(|a| (R::tangent_fns(a), Tangents::Found));
+        let (_, gradients) = sdf_forward(fns, &self.sdf, p_sdf, &points, &mut sdf_out);
         let normals: Vec<[R; 3]> = match gradients {
             Some(grad) => grad.chunks_exact(3).map(|g| [g[0], g[1], g[2]]).collect(),
             None => (0..rows).map(|j| probe_normal(probes, h, |p| sdf_out[(rows + np * j + p) * n_out])).collect(),

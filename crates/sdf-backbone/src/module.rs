@@ -16,7 +16,7 @@ pub struct TangentAdjoints<'a, R> {
     pub params: &'a [R],
     /// Inputs, rows × n_inputs.
     pub input: &'a [R],
-    /// The forward pass's context.
+    /// The context of [`TangentModule::forward_keeping_tangents`].
     pub ctx: &'a [R],
     /// The input's tangent, rows × n_inputs.
     pub tangent_in: &'a [R],

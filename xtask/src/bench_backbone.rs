@@ -343,8 +343,7 @@ fn normals_name(normals: NormalScheme) -> String {
 
 /// Runs one preset in a child process (`--preset`), returning its JSON figures.
 fn child_figures(preset: Preset, reps: usize, gemm_best: f64) -> Result<Vec<Value>> {
-    let exe = std::env::current_exe().context("the xtask executable")?;
-    let out = std::process::Command::new(exe)
+    let out = crate::machine::xtask_child()?
         .args(["bench", "backbone", "--json", "--preset", preset.name(), "--reps", &reps.to_string()])
         .env("PSNEUS_GEMM_GFLOPS", gemm_best.to_string())
         .output()
@@ -355,13 +354,15 @@ fn child_figures(preset: Preset, reps: usize, gemm_best: f64) -> Result<Vec<Valu
     String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).with_context(|| format!("child output {l:?}"))).collect()
 }
 
-/// The peer's figures (`scripts/torch_peer.py`), with glibc's allocator tuned as its docs ask.
+/// The peer's figures (`scripts/torch_peer.py`), with glibc's allocator tuned as its docs ask,
+/// on the instruction set our kernels are limited to (`--isa`).
 fn peer_figures(python: &Path, rays: usize, samples: usize) -> Result<Vec<Value>> {
     let threads = rayon::current_num_threads().to_string();
     let out = std::process::Command::new(python)
         .args(["scripts/torch_peer.py", "--threads", &threads, "--rays", &rays.to_string(), "--samples", &samples.to_string(), "--no-check"])
         .env("MALLOC_MMAP_MAX_", "0")
         .env("MALLOC_TRIM_THRESHOLD_", "100000000000")
+        .envs(crate::machine::peer_instruction_set_env())
         .output()
         .with_context(|| format!("running {} scripts/torch_peer.py (pip install torch numpy)", python.display()))?;
     if !out.status.success() {

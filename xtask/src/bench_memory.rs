@@ -16,9 +16,8 @@ use trainer::metrics::RunMetrics;
 
 /// Runs `xtask train` in a child process with `overrides` into `out`; its wall time.
 fn train_child(out: &Path, overrides: &[String]) -> Result<f64> {
-    let exe = std::env::current_exe().context("locating the xtask binary")?;
     let started = Instant::now();
-    let output = std::process::Command::new(exe).arg("train").arg("--out").arg(out).args(overrides).output().context("starting xtask train")?;
+    let output = crate::machine::xtask_child()?.arg("train").arg("--out").arg(out).args(overrides).output().context("starting xtask train")?;
     if !output.status.success() {
         let stderr = String::from_utf8_lossy(&output.stderr);
         let tail: Vec<&str> = stderr.lines().rev().take(12).collect();

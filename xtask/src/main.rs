@@ -22,6 +22,11 @@ static ALLOCATOR: cap::Cap<std::alloc::System> = cap::Cap::new(std::alloc::Syste
 #[derive(Parser)]
 #[command(name = "xtask", about = "psneus: neural implicit surfaces with a probability-guided sampler")]
 struct Cli {
+    /// Run the kernels on at most this instruction set: avx512, avx2 or baseline (x86-64's SSE2) —
+    /// a narrower CPU's path measured on this one; benchmarks name it and limit the PyTorch peer
+    /// alike. Default: the widest this CPU has.
+    #[arg(long, global = true, value_parser = xtask::machine::parse_instruction_set)]
+    isa: Option<sdf_backbone::kernels::InstructionSet>,
     #[command(subcommand)]
     command: Command,
 }
@@ -297,7 +302,11 @@ fn stop_signal() -> Arc<AtomicBool> {
 }
 
 fn main() -> Result<()> {
-    match Cli::parse().command {
+    let cli = Cli::parse();
+    if let Some(isa) = cli.isa {
+        sdf_backbone::kernels::limit_instruction_set(isa);
+    }
+    match cli.command {
         Command::Sample(args) => sample::run(&args),
         Command::Train(args) if args.print_config => {
             print!("{}", trainer::config::annotated_default());

@@ -4,21 +4,8 @@
 use sdf_backbone::kernels::bf16;
 use sdf_backbone::*;
 
-fn rays<R: Real>(n_rays: usize, n_samples: usize) -> Vec<RayInput<R>> {
-    (0..n_rays)
-        .map(|r| {
-            let a = r as f64 * 0.05;
-            RayInput {
-                origin: [R::of(3.0 * a.cos()), R::of(3.0 * a.sin()), R::of(0.3)],
-                direction: [R::of(-a.cos()), R::of(-a.sin()), R::of(-0.1)],
-                depths: (0..=n_samples).map(|i| R::of(2.0 + 2.0 * i as f64 / n_samples as f64)).collect(),
-                target: [R::of(0.5), R::of(0.4), R::of(0.3)],
-                mask: Some(R::ONE),
-                weight: R::ONE,
-            }
-        })
-        .collect()
-}
+mod common;
+use common::rays_through_the_sphere as rays;
 
 /// Loss, gradient and ray outputs of `backbone` in `products`.
 fn pass<R: Real>(backbone: &mut Backbone, products: Products, params: &[R]) -> (R, Vec<R>, Vec<RayOutput<R>>) {

@@ -37,11 +37,13 @@ pub fn pair(lo: f32, hi: f32) -> u32 {
 }
 
 /// Whether this CPU runs `vdpbf16ps` (AVX512_BF16 with AVX-512 F), detected once by the
-/// standard library.
+/// standard library, and the kernels may run AVX-512 ([`super::limit_instruction_set`]).
 pub fn available() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("avx512bf16")
+        super::instruction_set_limit().is_none()
+            && std::arch::is_x86_feature_detected!("avx512f")
+            && std::arch::is_x86_feature_detected!("avx512bf16")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {

@@ -26,6 +26,7 @@ use crate::module::Activation;
 use crate::real::Real;
 use crate::scratch::Buf;
 use pulp::{Arch, Simd, WithSimd};
+use std::sync::atomic::{AtomicU8, Ordering};
 
 /// Column counts are padded to a multiple of this (16 f32 = one AVX-512 register).
 pub const LANE: usize = 16;
@@ -36,14 +37,66 @@ pub fn pad(n: usize) -> usize {
     n.div_ceil(LANE) * LANE
 }
 
+/// The instruction sets the kernels are compiled for, narrowest first: x86-64's baseline (SSE2),
+/// x86-64-v3 (AVX2 + FMA) and x86-64-v4 (AVX-512). Other targets run their baseline (NEON on
+/// aarch64) whatever the limit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum InstructionSet {
+    /// The target's baseline.
+    Baseline = 0,
+    /// AVX2 with FMA (x86-64-v3).
+    Avx2 = 1,
+    /// AVX-512 F/BW/CD/DQ/VL (x86-64-v4), and AVX512_BF16 where the CPU has it.
+    Avx512 = 2,
+}
+
+/// The widest instruction set [`dispatch`] may run ([`limit_instruction_set`]); the widest there
+/// is until limited.
+static LIMIT: AtomicU8 = AtomicU8::new(InstructionSet::Avx512 as u8);
+
+/// Runs the kernels on at most `widest` from now on, process-wide (the CPU's own detection still
+/// bounds it): so that a narrower CPU's path (AVX2's tile shape and instructions, no bf16) can
+/// be measured and tested on a wider one (`cargo xtask --isa avx2 …`). Set it before any work:
+/// a pass already running keeps the instruction set it started with.
+pub fn limit_instruction_set(widest: InstructionSet) {
+    LIMIT.store(widest as u8, Ordering::Relaxed);
+}
+
+/// The limit set by [`limit_instruction_set`], if one narrower than AVX-512 was set.
+pub fn instruction_set_limit() -> Option<InstructionSet> {
+    match LIMIT.load(Ordering::Relaxed) {
+        0 => Some(InstructionSet::Baseline),
+        1 => Some(InstructionSet::Avx2),
+        _ => None,
+    }
+}
+
+/// The instruction set the kernels run on this CPU: `pulp`'s detection within the limit.
+#[inline(always)]
+fn arch() -> Arch {
+    #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
+    {
+        match (Arch::new(), instruction_set_limit()) {
+            (arch, None) => arch,
+            (Arch::V4(_) | Arch::V3(_), Some(InstructionSet::Avx2)) => pulp::x86::V3::try_new().map_or(Arch::Scalar, Arch::V3),
+            (Arch::V4(_) | Arch::V3(_), Some(_)) => Arch::Scalar,
+            (arch, Some(_)) => arch,
+        }
+    }
+    #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
+    {
+        Arch::new()
+    }
+}
+
 /// Whether [`dispatch`] runs the AVX-512 build (32 vector registers of 16 floats), so that the
-/// wide tile (4 × 64) fits in registers; else the narrow one (6 × 16). Asked of `pulp`'s own
-/// detection, so the tile shape and the instruction set chosen cannot disagree.
+/// wide tile (4 × 64) fits in registers; else the narrow one (6 × 16). Asked of the same
+/// detection as [`dispatch`], so the tile shape and the instruction set chosen cannot disagree.
 #[inline(always)]
 pub fn wide_tiles() -> bool {
     #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
     {
-        matches!(Arch::new(), Arch::V4(_))
+        matches!(arch(), Arch::V4(_))
     }
     #[cfg(not(any(target_arch = "x86", target_arch = "x86_64")))]
     {
@@ -51,12 +104,13 @@ pub fn wide_tiles() -> bool {
     }
 }
 
-/// The instruction set [`dispatch`] runs on this CPU, as `pulp` detects it: `"AVX-512
-/// (x86-64-v4)"`, `"AVX2 + FMA (x86-64-v3)"`, or the target's baseline.
+/// The instruction set [`dispatch`] runs on this CPU, as `pulp` detects it within
+/// [`limit_instruction_set`]'s limit: `"AVX-512 (x86-64-v4)"`, `"AVX2 + FMA (x86-64-v3)"`, or the
+/// target's baseline.
 pub fn instruction_set() -> &'static str {
     #[cfg(any(target_arch = "x86", target_arch = "x86_64"))]
     {
-        match Arch::new() {
+        match arch() {
             Arch::V4(_) => "AVX-512 (x86-64-v4)",
             Arch::V3(_) => "AVX2 + FMA (x86-64-v3)",
             _ => "SSE2 (x86-64 baseline)",
@@ -72,10 +126,10 @@ pub fn instruction_set() -> &'static str {
     }
 }
 
-/// Runs `f` compiled for the widest instruction set the CPU has. Pass the closure as
-/// `dispatch(#[inline(always)] || …)`: a closure that is not inlined into the dispatched function
-/// is compiled for the baseline instruction set only (measured on a 4 × 64 tile kernel: 0.9
-/// GFLOP/s instead of 108).
+/// Runs `f` compiled for the widest instruction set the CPU has (within
+/// [`limit_instruction_set`]'s limit). Pass the closure as `dispatch(#[inline(always)] || …)`: a
+/// closure that is not inlined into the dispatched function is compiled for the baseline
+/// instruction set only (measured on a 4 × 64 tile kernel: 0.9 GFLOP/s instead of 108).
 #[inline(always)]
 pub fn dispatch<F: FnOnce()>(f: F) {
     struct Run<F>(F);
@@ -86,7 +140,7 @@ pub fn dispatch<F: FnOnce()>(f: F) {
             (self.0)()
         }
     }
-    Arch::new().dispatch(Run(f));
+    arch().dispatch(Run(f));
 }
 
 /// A strided read-only operand: element (m, k) at `data[m·sm + k·sk]`.
@@ -114,21 +168,50 @@ fn tile<R: Real, const M: usize, const W: usize>(
     n0: usize,
     k: usize,
 ) {
-    let rows: [usize; M] = std::array::from_fn(|i| (m0 + i.min(mr - 1)) * l.sm);
     // The accumulators in a local copy, and every operand of a step read (and bounds-checked)
     // before its multiply-adds: so that no panic can come between two of them, and the
     // accumulators stay in registers (else LLVM stores all of them to the stack every step).
     let mut c = *acc;
-    for kk in 0..k {
-        let brow: [R; W] = *<&[R; W]>::try_from(&b[kk * bs + n0..kk * bs + n0 + W]).expect("tile width");
-        let x: [R; M] = std::array::from_fn(|i| l.data[rows[i] + kk * l.sk]);
-        for i in 0..M {
-            for j in 0..W {
-                c[i][j] = x[i].mul_add(brow[j], c[i][j]);
-            }
+    let b_row = |kk: usize| -> [R; W] { *<&[R; W]>::try_from(&b[kk * bs + n0..kk * bs + n0 + W]).expect("tile width") };
+    if l.sk == 1 {
+        // L row-major (forward passes, input adjoints): each row's k terms a slice of its own,
+        // so that a step's bounds checks compare registers. With each row's offset recomputed
+        // and checked against the whole operand every step, six rows' operands spilled from
+        // AVX2's 16 general registers: a 256³ product ran at 33 GFLOP/s on one core of a Xeon
+        // limited to AVX2, 61 this way (AVX-512: 96 → 105; products of K = 64 unchanged).
+        let l_rows: [&[R]; M] = std::array::from_fn(|i| {
+            let at = (m0 + i.min(mr - 1)) * l.sm;
+            &l.data[at..at + k]
+        });
+        for kk in 0..k {
+            let brow = b_row(kk);
+            tile_step(&mut c, &std::array::from_fn(|i| l_rows[i][kk]), &brow);
+        }
+    } else if l.sm == 1 && mr == M {
+        // L column-major (weight gradients, L = dZᵀ): a step's M terms lie side by side.
+        for kk in 0..k {
+            let brow = b_row(kk);
+            let at = m0 + kk * l.sk;
+            tile_step(&mut c, <&[R; M]>::try_from(&l.data[at..at + M]).expect("tile rows"), &brow);
+        }
+    } else {
+        let rows: [usize; M] = std::array::from_fn(|i| (m0 + i.min(mr - 1)) * l.sm);
+        for kk in 0..k {
+            let brow = b_row(kk);
+            tile_step(&mut c, &std::array::from_fn(|i| l.data[rows[i] + kk * l.sk]), &brow);
         }
     }
     *acc = c;
+}
+
+/// One step of a tile: `c[i][j] += x[i] · b[j]`.
+#[inline(always)]
+fn tile_step<R: Real, const M: usize, const W: usize>(c: &mut [[R; W]; M], x: &[R; M], b: &[R; W]) {
+    for i in 0..M {
+        for j in 0..W {
+            c[i][j] = x[i].mul_add(b[j], c[i][j]);
+        }
+    }
 }
 
 /// What a tile adds to its accumulators: `acc[i][0..W] += Σₖ L(m0 + i, k) · B[k][n0..n0 + W]`
@@ -391,9 +474,15 @@ mod tests {
         let (m, n, k) = (11usize, 48usize, 7usize);
         let lv: Vec<f64> = (0..m * k).map(|i| ((i * 37) % 17) as f64 - 8.0).collect();
         let b: Vec<f64> = (0..k * n).map(|i| ((i * 13) % 11) as f64 * 0.5 - 2.0).collect();
-        // L row-major (sm = k, sk = 1) and column-major (sm = 1, sk = m).
+        // L row-major (sm = k, sk = 1), column-major (sm = 1, sk = m), and neither (every other
+        // value of rows of 2k): the tile's three ways of reading it, full tiles and the last.
         let lt: Vec<f64> = (0..k * m).map(|i| lv[(i % m) * k + i / m]).collect();
-        for (l, accumulate) in [(Strided { data: &lv[..], sm: k, sk: 1 }, false), (Strided { data: &lt[..], sm: 1, sk: m }, true)] {
+        let lw: Vec<f64> = (0..2 * k * m).map(|i| if i % 2 == 0 { lv[i / 2] } else { f64::NAN }).collect();
+        for (l, accumulate) in [
+            (Strided { data: &lv[..], sm: k, sk: 1 }, false),
+            (Strided { data: &lt[..], sm: 1, sk: m }, true),
+            (Strided { data: &lw[..], sm: 2 * k, sk: 2 }, false),
+        ] {
             // The wide tile (AVX-512), the narrow one (else), and whichever this CPU chooses.
             for shape in 0..3 {
                 let mut c = vec![1.0f64; m * n];

@@ -1,6 +1,6 @@
 //! Helpers shared by the gradient checks: a module's finite-difference check, random
-//! parameters, a loss on the samples that touches what the surface losses touch, and a small
-//! hash-grid pipeline with rays through it.
+//! parameters, a loss on the samples that touches what the surface losses touch, a small
+//! hash-grid pipeline with rays through it, and rays through the default preset's sphere.
 #![allow(dead_code)] // each test crate uses a subset
 
 use rand::{RngExt, SeedableRng, rngs::Xoshiro256PlusPlus};
@@ -144,4 +144,22 @@ pub fn pipeline_gradient_error<S: DeferringModule<f64>, C: Module<f64>>(pipeline
         worst = worst.max(rel);
     }
     worst
+}
+
+/// `n_rays` rays from a circle of radius 3 towards the axis, each with `n_samples` intervals
+/// over depths 2 … 4 (through the preset's initial sphere) and a constant target.
+pub fn rays_through_the_sphere<R: Real>(n_rays: usize, n_samples: usize) -> Vec<RayInput<R>> {
+    (0..n_rays)
+        .map(|r| {
+            let a = r as f64 * 0.05;
+            RayInput {
+                origin: [R::of(3.0 * a.cos()), R::of(3.0 * a.sin()), R::of(0.3)],
+                direction: [R::of(-a.cos()), R::of(-a.sin()), R::of(-0.1)],
+                depths: (0..=n_samples).map(|i| R::of(2.0 + 2.0 * i as f64 / n_samples as f64)).collect(),
+                target: [R::of(0.5), R::of(0.4), R::of(0.3)],
+                mask: Some(R::ONE),
+                weight: R::ONE,
+            }
+        })
+        .collect()
 }

@@ -383,8 +383,19 @@ fn corner_gradients<R: Real, const DENSE: bool>(p: &[R], n: u32, mask: u32) -> (
     (idx, w, dw)
 }
 
-/// Rows per block of [`level_features_jacobian`]: one AVX-512 register of f32.
+/// Rows per block of [`level_features_jacobian`] and [`level_input_adjoint`]: one AVX-512
+/// register of f32.
 const JACOBIAN_BLOCK: usize = 16;
+
+/// The points of a block of at most `B` rows (rows × 3), as `B` rows: the last repeated.
+#[inline(always)]
+fn block_points<R: Real, const B: usize>(points: &[R]) -> [[R; 3]; B] {
+    let rows = points.len() / 3;
+    std::array::from_fn(|i| {
+        let from = 3 * i.min(rows - 1);
+        [points[from], points[from + 1], points[from + 2]]
+    })
+}
 
 /// One level's features (rows × F into `out`, as [`level_features`], to the same bits) and
 /// their Jacobian: ∂y_(at+q)/∂x_d at `(r · n_out + at + q) · 3 + d` of `jacobian` (rows × n_out ×
@@ -408,12 +419,7 @@ fn level_features_jacobian<R: Real, const F: usize, const DENSE: bool>(
 ) {
     const B: usize = JACOBIAN_BLOCK;
     for ((points, o), jac) in input.chunks(3 * B).zip(out.chunks_mut(F * B)).zip(jacobian.chunks_mut(3 * n_out * B)) {
-        let rows = points.len() / 3;
-        let mut p = [[R::ZERO; 3]; B];
-        for (i, row) in p.iter_mut().enumerate() {
-            let from = 3 * i.min(rows - 1);
-            row.copy_from_slice(&points[from..from + 3]);
-        }
+        let p = block_points::<R, B>(points);
         let mut acc = [[R::ZERO; B]; F];
         let mut grad = [[[R::ZERO; B]; 3]; F];
         for i in 0..B {
@@ -501,7 +507,9 @@ fn level_tangent_scatter<R: Real, const F: usize, const DENSE: bool>(
 }
 
 /// One level's share of the input's adjoint for every row: `d_input` (rows × 3) += Σ_c (T\[c\] ·
-/// ȳ) ∇ₓw_c, ȳ the level's columns `at..at + F` of `d_output` (rows × `n_out`).
+/// ȳ) ∇ₓw_c, ȳ the level's columns `at..at + F` of `d_output` (rows × `n_out`). In blocks of
+/// [`JACOBIAN_BLOCK`] rows, as [`level_features_jacobian`] and for the same reason (a render's
+/// normal).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn level_input_adjoint<R: Real, const F: usize, const DENSE: bool>(
@@ -514,20 +522,31 @@ fn level_input_adjoint<R: Real, const F: usize, const DENSE: bool>(
     at: usize,
     d_input: &mut [R],
 ) {
-    for ((p, dy), d_in) in input.chunks_exact(3).zip(d_output.chunks_exact(n_out)).zip(d_input.chunks_exact_mut(3)) {
-        let (idx, _, dw) = corner_gradients::<R, DENSE>(p, n, mask);
-        let mut g = [R::ZERO; 3];
-        for c in 0..8 {
-            let mut s = R::ZERO;
-            for q in 0..F {
-                s = table.get(idx[c] as usize * F + q).copied().unwrap_or(R::ZERO).mul_add(dy[at + q], s);
-            }
-            for d in 0..3 {
-                g[d] = s.mul_add(dw[c][d], g[d]);
+    const B: usize = JACOBIAN_BLOCK;
+    for ((points, dy), d_in) in input.chunks(3 * B).zip(d_output.chunks(n_out * B)).zip(d_input.chunks_mut(3 * B)) {
+        let p = block_points::<R, B>(points);
+        let rows = points.len() / 3;
+        let dy: [[R; F]; B] = std::array::from_fn(|i| {
+            let from = n_out * i.min(rows - 1) + at;
+            std::array::from_fn(|q| dy[from + q])
+        });
+        let mut g = [[R::ZERO; B]; 3];
+        for i in 0..B {
+            let (idx, _, dw) = corner_gradients::<R, DENSE>(&p[i], n, mask);
+            for c in 0..8 {
+                let mut s = R::ZERO;
+                for q in 0..F {
+                    s = table.get(idx[c] as usize * F + q).copied().unwrap_or(R::ZERO).mul_add(dy[i][q], s);
+                }
+                for d in 0..3 {
+                    g[d][i] = s.mul_add(dw[c][d], g[d][i]);
+                }
             }
         }
-        for d in 0..3 {
-            d_in[d] += g[d];
+        for (i, d_in) in d_in.chunks_exact_mut(3).enumerate() {
+            for d in 0..3 {
+                d_in[d] += g[d][i];
+            }
         }
     }
 }

@@ -224,22 +224,12 @@ impl<R: Real, M: Module<R>> Module<R> for WithInput<M> {
         self.join(input, enc_out, output);
     }
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
-        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
-        let rows = input.len() / n_in;
-        let n_out = n_in + n_enc;
-        let enc_ctx = &ctx[..rows * self.encoding.ctx_per_row()];
-        let mut d_enc = crate::scratch::Buf::<R>::zeroed(rows * n_enc);
-        for (dst, src) in d_enc.chunks_exact_mut(n_enc).zip(d_output.chunks_exact(n_out)) {
-            dst.copy_from_slice(&src[n_in..]);
-        }
+        let enc_ctx = &ctx[..input.len() / self.encoding.n_inputs() * self.encoding.ctx_per_row()];
+        let d_enc = self.encoding_columns(d_output);
         match d_input {
             Some(d_in) => {
                 self.encoding.backward(params, input, enc_ctx, &d_enc, d_params, Some(&mut *d_in));
-                for r in 0..rows {
-                    for k in 0..n_in {
-                        d_in[r * n_in + k] += d_output[r * n_out + k];
-                    }
-                }
+                self.add_pass_through(d_output, d_in);
             }
             None => self.encoding.backward(params, input, enc_ctx, &d_enc, d_params, None),
         }
@@ -263,21 +253,30 @@ impl<R: Real, M: ScatterGradient<R>> ScatterGradient<R> for WithInput<M> {
 }
 
 impl<M> WithInput<M> {
-    /// `x̄ = ȳ[..n_in] + (∂m/∂x)ᵀ ȳ[n_in..]`, the encoding's share by `encoding(ȳ[n_in..], x̄)`.
-    fn input_gradient_by<R: Real>(&self, d_output: &[R], d_input: &mut [R], encoding: impl FnOnce(&[R], &mut [R]))
+    /// The encoding's columns of output adjoints `d` (rows × (n_in + n_enc)): rows × n_enc.
+    fn encoding_columns<R: Real>(&self, d: &[R]) -> crate::scratch::Buf<R>
     where
         M: Module<R>,
     {
         let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
         let n_out = n_in + n_enc;
-        let mut d_enc = crate::scratch::Buf::<R>::to_overwrite(d_input.len() / n_in * n_enc);
-        for (dst, src) in d_enc.chunks_exact_mut(n_enc).zip(d_output.chunks_exact(n_out)) {
+        let mut e = crate::scratch::Buf::<R>::to_overwrite(d.len() / n_out * n_enc);
+        for (dst, src) in e.chunks_exact_mut(n_enc).zip(d.chunks_exact(n_out)) {
             dst.copy_from_slice(&src[n_in..]);
         }
-        encoding(&d_enc, d_input);
-        for (d_in, dy) in d_input.chunks_exact_mut(n_in).zip(d_output.chunks_exact(n_out)) {
-            for (d, &g) in d_in.iter_mut().zip(&dy[..n_in]) {
-                *d += g;
+        e
+    }
+
+    /// Adds the raw input's columns of output adjoints `d` (rows × (n_in + n_enc)) to the input's
+    /// adjoint `d_input` (rows × n_in): the pass-through's share, `x̄ += ȳ[..n_in]`.
+    fn add_pass_through<R: Real>(&self, d: &[R], d_input: &mut [R])
+    where
+        M: Module<R>,
+    {
+        let n_in = self.encoding.n_inputs();
+        for (d_in, dy) in d_input.chunks_exact_mut(n_in).zip(d.chunks_exact(n_in + self.encoding.n_outputs())) {
+            for (x, &g) in d_in.iter_mut().zip(&dy[..n_in]) {
+                *x += g;
             }
         }
     }
@@ -321,28 +320,14 @@ impl<R: Real, M: TangentModule<R>> TangentModule<R> for WithInput<M> {
     }
     fn backward_tangent(&self, pass: TangentAdjoints<'_, R>, d_params: &mut [R], d_input: Option<(&mut [R], &mut [R])>) {
         let TangentAdjoints { params, input, ctx, tangent_in, d_output, d_tangent_out } = pass;
-        let (n_in, n_enc) = (self.encoding.n_inputs(), self.encoding.n_outputs());
-        let rows = input.len() / n_in;
-        let n_out = n_in + n_enc;
-        let strip = |d: &[R]| {
-            let mut e = crate::scratch::Buf::<R>::zeroed(rows * n_enc);
-            for (dst, src) in e.chunks_exact_mut(n_enc).zip(d.chunks_exact(n_out)) {
-                dst.copy_from_slice(&src[n_in..]);
-            }
-            e
-        };
-        let (d_enc, d_enc_tangent) = (strip(d_output), strip(d_tangent_out));
-        let enc_ctx = &ctx[..rows * self.encoding.tangent_ctx_per_row()];
+        let (d_enc, d_enc_tangent) = (self.encoding_columns(d_output), self.encoding_columns(d_tangent_out));
+        let enc_ctx = &ctx[..input.len() / self.encoding.n_inputs() * self.encoding.tangent_ctx_per_row()];
         let inner = TangentAdjoints { params, input, ctx: enc_ctx, tangent_in, d_output: &d_enc, d_tangent_out: &d_enc_tangent };
         match d_input {
             Some((d_in, d_in_tangent)) => {
                 self.encoding.backward_tangent(inner, d_params, Some((&mut *d_in, &mut *d_in_tangent)));
-                for r in 0..rows {
-                    for q in 0..n_in {
-                        d_in[r * n_in + q] += d_output[r * n_out + q];
-                        d_in_tangent[r * n_in + q] += d_tangent_out[r * n_out + q];
-                    }
-                }
+                self.add_pass_through(d_output, d_in);
+                self.add_pass_through(d_tangent_out, d_in_tangent);
             }
             None => self.encoding.backward_tangent(inner, d_params, None),
         }
@@ -350,11 +335,13 @@ impl<R: Real, M: TangentModule<R>> TangentModule<R> for WithInput<M> {
     /// `x̄ = ȳ[..n_in] + (∂m/∂x)ᵀ ȳ[n_in..]`.
     fn input_gradient(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
         let enc_ctx = &ctx[..input.len() / self.encoding.n_inputs() * self.encoding.tangent_ctx_per_row()];
-        self.input_gradient_by(d_output, d_input, |d_enc, d_input| self.encoding.input_gradient(params, input, enc_ctx, d_enc, d_input));
+        self.encoding.input_gradient(params, input, enc_ctx, &self.encoding_columns(d_output), d_input);
+        self.add_pass_through(d_output, d_input);
     }
     fn input_gradient_of_forward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_input: &mut [R]) {
         let enc_ctx = &ctx[..input.len() / self.encoding.n_inputs() * self.encoding.ctx_per_row()];
-        self.input_gradient_by(d_output, d_input, |d_enc, d_input| self.encoding.input_gradient_of_forward(params, input, enc_ctx, d_enc, d_input));
+        self.encoding.input_gradient_of_forward(params, input, enc_ctx, &self.encoding_columns(d_output), d_input);
+        self.add_pass_through(d_output, d_input);
     }
 }
 

@@ -156,16 +156,12 @@ pub(super) fn sdf_forward<S: Module<R>, R: Real>(
             let gradients = sdf_gradients(fns.input_gradient, sdf, p_sdf, points, &ctx);
             (ctx, Some(gradients))
         }
-        Some((fns, Tangents::Found)) => {
+        // The plain forward; with analytic normals found from its context.
+        found => {
             let mut ctx = Buf::<R>::to_overwrite(rows * sdf.ctx_per_row());
             sdf.forward(p_sdf, points, out, &mut ctx);
-            let gradients = sdf_gradients(fns.input_gradient_of_forward, sdf, p_sdf, points, &ctx);
-            (ctx, Some(gradients))
-        }
-        None => {
-            let mut ctx = Buf::<R>::to_overwrite(rows * sdf.ctx_per_row());
-            sdf.forward(p_sdf, points, out, &mut ctx);
-            (ctx, None)
+            let gradients = found.map(|(fns, _)| sdf_gradients(fns.input_gradient_of_forward, sdf, p_sdf, points, &ctx));
+            (ctx, gradients)
         }
     }
 }

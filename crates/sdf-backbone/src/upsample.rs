@@ -17,7 +17,7 @@
 
 use crate::module::Module;
 use crate::pipeline::{Pipeline, RayInput};
-use crate::render::{merge_sorted, sample_intervals, weights_into};
+use crate::render::{merge_sorted, render_weights_into, sample_intervals, weights_into};
 use crate::scratch::Buf;
 
 /// `a` and `b` (sorted depths, each with its values) merged as [`merge_sorted`] merges them, the
@@ -60,8 +60,9 @@ fn ray_sdf<S: Module<f32>>(net: &S, params: &[f32], ray: &RayInput<f32>, depths:
     chunk_sdf(net, params, std::slice::from_ref(ray), &[depths]).remove(0)
 }
 
-/// Up-samples a chunk of rays (one forward pass per round over all of them); with `keep`,
-/// returns the SDF at each ray's final depths.
+/// Up-samples a chunk of rays (one forward pass per round over all of them); with `keep` (a
+/// render), weighs intervals by [`render_weights_into`] and returns the SDF at each ray's final
+/// depths; without (training), weighs them by [`weights_into`].
 fn upsample_chunk<S: Module<f32>>(
     net: &S,
     params: &[f32],
@@ -81,7 +82,16 @@ fn upsample_chunk<S: Module<f32>>(
     for round in 0..rounds {
         let k = n_fine / rounds + usize::from(round < n_fine % rounds);
         let s = (base_s * f64::from(1u32 << round.min(30))) as f32;
-        let new: Vec<Vec<f32>> = rays.iter().zip(&sdf).map(|(ray, sdf)| sample_intervals(&ray.depths, &interval_weights(sdf, s), k)).collect();
+        let mut weights = Vec::new();
+        let mut placed = |depths: &[f32], sdf: &[f32]| {
+            if keep {
+                render_weights_into(sdf, s, &mut weights)
+            } else {
+                weights_into(sdf, s, &mut weights)
+            }
+            sample_intervals(depths, &weights, k)
+        };
+        let new: Vec<Vec<f32>> = rays.iter().zip(&sdf).map(|(ray, sdf)| placed(&ray.depths, sdf)).collect();
         if round + 1 == rounds && !keep {
             for (ray, new) in rays.iter_mut().zip(&new) {
                 ray.depths = merge_sorted(&ray.depths, new);
@@ -183,15 +193,17 @@ pub fn interval_weights(sdf: &[f32], s: f32) -> Vec<f32> {
 }
 
 /// Trims a render's ray (`depths` with the SDF `sdf` at each, rendered at scale `s`) to the
-/// contiguous intervals outside which the weights sum to at most `negligible` on each side (at
-/// least one interval: a ray that carries no weight keeps its last), the values with their
-/// depths. Returns how many depths were dropped. See the module docs for what this preserves.
+/// contiguous intervals outside which the weights ([`render_weights_into`]) sum to at most
+/// `negligible` on each side (at least one interval: a ray that carries no weight keeps its
+/// last), the values with their depths. Returns how many depths were dropped. See the module
+/// docs for what this preserves.
 pub fn trim_to_weight(depths: &mut Vec<f32>, sdf: &mut Vec<f32>, s: f32, negligible: f32) -> usize {
     let n = depths.len();
     if n < 3 || sdf.len() != n {
         return 0;
     }
-    let weights = interval_weights(sdf, s);
+    let mut weights = Vec::with_capacity(n - 1);
+    render_weights_into(sdf, s, &mut weights);
     let mut first = 0;
     let mut before = 0.0f32;
     while first < weights.len() && before + weights[first] <= negligible {
@@ -292,16 +304,22 @@ mod tests {
         let mut kept = rays.clone();
         let values: Vec<Vec<f32>> =
             kept.chunks_mut(CHUNK).flat_map(|c| upsample_chunk(&backbone.sdf, &params, c, n_fine, rounds, base_s, true)).collect();
-        for (ray, (a, (b, v))) in rays.iter().zip(new.iter().zip(kept.iter().zip(&values))) {
+        // Training weighs by `weights_into`, a render by `render_weights_into`.
+        let reference = |ray: &RayInput<f32>, weigh: fn(&[f32], f32, &mut Vec<f32>)| {
             let mut depths = ray.depths.clone();
             for round in 0..rounds {
                 let k = n_fine / rounds;
                 let s = (base_s * f64::from(1u32 << round)) as f32;
                 let sdf = ray_sdf(&backbone.sdf, &params, ray, &depths);
-                let placed = sample_intervals(&depths, &interval_weights(&sdf, s), k);
-                depths = merge_sorted(&depths, &placed);
+                let mut weights = Vec::new();
+                weigh(&sdf, s, &mut weights);
+                depths = merge_sorted(&depths, &sample_intervals(&depths, &weights, k));
             }
-            assert_eq!(a.depths, depths);
+            depths
+        };
+        for (ray, (a, (b, v))) in rays.iter().zip(new.iter().zip(kept.iter().zip(&values))) {
+            assert_eq!(a.depths, reference(ray, weights_into));
+            let depths = reference(ray, render_weights_into);
             assert_eq!(b.depths, depths);
             assert_eq!(*v, ray_sdf(&backbone.sdf, &params, ray, &depths));
         }

@@ -21,7 +21,7 @@ use super::{Pipeline, RayInput, RayOutput, scale_from_variance};
 use crate::encoding::SphericalHarmonics;
 use crate::module::Module;
 use crate::real::Real;
-use crate::render::weights_into;
+use crate::render::render_weights_into;
 use crate::scratch::Buf;
 
 /// A kept interval: its ray, its index on the ray, its weight.
@@ -52,7 +52,7 @@ impl<S, C> Pipeline<S, C> {
         let mut weights = Vec::new();
         for (r, (ray, values)) in rays.iter().zip(sdf).enumerate() {
             assert_eq!(ray.depths.len(), values.len(), "render_known: ray {r} has {} depths and {} SDF values", ray.depths.len(), values.len());
-            weights_into(values, s, &mut weights);
+            render_weights_into(values, s, &mut weights);
             let cut = negligible / R::of(weights.len().max(1) as f64);
             let (mut opacity, mut depth) = (R::ZERO, R::ZERO);
             for (i, &w) in weights.iter().enumerate() {

@@ -354,17 +354,29 @@ fn child_figures(preset: Preset, reps: usize, gemm_best: f64) -> Result<Vec<Valu
     String::from_utf8_lossy(&out.stdout).lines().map(|l| serde_json::from_str(l).with_context(|| format!("child output {l:?}"))).collect()
 }
 
-/// The peer's figures (`scripts/torch_peer.py`), with glibc's allocator tuned as its docs ask,
-/// on the instruction set our kernels are limited to (`--isa`).
+/// The peer's script, `scripts/torch_peer.py` of the repository this xtask was built from
+/// (whatever the working directory), checked to exist.
+fn peer_script() -> Result<PathBuf> {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/torch_peer.py");
+    if !script.is_file() {
+        bail!("the PyTorch peer's script {} is missing (it ships with the repository this xtask was built from)", script.display());
+    }
+    Ok(script)
+}
+
+/// The peer's figures ([`peer_script`]), with glibc's allocator tuned as its docs ask, on the
+/// instruction set our kernels are limited to (`--isa`).
 fn peer_figures(python: &Path, rays: usize, samples: usize) -> Result<Vec<Value>> {
     let threads = rayon::current_num_threads().to_string();
+    let script = peer_script()?;
     let out = std::process::Command::new(python)
-        .args(["scripts/torch_peer.py", "--threads", &threads, "--rays", &rays.to_string(), "--samples", &samples.to_string(), "--no-check"])
+        .arg(&script)
+        .args(["--threads", &threads, "--rays", &rays.to_string(), "--samples", &samples.to_string(), "--no-check"])
         .env("MALLOC_MMAP_MAX_", "0")
         .env("MALLOC_TRIM_THRESHOLD_", "100000000000")
         .envs(crate::machine::peer_instruction_set_env())
         .output()
-        .with_context(|| format!("running {} scripts/torch_peer.py (pip install torch numpy)", python.display()))?;
+        .with_context(|| format!("running {} {} (pip install torch numpy)", python.display(), script.display()))?;
     if !out.status.success() {
         bail!("the peer failed: {}", String::from_utf8_lossy(&out.stderr));
     }
@@ -416,6 +428,9 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
             println!("{f}");
         }
         return Ok(());
+    }
+    if args.peer.is_some() {
+        peer_script()?; // before the presets' minutes, not after
     }
     let threads = rayon::current_num_threads();
     let rates = gemm_rates();

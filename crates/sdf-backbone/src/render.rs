@@ -45,11 +45,11 @@ fn neg_log_phi<R: Real>(s: R, value: R) -> R {
 
 /// The ratio r = Φ(b)/Φ(a) = exp(ln Φ(b) − ln Φ(a)) of an interval from its two ends'
 /// [`neg_log_phi`]: αᵢ = 1 − r, ∂α/∂a = r σ(−a), ∂α/∂b = −r σ(−b) (a = sSᵢ, b = sSᵢ₊₁); `None`
-/// where Φ(b) ≥ Φ(a), α clamped to 0 with both derivatives.
+/// where Φ(b) ≥ Φ(a), α clamped to 0 with both derivatives. NaN stays NaN (not clamped).
 #[inline]
 fn phi_ratio<R: Real>(neg_log_phi_a: R, neg_log_phi_b: R) -> Option<R> {
     let log_ratio = neg_log_phi_a - neg_log_phi_b; // ln(Φ(b)/Φ(a))
-    (log_ratio < R::ZERO).then(|| log_ratio.exp())
+    (!(log_ratio >= R::ZERO)).then(|| log_ratio.exp())
 }
 
 /// The opacities αᵢ of the intervals between `sdf`'s values at scale `s`, passed to `each` in
@@ -108,7 +108,8 @@ fn fast_neg_log_phi(s: f32, value: f32) -> f32 {
     (-(s * value)).softplus_with_derivative(1.0).0
 }
 
-/// αᵢ = 1 − Φ(b)/Φ(a) of every interval between `sdf`'s values (0 where Φ(b) ≥ Φ(a)), by
+/// αᵢ = 1 − Φ(b)/Φ(a) of every interval between `sdf`'s values (0 where Φ(b) ≥ Φ(a), NaN where
+/// a value is NaN, as in [`weights_into`]: a broken model must not render as a plausible one), by
 /// polynomials and selects only, so that the loop vectorises; each value's softplus is computed
 /// for both its intervals (cheaper than a pass to store it, once eight lanes share the work).
 #[inline(always)]
@@ -116,7 +117,14 @@ fn fast_alphas(sdf: &[f32], s: f32, alphas: &mut [f32]) {
     for ((alpha, &a), &b) in alphas.iter_mut().zip(sdf).zip(&sdf[1..]) {
         let log_ratio = fast_neg_log_phi(s, a) - fast_neg_log_phi(s, b);
         let ratio = exp_nonpositive_f32(log_ratio.min(0.0));
-        *alpha = if log_ratio < 0.0 { 1.0 - ratio } else { 0.0 };
+        // The polynomial softplus maps NaN to a number (its `max` drops NaN): ask the values.
+        *alpha = if a.is_nan() || b.is_nan() {
+            f32::NAN
+        } else if log_ratio < 0.0 {
+            1.0 - ratio
+        } else {
+            0.0
+        };
     }
 }
 
@@ -301,6 +309,15 @@ mod tests {
             }
         }
         assert!(worst.0 <= 1e-6, "the render's weights differ from the exact f64 ones by {:e} (the exact f32 ones by {:e})", worst.0, worst.1);
+        // A NaN value poisons its intervals and those behind them, in both (a broken model must
+        // not render, nor train, as a plausible one).
+        let sdf = [0.5f32, 0.2, f32::NAN, -0.1, -0.3];
+        let (mut fast, mut exact) = (Vec::new(), Vec::new());
+        render_weights_into(&sdf, 64.0, &mut fast);
+        weights_into(&sdf, 64.0, &mut exact);
+        let nan = |w: &[f32]| w.iter().map(|v| v.is_nan()).collect::<Vec<_>>();
+        assert_eq!(nan(&fast), [false, true, true, true]);
+        assert_eq!(nan(&fast), nan(&exact));
     }
 
     /// Each value's softplus is computed once for its two intervals: every α must still be its

@@ -111,7 +111,8 @@ fn fast_neg_log_phi(s: f32, value: f32) -> f32 {
 /// αᵢ = 1 − Φ(b)/Φ(a) of every interval between `sdf`'s values (0 where Φ(b) ≥ Φ(a), NaN where
 /// a value is NaN, as in [`weights_into`]: a broken model must not render as a plausible one), by
 /// polynomials and selects only, so that the loop vectorises; each value's softplus is computed
-/// for both its intervals (cheaper than a pass to store it, once eight lanes share the work).
+/// for both its intervals, with no buffer to store it (which of the two is faster was not
+/// measured).
 #[inline(always)]
 fn fast_alphas(sdf: &[f32], s: f32, alphas: &mut [f32]) {
     for ((alpha, &a), &b) in alphas.iter_mut().zip(sdf).zip(&sdf[1..]) {

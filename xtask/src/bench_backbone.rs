@@ -364,13 +364,12 @@ fn peer_script() -> Result<PathBuf> {
     Ok(script)
 }
 
-/// The peer's figures ([`peer_script`]), with glibc's allocator tuned as its docs ask, on the
-/// instruction set our kernels are limited to (`--isa`).
-fn peer_figures(python: &Path, rays: usize, samples: usize) -> Result<Vec<Value>> {
+/// The peer's figures (`script`: [`peer_script`]), with glibc's allocator tuned as its docs ask,
+/// on the instruction set our kernels are limited to (`--isa`).
+fn peer_figures(python: &Path, script: &Path, rays: usize, samples: usize) -> Result<Vec<Value>> {
     let threads = rayon::current_num_threads().to_string();
-    let script = peer_script()?;
     let out = std::process::Command::new(python)
-        .arg(&script)
+        .arg(script)
         .args(["--threads", &threads, "--rays", &rays.to_string(), "--samples", &samples.to_string(), "--no-check"])
         .env("MALLOC_MMAP_MAX_", "0")
         .env("MALLOC_TRIM_THRESHOLD_", "100000000000")
@@ -429,9 +428,8 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
         }
         return Ok(());
     }
-    if args.peer.is_some() {
-        peer_script()?; // before the presets' minutes, not after
-    }
+    // Found before the presets' minutes, not after.
+    let peer = args.peer.as_ref().map(|python| peer_script().map(|script| (python, script))).transpose()?;
     let threads = rayon::current_num_threads();
     let rates = gemm_rates();
     let gemm_best = rates.iter().map(|g| g.1).fold(0.0, f64::max);
@@ -479,9 +477,9 @@ pub fn run(args: &BackboneArgs) -> Result<()> {
             Err(e) => println!("| {} | error: {e:#} |", preset.name()),
         }
     }
-    if let Some(python) = &args.peer {
+    if let Some((python, script)) = peer {
         let (rays, samples) = batch_of(default_model().preset);
-        let peer = peer_figures(python, rays, samples)?;
+        let peer = peer_figures(python, &script, rays, samples)?;
         // Our default step again after the peer, so that both sides see the same machine state.
         if let Ok(figures) = child_figures(default_model().preset, args.reps, gemm_best) {
             default_steps.extend(figures.iter().filter(|f| f["default"] == true).map(|f| number(f, "step_s")));

@@ -224,7 +224,11 @@ fn softplus_f32(z: f32, beta: f32) -> (f32, f32) {
     let q = 1.0 / (one_e * two_e);
     let inv = two_e * q;
     let sig = if x > 0.0 { inv } else { e * inv };
-    ((x.max(0.0) + ln_1p_by_atanh(e * one_e * q)) * beta.recip(), sig)
+    // Not `x.max(0.0)`: `max` drops a NaN, and the polynomial makes a number of a NaN's e, so a
+    // NaN pre-activation would come out ≈ 0 and a broken model would train on silently. The
+    // select keeps it NaN at the same cost, and the same bits for every other x.
+    let positive = if x < 0.0 { 0.0 } else { x };
+    ((positive + ln_1p_by_atanh(e * one_e * q)) * beta.recip(), sig)
 }
 
 /// Dispatches [`Real::softplus_with_derivative`] to the precision's implementation.
@@ -251,6 +255,17 @@ fn softplus_impl<T: SoftplusImpl>(z: T, beta: T) -> (T, T) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn nan_pre_activation_gives_a_nan_softplus() {
+        for beta in [1.0f32, 100.0] {
+            assert!(softplus_f32(f32::NAN, beta).0.is_nan(), "f32, β = {beta}");
+            assert!(softplus_f64(f64::NAN, f64::from(beta)).0.is_nan(), "f64, β = {beta}");
+        }
+        // The select changes no other value: −0 and the flush region as before.
+        assert_eq!(softplus_f32(-0.0, 100.0), softplus_f32(0.0, 100.0));
+        assert_eq!(softplus_f32(-1.0, 100.0), (0.0, 0.0));
+    }
 
     #[test]
     fn fast_f32_softplus_matches_f64_to_a_millionth() {

@@ -83,12 +83,12 @@ pub fn weights_into<R: Real>(sdf: &[R], s: R, weights: &mut Vec<R>) {
 /// [`weights_into`] itself. Training (the loss's [`render_ray`], its up-sampling) keeps
 /// [`weights_into`]'s arithmetic: renders change no bit of it.
 pub fn render_weights_into<R: Real>(sdf: &[R], s: R, weights: &mut Vec<R>) {
-    if R::f32s(sdf).is_none() {
+    let Some(values) = R::f32s(sdf) else {
         return weights_into(sdf, s, weights);
-    }
+    };
     weights.clear();
     weights.resize(sdf.len().saturating_sub(1), R::ZERO);
-    let (Some(values), Some(alphas)) = (R::f32s(sdf), R::f32s_mut(weights)) else { unreachable!("R is f32") };
+    let alphas = R::f32s_mut(weights).expect("R is f32, as the values are");
     let s = s.to_f64() as f32;
     crate::kernels::dispatch(
         #[inline(always)]
@@ -118,7 +118,7 @@ fn fast_alphas(sdf: &[f32], s: f32, alphas: &mut [f32]) {
     for ((alpha, &a), &b) in alphas.iter_mut().zip(sdf).zip(&sdf[1..]) {
         let log_ratio = fast_neg_log_phi(s, a) - fast_neg_log_phi(s, b);
         let ratio = exp_nonpositive_f32(log_ratio.min(0.0));
-        // The polynomial softplus maps NaN to a number (its `max` drops NaN): ask the values.
+        // `min` above drops a NaN log ratio: ask the values.
         *alpha = if a.is_nan() || b.is_nan() {
             f32::NAN
         } else if log_ratio < 0.0 {

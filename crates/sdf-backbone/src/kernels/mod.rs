@@ -4,9 +4,12 @@
 //! LLVM vectorises them: register tiles of `M` rows × `W` columns (`W` a multiple of 16 floats),
 //! column counts padded to a multiple of [`LANE`] (zeros in the padding), fused multiply-adds.
 //! The tile's accumulators must fit the register file, so its shape follows the CPU
-//! ([`wide_tiles`]): 4 × 64 with AVX-512 (16 of its 32 zmm registers), 3 × 32 otherwise (12 of
-//! AVX2's 16 ymm registers; the 4 × 64 tile spills there: the layer-shaped product ran at 0.4× —
-//! BENCHMARKS.md, "On an AVX2 CPU").
+//! ([`wide_tiles`]): 4 × 64 with AVX-512 (16 of its 32 zmm registers), 6 × 16 otherwise (12 of
+//! AVX2's 16 ymm registers, with the two vectors of B and the broadcast: 15; the 4 × 64 tile
+//! spills there: the layer-shaped product ran at 0.4× — BENCHMARKS.md, "On an AVX2 CPU").
+//! How fast a tile runs rests on LLVM's register allocation where the kernel is instantiated,
+//! which differs from crate to crate and build to build: judge a shape by the training step and
+//! the disassembly of its loop, not by one product's rate alone (DECISIONS §50).
 //!
 //! One micro-kernel serves every product of a layer: `C[m][0..n] (+)= Σₖ L(m, k) · B[k][0..n]`
 //! with L read through strides, so that the forward pass (L = A, B = Wᵀ), the input gradient
@@ -35,14 +38,16 @@ pub const LANE: usize = 16;
 const WIDE_ROWS: usize = 4;
 /// See [`WIDE_ROWS`].
 const WIDE_WIDTH: usize = 4 * LANE;
-/// The narrow tile, [`NARROW_ROWS`] × [`NARROW_WIDTH`] (AVX2: 12 accumulators of its 16
-/// registers, four loads of B and three broadcasts of L per step). On a Zen 3, an AVX2-only CPU,
-/// it ran the products 1.13–1.17× faster than BLIS's Haswell shape, 6 × 16 (six broadcasts and
-/// two loads per step; DECISIONS §49); each output's sum runs over k in the same order in every
-/// shape, so the shape changes no bit.
-const NARROW_ROWS: usize = 3;
+/// The narrow tile, [`NARROW_ROWS`] × [`NARROW_WIDTH`]: BLIS's Haswell shape (AVX2: 12
+/// accumulators, two vectors of B and one broadcast of L live in a step, 15 of its 16 registers).
+/// 3 × 32 (§49) holds the same 12 accumulators but four vectors of B and a broadcast: 17, and
+/// LLVM kept two accumulators on the stack, stored and reloaded every step, in the training
+/// step's and the render's loops; 6 × 16 gave a Zen 3 1.04–1.20× the default run's iterations
+/// (DECISIONS §50). Each output's sum runs over k in the same order in every shape, so the shape
+/// changes no bit.
+const NARROW_ROWS: usize = 6;
 /// See [`NARROW_ROWS`].
-const NARROW_WIDTH: usize = 2 * LANE;
+const NARROW_WIDTH: usize = LANE;
 
 /// `n` rounded up to a multiple of [`LANE`].
 #[inline]
@@ -103,7 +108,7 @@ fn arch() -> Arch {
 }
 
 /// Whether [`dispatch`] runs the AVX-512 build (32 vector registers of 16 floats), so that the
-/// wide tile (4 × 64) fits in registers; else the narrow one (3 × 32). Asked of the same
+/// wide tile (4 × 64) fits in registers; else the narrow one (6 × 16). Asked of the same
 /// detection as [`dispatch`], so the tile shape and the instruction set chosen cannot disagree.
 #[inline(always)]
 pub fn wide_tiles() -> bool {
@@ -488,6 +493,37 @@ fn activate<R: Real, const W: usize>(z: &[R; W], act: Activation, scale: R, y: &
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A NaN reaching a softplus layer leaves it NaN (it once came out ≈ 0, so a broken network
+    /// trained on silently), in f32's polynomial softplus, on every row it touches and no other.
+    #[test]
+    fn a_nan_input_makes_the_softplus_layers_outputs_nan() {
+        let (rows, n_in, n_out) = (7usize, 3usize, LANE);
+        let mut a: Vec<f32> = (0..rows * n_in).map(|i| (i % 5) as f32 * 0.1 - 0.2).collect();
+        a[4 * n_in + 1] = f32::NAN;
+        let wt: Vec<f32> = (0..n_in * n_out).map(|i| (i % 7) as f32 * 0.05 - 0.1).collect();
+        let bias = vec![0.01f32; n_out];
+        let (mut y, mut d) = (vec![0.0f32; rows * n_out], vec![0.0f32; rows * n_out]);
+        let layer = Dense {
+            a: &a,
+            a_s: n_in,
+            n_in,
+            wt: &wt,
+            bias: &bias,
+            n_out_pad: n_out,
+            act: Activation::Softplus { beta: 100.0 },
+            scale: 1.0,
+            pairs: None,
+        };
+        dispatch(
+            #[inline(always)]
+            || dense_forward(&layer, &mut y, n_out, 0, &mut d, rows),
+        );
+        for (r, row) in y.chunks_exact(n_out).enumerate() {
+            assert_eq!(row.iter().all(|v| v.is_nan()), r == 4, "row {r}: {row:?}");
+            assert!(r == 4 || row.iter().all(|v| v.is_finite()), "row {r}: {row:?}");
+        }
+    }
 
     #[test]
     fn gemm_equals_the_naive_product_for_every_operand_layout() {

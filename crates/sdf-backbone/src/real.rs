@@ -164,11 +164,14 @@ fn softplus_f64(z: f64, beta: f64) -> (f64, f64) {
 /// loops vectorise): n = round(x log₂e) by adding 1.5·2²³ (which leaves n in the low mantissa
 /// bits), x = n ln 2 + r with |r| ≤ ln2/2 (Cody–Waite), e^r by a degree-6 polynomial, 2ⁿ by
 /// building the exponent bits. x below −87 is taken as −87 (e^−87 ≈ 1.6e-38, the smallest
-/// normal range: no denormals). Relative error < 2e-7.
+/// normal range: no denormals); NaN gives NaN. Relative error < 2e-7.
 #[inline(always)]
 pub fn exp_nonpositive_f32(x: f32) -> f32 {
     const MAGIC: f32 = 12_582_912.0; // 1.5 · 2²³
-    let x = x.max(-87.0);
+    // Not `x.max(-87.0)`: `max` drops a NaN, and the polynomial would make a number of −87, so a
+    // NaN (a broken model's SDF value or pre-activation) would leave the softplus and the render's
+    // opacities as plausible numbers. The select costs the same and gives every other x's bits.
+    let x = if x < -87.0 { -87.0 } else { x };
     let shifted = x.mul_add(std::f32::consts::LOG2_E, MAGIC);
     let n = shifted - MAGIC;
     let r = n.mul_add(-0.693_145_75, x);
@@ -224,11 +227,8 @@ fn softplus_f32(z: f32, beta: f32) -> (f32, f32) {
     let q = 1.0 / (one_e * two_e);
     let inv = two_e * q;
     let sig = if x > 0.0 { inv } else { e * inv };
-    // Not `x.max(0.0)`: `max` drops a NaN, and the polynomial makes a number of a NaN's e, so a
-    // NaN pre-activation would come out ≈ 0 and a broken model would train on silently. The
-    // select keeps it NaN at the same cost, and the same bits for every other x.
-    let positive = if x < 0.0 { 0.0 } else { x };
-    ((positive + ln_1p_by_atanh(e * one_e * q)) * beta.recip(), sig)
+    // A NaN x leaves e NaN ([`exp_nonpositive_f32`]), so the value and the slope are NaN too.
+    ((x.max(0.0) + ln_1p_by_atanh(e * one_e * q)) * beta.recip(), sig)
 }
 
 /// Dispatches [`Real::softplus_with_derivative`] to the precision's implementation.
@@ -258,8 +258,10 @@ mod tests {
 
     #[test]
     fn nan_pre_activation_gives_a_nan_softplus() {
+        assert!(exp_nonpositive_f32(f32::NAN).is_nan());
         for beta in [1.0f32, 100.0] {
             assert!(softplus_f32(f32::NAN, beta).0.is_nan(), "f32, β = {beta}");
+            assert!(softplus_f32(f32::NAN, beta).1.is_nan(), "f32's slope, β = {beta}");
             assert!(softplus_f64(f64::NAN, f64::from(beta)).0.is_nan(), "f64, β = {beta}");
         }
         // −0 gives +0's values, and the flushed tail exactly 0 (that no finite value's bits changed

@@ -117,15 +117,9 @@ fn fast_neg_log_phi(s: f32, value: f32) -> f32 {
 fn fast_alphas(sdf: &[f32], s: f32, alphas: &mut [f32]) {
     for ((alpha, &a), &b) in alphas.iter_mut().zip(sdf).zip(&sdf[1..]) {
         let log_ratio = fast_neg_log_phi(s, a) - fast_neg_log_phi(s, b);
-        let ratio = exp_nonpositive_f32(log_ratio.min(0.0));
-        // `min` above drops a NaN log ratio: ask the values.
-        *alpha = if a.is_nan() || b.is_nan() {
-            f32::NAN
-        } else if log_ratio < 0.0 {
-            1.0 - ratio
-        } else {
-            0.0
-        };
+        // Selects, not `min`, which would drop a NaN log ratio (a NaN value's): it stays NaN.
+        let ratio = exp_nonpositive_f32(if log_ratio > 0.0 { 0.0 } else { log_ratio });
+        *alpha = if log_ratio >= 0.0 { 0.0 } else { 1.0 - ratio };
     }
 }
 

@@ -5,6 +5,7 @@ use anyhow::{Context, Result, bail};
 use datasets::io::{PlyData, write_atomic};
 use datasets::{LoadOptions, load_scene};
 use serde_json::json;
+use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
 use trainer::evaluation::{Distances, GroundTruth, PRED_SAMPLING_SEED, Protocol, read_mesh};
 use trainer::outputs::dilate;
@@ -100,6 +101,11 @@ pub struct EvalArgs {
     /// Whether --run renders skip empty space (default: the run's `render.render_skip_empty`).
     #[arg(long, requires = "run")]
     pub render_skip_empty: Option<bool>,
+    /// Colour stride of the --run renders: the colour networks on every k-th kept interval of
+    /// a ray, the others interpolated (default: the run's `render.render_colour_stride`; 1:
+    /// every interval).
+    #[arg(long, requires = "run")]
+    pub render_colour_stride: Option<NonZeroUsize>,
     /// With --run: where the renders' CPU time goes, by stage (up-sampling, the forward pass,
     /// the modules inside them).
     #[arg(long, requires = "run")]
@@ -278,12 +284,14 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     // It writes eval.json into the run folder: not while another process trains there.
     let _lock = trainer::folder::is_run_folder(dir).then(|| trainer::folder::FolderLock::acquire(dir)).transpose()?;
     let mut trainer = open_run(dir, None)?;
-    let r = &trainer.config().render;
-    let (fine, rounds) = (args.render_fine.unwrap_or(r.render_fine), args.render_rounds.unwrap_or(r.render_upsample_rounds));
-    let trim = args.render_trim.unwrap_or(r.render_trim);
-    let skip_empty = args.render_skip_empty.unwrap_or(r.render_skip_empty);
+    trainer.set_render_sampling(|r| {
+        r.render_fine = args.render_fine.unwrap_or(r.render_fine);
+        r.render_upsample_rounds = args.render_rounds.unwrap_or(r.render_upsample_rounds);
+        r.render_trim = args.render_trim.unwrap_or(r.render_trim);
+        r.render_skip_empty = args.render_skip_empty.unwrap_or(r.render_skip_empty);
+        r.render_colour_stride = args.render_colour_stride.unwrap_or(r.render_colour_stride);
+    })?;
     let downscale = args.downscale.unwrap_or(trainer.config().output.eval_downscale);
-    trainer.set_render_upsampling(fine, rounds, trim, skip_empty)?;
     let views = trainer.split().evaluation_views();
     sdf_backbone::profile::take();
     sdf_backbone::profile::enable(args.profile);
@@ -312,9 +320,11 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
         let v: Vec<f64> = per_view.iter().filter_map(|p| p[key].as_f64()).collect();
         (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
     };
+    let r = &trainer.config().render;
     let result = json!({"run": dir.display().to_string(), "step": trainer.state().step, "views": views, "psnr": mean("psnr"),
         "psnr_masked": mean("psnr_masked"), "ssim": mean("ssim"), "per_view": per_view, "downscale": downscale,
-        "render_fine": fine, "render_upsample_rounds": rounds, "render_trim": trim, "render_skip_empty": skip_empty, "seconds": seconds, "pixels_per_s": pixels as f64 / seconds});
+        "render_fine": r.render_fine, "render_upsample_rounds": r.render_upsample_rounds, "render_trim": r.render_trim,
+        "render_skip_empty": r.render_skip_empty, "render_colour_stride": r.render_colour_stride, "seconds": seconds, "pixels_per_s": pixels as f64 / seconds});
     // A speed figure: it names the machine.
     let result = crate::machine::tag(result);
     write_atomic(&dir.join("eval.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;

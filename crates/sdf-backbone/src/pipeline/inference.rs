@@ -6,13 +6,19 @@
 //!    ray): only their colour is needed, so the SDF network runs at their first sample alone
 //!    (features and normals: analytic ones by one reverse pass from the SDF value, no tangents;
 //!    or by probes) and the colour network on those rows. The
-//!    dropped intervals' weights sum to at most `negligible` per ray.
+//!    dropped intervals' weights sum to at most `negligible` per ray. With a colour stride
+//!    k > 1, the networks run on every k-th interval of each run of consecutive kept intervals
+//!    (and its last), and the intervals between take the colour and normal on the line in depth
+//!    between the two evaluated on either side ([`colour_sources`]): a soft model keeps a
+//!    dozen or more intervals per ray, along which the colour changes little.
 //! 3. The learned background only for the rays that let more than `negligible` through.
 //! 4. Each ray composited: `colour = Σ_kept wᵢ cᵢ + (1 − O) C_bg` (the background term dropped
 //!    where 1 − O ≤ `negligible`), opacity O and depth from every interval, normal from the kept.
 //!
-//! So the colour differs from the loss pass's by at most about `2 · negligible` per channel, and
-//! with `negligible = 0` it is the loss pass's up to rounding (test): no context for a backward
+//! So with stride 1 the colour differs from the loss pass's by at most about `2 · negligible` per
+//! channel, and with `negligible = 0` it is the loss pass's up to rounding (test); a stride
+//! adds the interpolation's error, bounded by no formula (measured against stride 1 on renders:
+//! BENCHMARKS.md, "Rendering for evaluation"); opacity and depth never change: no context for a backward
 //! pass, no loss terms, no allocation per ray, and most rows of the loss pass never evaluated
 //! (a ray's last sample, the samples that carry no weight, the background of opaque rays).
 
@@ -23,8 +29,10 @@ use crate::module::Module;
 use crate::real::Real;
 use crate::render::render_weights_into;
 use crate::scratch::Buf;
+use std::num::NonZeroUsize;
 
 /// A kept interval: its ray, its index on the ray, its weight.
+#[derive(Clone, Copy)]
 struct Kept<R> {
     ray: usize,
     interval: usize,
@@ -35,8 +43,16 @@ impl<S, C> Pipeline<S, C> {
     /// Renders `rays` forward only, given `sdf[r]`, the SDF at every depth of ray r (as
     /// [`Self::upsample_for_render`] returns them), dropping per ray intervals and background that
     /// carry at most `negligible` of its colour (see the module docs; 0 drops only what carries
-    /// nothing). Sequential: callers run chunks of rays in parallel.
-    pub fn render_known<R: Real>(&self, params: &[R], rays: &[RayInput<R>], sdf: &[Vec<R>], negligible: R) -> Vec<RayOutput<R>>
+    /// nothing), the colour networks run on every `colour_stride`-th kept interval of a run (1:
+    /// every one). Sequential: callers run chunks of rays in parallel.
+    pub fn render_known<R: Real>(
+        &self,
+        params: &[R],
+        rays: &[RayInput<R>],
+        sdf: &[Vec<R>],
+        negligible: R,
+        colour_stride: NonZeroUsize,
+    ) -> Vec<RayOutput<R>>
     where
         S: Module<R>,
         C: Module<R>,
@@ -73,8 +89,16 @@ impl<S, C> Pipeline<S, C> {
                 sh
             })
             .collect();
-        let (colors, normals) = self.kept_colors(p_sdf, p_col, rays, &sh, &kept);
-        for ((k, c), n) in kept.iter().zip(colors.chunks_exact(3)).zip(&normals) {
+        let (evaluated, sources) = colour_sources(&kept, rays, colour_stride);
+        let (colors, normals) = self.kept_colors(p_sdf, p_col, rays, &sh, &evaluated);
+        for (k, source) in kept.iter().zip(&sources) {
+            let (c, n) = match *source {
+                Source::Own(e) => ([0, 1, 2].map(|j| colors[3 * e + j]), normals[e]),
+                Source::Between { lo, f } => {
+                    let lerp = |a: R, b: R| a + f * (b - a);
+                    ([0, 1, 2].map(|j| lerp(colors[3 * lo + j], colors[3 * lo + 3 + j])), [0, 1, 2].map(|j| lerp(normals[lo][j], normals[lo + 1][j])))
+                }
+            };
             let out = &mut outputs[k.ray];
             for j in 0..3 {
                 out.color[j] += k.weight * c[j];
@@ -157,5 +181,85 @@ impl<S, C> Pipeline<S, C> {
                 out.color[k] += left * c[k];
             }
         }
+    }
+}
+
+/// Where a kept interval's colour and normal come from: its own row of the networks, or the
+/// line in depth between evaluated rows `lo` and `lo + 1` of its run, a fraction `f` of the way.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Source<R> {
+    Own(usize),
+    Between { lo: usize, f: R },
+}
+
+/// The kept intervals (in ray order, as [`Pipeline::render_known`] lists them) whose colour the
+/// networks evaluate, and where each kept interval's colour comes from: in each run of
+/// consecutive intervals of a ray, every `stride`-th from its first, and its last; each other
+/// one a fraction of the way between the evaluated ones on either side, by its first sample's
+/// depth (where its colour is evaluated with stride 1). A run never reaches across a dropped
+/// interval, so no colour is drawn across empty space between two surfaces.
+fn colour_sources<R: Real>(kept: &[Kept<R>], rays: &[RayInput<R>], stride: NonZeroUsize) -> (Vec<Kept<R>>, Vec<Source<R>>) {
+    let stride = stride.get();
+    let mut evaluated = Vec::with_capacity(kept.len() / stride + 1);
+    let mut sources = Vec::with_capacity(kept.len());
+    let mut start = 0;
+    while start < kept.len() {
+        let first = kept[start];
+        let len = kept[start..].iter().enumerate().take_while(|(j, k)| k.ray == first.ray && k.interval == first.interval + j).count();
+        let depth = |q: usize| rays[first.ray].depths[first.interval + q];
+        for p in 0..len {
+            if p % stride == 0 || p + 1 == len {
+                sources.push(Source::Own(evaluated.len()));
+                evaluated.push(kept[start + p]);
+            } else {
+                // Between the last evaluated (lo, pushed) and the next (hi, pushed after this).
+                let lo = p - p % stride;
+                let hi = (lo + stride).min(len - 1);
+                sources.push(Source::Between { lo: evaluated.len() - 1, f: (depth(p) - depth(lo)) / (depth(hi) - depth(lo)) });
+            }
+        }
+        start += len;
+    }
+    (evaluated, sources)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Runs split where a ray changes or an interval is dropped; every `stride`-th of a run and
+    /// its last evaluated; the others a fraction of the way in depth between their neighbours.
+    #[test]
+    fn colour_sources_evaluate_every_strideth_interval_of_a_run_and_its_last() {
+        let ray = |depths: Vec<f64>| RayInput { origin: [0.0; 3], direction: [0.0, 0.0, 1.0], depths, target: [0.0; 3], mask: None, weight: 1.0 };
+        let rays = [ray((0..12).map(|i| f64::from(i * i)).collect()), ray((0..6).map(f64::from).collect())];
+        // Ray 0: intervals 1..=7 (a run of 7), then 9, 10 (interval 8 dropped); ray 1: 0..=2.
+        let kept: Vec<Kept<f64>> = [(0, 1), (0, 2), (0, 3), (0, 4), (0, 5), (0, 6), (0, 7), (0, 9), (0, 10), (1, 0), (1, 1), (1, 2)]
+            .map(|(ray, interval)| Kept { ray, interval, weight: 0.1 })
+            .to_vec();
+        let (evaluated, sources) = colour_sources(&kept, &rays, NonZeroUsize::new(3).unwrap());
+        let at: Vec<(usize, usize)> = evaluated.iter().map(|k| (k.ray, k.interval)).collect();
+        assert_eq!(at, [(0, 1), (0, 4), (0, 7), (0, 9), (0, 10), (1, 0), (1, 2)]);
+        use Source::{Between, Own};
+        // Ray 0's depths are i²: interval 2 lies (4 − 1)/(16 − 1) of the way from 1 to 4.
+        let want = [
+            Own(0),
+            Between { lo: 0, f: 3.0 / 15.0 },
+            Between { lo: 0, f: 8.0 / 15.0 },
+            Own(1),
+            Between { lo: 1, f: 9.0 / 33.0 },
+            Between { lo: 1, f: 20.0 / 33.0 },
+            Own(2),
+            Own(3),
+            Own(4),
+            Own(5),
+            Between { lo: 5, f: 0.5 },
+            Own(6),
+        ];
+        assert_eq!(sources, want);
+        // Stride 1: every kept interval its own.
+        let (evaluated, sources) = colour_sources(&kept, &rays, NonZeroUsize::MIN);
+        assert_eq!(evaluated.len(), kept.len());
+        assert!(sources.iter().enumerate().all(|(j, s)| *s == Own(j)));
     }
 }

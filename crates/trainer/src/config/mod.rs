@@ -278,6 +278,12 @@ pub struct RenderConfig {
     /// colour differs by at most twice this and costs a fraction of the samples (0: every
     /// sample; BENCHMARKS.md, "Rendering for evaluation").
     pub render_trim: f64,
+    /// A render's colour stride: the colour and SDF networks run on every k-th of a ray's
+    /// consecutive kept intervals (and the last), the intervals between taking the colour on the
+    /// line in depth between them (1: every interval its own; opacity and depth never change).
+    /// A soft model keeps a dozen or more intervals a ray, along which the colour changes
+    /// little (BENCHMARKS.md, "Rendering for evaluation": its cost and PSNR).
+    pub render_colour_stride: NonZeroUsize,
     /// Renders skip empty space: an occupancy of the field at the current s is built for each
     /// render, a ray's coarse samples lie in its occupied cells, and a ray that crosses none is
     /// rendered with one interval (its colour is the background's) instead of every sample.

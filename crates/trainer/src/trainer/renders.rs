@@ -22,14 +22,14 @@ const RENDER_CHUNK: usize = 64;
 pub const RENDER_BAND_RAYS: usize = 1 << 16;
 
 impl Trainer {
-    /// Sets how renders sample (`render.render_fine` in `rounds` rounds, `render.render_trim`,
-    /// `render.render_skip_empty`): what a render costs and resolves, not what the model learnt,
-    /// so a finished run can be re-rendered with others (`cargo xtask eval --run DIR
-    /// --render-fine N --render-rounds R --render-trim W --render-skip-empty B`).
-    pub fn set_render_upsampling(&mut self, fine: usize, rounds: usize, trim: f64, skip_empty: bool) -> Result<()> {
+    /// Changes how renders sample and evaluate (`render.render_fine`, `render_upsample_rounds`,
+    /// `render_trim`, `render_skip_empty`, `render_colour_stride`) by `edit`: what a render costs
+    /// and resolves, not what the model learnt, so a finished run can be re-rendered with others
+    /// (`cargo xtask eval --run DIR --render-fine N …`). The changed configuration is validated
+    /// before it is taken.
+    pub fn set_render_sampling(&mut self, edit: impl FnOnce(&mut crate::config::RenderConfig)) -> Result<()> {
         let mut config = self.config.clone();
-        let r = &mut config.render;
-        (r.render_fine, r.render_upsample_rounds, r.render_trim, r.render_skip_empty) = (fine, rounds, trim, skip_empty);
+        edit(&mut config.render);
         config.validate()?;
         self.config = config;
         Ok(())
@@ -37,14 +37,15 @@ impl Trainer {
 
     /// Renders `rays` forward only, in parallel chunks, given the SDF at every depth of every
     /// ray (`None`: evaluated here), dropping what carries at most `render.render_trim` of a
-    /// ray's colour ([`sdf_backbone::Pipeline::render_known`]).
+    /// ray's colour, the colour networks on every `render.render_colour_stride`-th kept interval
+    /// ([`sdf_backbone::Pipeline::render_known`]).
     pub fn render_rays(&self, rays: &[RayInput<f32>], sdf: Option<Vec<Vec<f32>>>) -> Vec<RayOutput<f32>> {
         let params = &self.state.params;
         let sdf = sdf.unwrap_or_else(|| self.backbone.sdf_along(params, rays));
-        let negligible = self.config.render.render_trim as f32;
+        let (negligible, stride) = (self.config.render.render_trim as f32, self.config.render.render_colour_stride);
         rays.par_chunks(RENDER_CHUNK)
             .zip(sdf.par_chunks(RENDER_CHUNK))
-            .flat_map_iter(|(rays, sdf)| self.backbone.render_known(params, rays, sdf, negligible))
+            .flat_map_iter(|(rays, sdf)| self.backbone.render_known(params, rays, sdf, negligible, stride))
             .collect()
     }
 

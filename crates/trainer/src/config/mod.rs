@@ -282,7 +282,7 @@ pub struct RenderConfig {
     /// consecutive kept intervals (and the last), the intervals between taking the colour on the
     /// line in depth between them (1: every interval its own; opacity and depth never change).
     /// A soft model keeps a dozen or more intervals a ray, along which the colour changes
-    /// little (BENCHMARKS.md, "Rendering for evaluation": its cost and PSNR).
+    /// little (docs/DECISIONS.md §51; BENCHMARKS.md, "A render's colour stride": its cost and PSNR).
     pub render_colour_stride: NonZeroUsize,
     /// Renders skip empty space: an occupancy of the field at the current s is built for each
     /// render, a ray's coarse samples lie in its occupied cells, and a ray that crosses none is

@@ -154,9 +154,10 @@ fn eval_of_a_run_reproduces_the_runs_own_psnr() {
     assert!(eval["ssim"].is_null() || eval["ssim"].as_f64().is_some_and(|s| (-1.0..=1.0).contains(&s)), "{}", eval["ssim"]);
     // The renders' up-sampling is not part of what was learnt: another one re-renders the run
     // (a changed training key would be refused).
-    let o = xtask(&["eval", "--run", out.to_str().unwrap(), "--render-fine", "4", "--render-rounds", "1", "--json"]);
+    let o = xtask(&["eval", "--run", out.to_str().unwrap(), "--render-fine", "4", "--render-rounds", "1", "--render-colour-stride", "2", "--json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let coarse: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!((coarse["render_fine"].as_u64(), coarse["render_upsample_rounds"].as_u64()), (Some(4), Some(1)), "{coarse}");
+    assert_eq!((eval["render_colour_stride"].as_u64(), coarse["render_colour_stride"].as_u64()), (Some(4), Some(2)), "the default, then the flag's");
     assert!(coarse["psnr"].as_f64().is_some_and(f64::is_finite), "{coarse}");
 }

@@ -65,8 +65,9 @@ fn the_render_pass_drops_at_most_the_negligible_weight_and_background() {
     }
 }
 
-/// A colour stride k runs the networks on every k-th kept interval: opacity and depth are those of
-/// stride 1 to the bit, and the colour and normal, interpolated between evaluated intervals along
+/// A colour stride k runs the networks on every k-th kept interval: opacity and depth stay those of
+/// stride 1 to the bit (computed before the stride applies: a guard against a later change), and
+/// the colour and normal, interpolated between evaluated intervals along
 /// each ray, stay close to stride 1's on a smooth field (and differ: something was interpolated;
 /// measured here: colour 0.8–1.4e-4, normal 0.005–0.010 off, strides 2–5).
 #[test]
@@ -86,7 +87,7 @@ fn a_colour_stride_keeps_opacity_and_depth_and_interpolates_the_colour() {
                 }
             }
             assert!(worst.0 > 0.0, "stride {stride}: no colour was interpolated");
-            assert!(worst.0 <= 1e-3 && worst.1 <= 0.03, "stride {stride}: colour off by {:e}, normal by {:e}", worst.0, worst.1);
+            assert!(worst.0 <= 3e-4 && worst.1 <= 0.02, "stride {stride}: colour off by {:e}, normal by {:e}", worst.0, worst.1);
         }
     }
 }

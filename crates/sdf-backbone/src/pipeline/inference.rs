@@ -18,7 +18,7 @@
 //! So with stride 1 the colour differs from the loss pass's by at most about `2 · negligible` per
 //! channel, and with `negligible = 0` it is the loss pass's up to rounding (test); a stride
 //! adds the interpolation's error, bounded by no formula (measured against stride 1 on renders:
-//! BENCHMARKS.md, "Rendering for evaluation"); opacity and depth never change: no context for a backward
+//! BENCHMARKS.md, "A render's colour stride (§51)"); opacity and depth never change: no context for a backward
 //! pass, no loss terms, no allocation per ray, and most rows of the loss pass never evaluated
 //! (a ray's last sample, the samples that carry no weight, the background of opaque rays).
 
@@ -32,7 +32,7 @@ use crate::scratch::Buf;
 use std::num::NonZeroUsize;
 
 /// A kept interval: its ray, its index on the ray, its weight.
-#[derive(Clone, Copy)]
+#[derive(Debug, Clone, Copy)]
 struct Kept<R> {
     ray: usize,
     interval: usize,
@@ -92,13 +92,7 @@ impl<S, C> Pipeline<S, C> {
         let (evaluated, sources) = colour_sources(&kept, rays, colour_stride);
         let (colors, normals) = self.kept_colors(p_sdf, p_col, rays, &sh, &evaluated);
         for (k, source) in kept.iter().zip(&sources) {
-            let (c, n) = match *source {
-                Source::Own(e) => ([0, 1, 2].map(|j| colors[3 * e + j]), normals[e]),
-                Source::Between { lo, f } => {
-                    let lerp = |a: R, b: R| a + f * (b - a);
-                    ([0, 1, 2].map(|j| lerp(colors[3 * lo + j], colors[3 * lo + 3 + j])), [0, 1, 2].map(|j| lerp(normals[lo][j], normals[lo + 1][j])))
-                }
-            };
+            let (c, n) = source.colour_and_normal(&colors, &normals);
             let out = &mut outputs[k.ray];
             for j in 0..3 {
                 out.color[j] += k.weight * c[j];
@@ -192,6 +186,20 @@ enum Source<R> {
     Between { lo: usize, f: R },
 }
 
+impl<R: Real> Source<R> {
+    /// The colour and normal from the evaluated rows' `colors` (rows × 3) and `normals`.
+    fn colour_and_normal(&self, colors: &[R], normals: &[[R; 3]]) -> ([R; 3], [R; 3]) {
+        match *self {
+            Source::Own(e) => ([0, 1, 2].map(|j| colors[3 * e + j]), normals[e]),
+            Source::Between { lo, f } => {
+                let lerp = |a: R, b: R| a + f * (b - a);
+                let colour = [0, 1, 2].map(|j| lerp(colors[3 * lo + j], colors[3 * (lo + 1) + j]));
+                (colour, [0, 1, 2].map(|j| lerp(normals[lo][j], normals[lo + 1][j])))
+            }
+        }
+    }
+}
+
 /// The kept intervals (in ray order, as [`Pipeline::render_known`] lists them) whose colour the
 /// networks evaluate, and where each kept interval's colour comes from: in each run of
 /// consecutive intervals of a ray, every `stride`-th from its first, and its last; each other
@@ -215,7 +223,10 @@ fn colour_sources<R: Real>(kept: &[Kept<R>], rays: &[RayInput<R>], stride: NonZe
                 // Between the last evaluated (lo, pushed) and the next (hi, pushed after this).
                 let lo = p - p % stride;
                 let hi = (lo + stride).min(len - 1);
-                sources.push(Source::Between { lo: evaluated.len() - 1, f: (depth(p) - depth(lo)) / (depth(hi) - depth(lo)) });
+                // Depths may repeat (a sample placed on another): a span of none takes lo's colour.
+                let span = depth(hi) - depth(lo);
+                let f = if span > R::ZERO { (depth(p) - depth(lo)) / span } else { R::ZERO };
+                sources.push(Source::Between { lo: evaluated.len() - 1, f });
             }
         }
         start += len;
@@ -232,14 +243,16 @@ mod tests {
     #[test]
     fn colour_sources_evaluate_every_strideth_interval_of_a_run_and_its_last() {
         let ray = |depths: Vec<f64>| RayInput { origin: [0.0; 3], direction: [0.0, 0.0, 1.0], depths, target: [0.0; 3], mask: None, weight: 1.0 };
-        let rays = [ray((0..12).map(|i| f64::from(i * i)).collect()), ray((0..6).map(f64::from).collect())];
-        // Ray 0: intervals 1..=7 (a run of 7), then 9, 10 (interval 8 dropped); ray 1: 0..=2.
-        let kept: Vec<Kept<f64>> = [(0, 1), (0, 2), (0, 3), (0, 4), (0, 5), (0, 6), (0, 7), (0, 9), (0, 10), (1, 0), (1, 1), (1, 2)]
-            .map(|(ray, interval)| Kept { ray, interval, weight: 0.1 })
-            .to_vec();
+        let rays = [ray((0..12).map(|i| f64::from(i * i)).collect()), ray((0..6).map(f64::from).collect()), ray(vec![1.0, 1.0, 1.0, 1.0, 2.0])];
+        // Ray 0: intervals 1..=7 (a run of 7), then 9, 10 (interval 8 dropped); ray 1: 0..=2;
+        // ray 2: 0..=2 with repeated depths.
+        let kept: Vec<Kept<f64>> =
+            [(0, 1), (0, 2), (0, 3), (0, 4), (0, 5), (0, 6), (0, 7), (0, 9), (0, 10), (1, 0), (1, 1), (1, 2), (2, 0), (2, 1), (2, 2)]
+                .map(|(ray, interval)| Kept { ray, interval, weight: 0.1 })
+                .to_vec();
         let (evaluated, sources) = colour_sources(&kept, &rays, NonZeroUsize::new(3).unwrap());
         let at: Vec<(usize, usize)> = evaluated.iter().map(|k| (k.ray, k.interval)).collect();
-        assert_eq!(at, [(0, 1), (0, 4), (0, 7), (0, 9), (0, 10), (1, 0), (1, 2)]);
+        assert_eq!(at, [(0, 1), (0, 4), (0, 7), (0, 9), (0, 10), (1, 0), (1, 2), (2, 0), (2, 2)]);
         use Source::{Between, Own};
         // Ray 0's depths are i²: interval 2 lies (4 − 1)/(16 − 1) of the way from 1 to 4.
         let want = [
@@ -255,8 +268,26 @@ mod tests {
             Own(5),
             Between { lo: 5, f: 0.5 },
             Own(6),
+            // Between two samples at one depth: lo's colour, not 0/0.
+            Own(7),
+            Between { lo: 7, f: 0.0 },
+            Own(8),
         ];
         assert_eq!(sources, want);
+        // A colour and normal linear in depth come back exact at every kept interval, from the
+        // evaluated rows alone (a reversed or held fraction would not).
+        let linear = |k: &Kept<f64>| {
+            let t = rays[k.ray].depths[k.interval];
+            ([0.5 + 0.1 * t, 2.0 - 0.03 * t, 0.25 * t + k.ray as f64], [t, -t, 1.0 + k.ray as f64])
+        };
+        let colors: Vec<f64> = evaluated.iter().flat_map(|k| linear(k).0).collect();
+        let normals: Vec<[f64; 3]> = evaluated.iter().map(|k| linear(k).1).collect();
+        for (k, source) in kept.iter().zip(&sources) {
+            let ((c, n), (want_c, want_n)) = (source.colour_and_normal(&colors, &normals), linear(k));
+            for j in 0..3 {
+                assert!((c[j] - want_c[j]).abs() < 1e-12 && (n[j] - want_n[j]).abs() < 1e-12, "{k:?}: {c:?} {n:?}");
+            }
+        }
         // Stride 1: every kept interval its own.
         let (evaluated, sources) = colour_sources(&kept, &rays, NonZeroUsize::MIN);
         assert_eq!(evaluated.len(), kept.len());

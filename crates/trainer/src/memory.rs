@@ -181,10 +181,11 @@ pub fn estimate(
     // window, 5 × 11 rows of f64, is 0.7 MB at 1600 pixels wide); a validation panel is five RGB images side by side,
     // its PNG encoding (at most as large) and the hit pixels' depths.
     let after_render = (rays_at(config.output.eval_downscale) * 3.0 * F32).max(rays_at(config.output.validate_downscale) * (2.0 * 5.0 * 3.0 + F32));
-    let evaluation = t * work_item_bytes(backbone, 64, config.render.coarse + config.render.render_fine, false)
-        + band
-        + render_rays * (output + 2.0 * 3.0 * F32 + 1.0)
-        + after_render;
+    // The forward pass evaluates every `render_colour_stride`-th kept interval of a run (and its
+    // last: one more a ray), at least as many rows as the up-sampling's first pass (coarse + 1).
+    let stride = config.render.render_colour_stride.get();
+    let evaluated = ((config.render.coarse + config.render.render_fine).div_ceil(stride) + 1).max(config.render.coarse + 1);
+    let evaluation = t * work_item_bytes(backbone, 64, evaluated, false) + band + render_rays * (output + 2.0 * 3.0 * F32 + 1.0) + after_render;
     // Meshing: a block of 17³ corners per thread through the SDF network (chunks of 1024
     // rows), and the mesh (~ 12 triangles per surface cell of the resolution's shell).
     let mesh_res = f64::from(mesh_resolution);

@@ -7,7 +7,7 @@
 use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
 use sdf_backbone::kernels::{Strided, dispatch, gemm};
-use sdf_backbone::{Adam, Backbone, InputEncoding, Module, NoSampleLoss, NormalScheme, Preset, RayInput, StepRates, batch_gradients, build};
+use sdf_backbone::{Adam, Backbone, InputEncoding, Module, NoSampleLoss, NormalScheme, Preset, RayInput, StepRates, build};
 use serde_json::{Value, json};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -186,7 +186,7 @@ fn time_step(backbone: &Backbone, params: &mut [f32], rays: &[RayInput<f32>], re
 fn profile_step(preset: Preset, normals: NormalScheme, products: sdf_backbone::Products, reps: usize, chunk: usize, gemm_best: f64) {
     use sdf_backbone::profile::{self, Stage};
     let (mut backbone, mut params) = build(preset, 0.5, 1);
-    backbone.set_normals(normals);
+    backbone.set_normal_scheme(normals);
     backbone.set_products(products);
     let (n_rays, n_samples) = batch_of(preset);
     let rays = rays(n_rays, n_samples);
@@ -251,12 +251,7 @@ fn time_mlp(mlp: &sdf_backbone::Mlp, params: &[f32], rows: usize) -> f64 {
     let n_in = Module::<f32>::n_inputs(mlp);
     let x: Vec<f32> = (0..rows * n_in).map(|i| ((i * 7919) % 1000) as f32 / 1000.0 - 0.5).collect();
     let mut grads = vec![0.0f32; params.len()];
-    let run = |g: &mut [f32]| {
-        batch_gradients(mlp, params, &x, 1024, g, |_, _, dy| {
-            dy.fill(1e-3);
-            0.0
-        })
-    };
+    let run = |g: &mut [f32]| mlp.gradients_for_adjoint(params, &x, 1024, g, 1e-3);
     run(&mut grads);
     let t = Instant::now();
     run(&mut grads);
@@ -294,7 +289,7 @@ fn preset_figures(preset: Preset, reps: usize, gemm_best: f64, only: Option<Norm
     // Every preset's network has tangents.
     let schemes = [NormalScheme::Tetrahedral, NormalScheme::Central, NormalScheme::Analytic];
     for normals in schemes.into_iter().filter(|n| only.is_none_or(|o| o == *n)) {
-        backbone.set_normals(normals);
+        backbone.set_normal_scheme(normals);
         let step = time_step(&backbone, &mut params, &rays, reps);
         let samples = (n_rays * n_samples) as f64;
         // Forward 2·MACs, backward 4·MACs (input and weight gradients) per SDF row: 1 + probes

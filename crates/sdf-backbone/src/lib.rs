@@ -25,6 +25,7 @@
 pub mod backbone;
 pub mod background;
 pub mod checkpoint;
+pub mod compiled;
 pub mod encoding;
 pub mod hashgrid;
 pub mod kernels;

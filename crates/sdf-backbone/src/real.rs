@@ -21,7 +21,6 @@ pub trait Real:
     + MulAssign
     + ndarray::LinalgScalar
     + crate::scratch::Element
-    + crate::pipeline::TangentPrecision
     + 'static
 {
     /// 0.

@@ -15,8 +15,9 @@
 //! ray's divided by the transmittance of the dropped front (≥ 1 − `negligible`), and the colour,
 //! depth and opacity differ by at most about `2 · negligible`.
 
+use crate::backbone::Backbone;
 use crate::module::Module;
-use crate::pipeline::{Pipeline, RayInput};
+use crate::pipeline::RayInput;
 use crate::render::{merge_sorted, render_weights_into, sample_intervals, weights_into};
 use crate::scratch::Buf;
 
@@ -120,15 +121,13 @@ pub struct Trim {
 /// Rays per forward pass of the up-sampling.
 const CHUNK: usize = 64;
 
-impl<S, C> Pipeline<S, C> {
+/// On the presets' [`Backbone`] alone, so compiled here once ([`crate::compiled`]).
+impl Backbone {
     /// NeuS's hierarchical up-sampling: `rounds` rounds, each weighting the intervals of the
     /// ray's current depths as rendering would at scale `base_s · 2^round` and inserting
     /// `n_fine / rounds` depths at the weights' quantiles (midpoints, deterministic). Depths stay
     /// sorted. No gradient flows through the placement.
-    pub fn upsample(&self, params: &[f32], rays: &mut [RayInput<f32>], n_fine: usize, rounds: usize, base_s: f64)
-    where
-        S: Module<f32> + Sync,
-    {
+    pub fn upsample(&self, params: &[f32], rays: &mut [RayInput<f32>], n_fine: usize, rounds: usize, base_s: f64) {
         use rayon::prelude::*;
         let net = &self.sdf;
         rays.par_chunks_mut(CHUNK).for_each(|rays| {
@@ -138,7 +137,7 @@ impl<S, C> Pipeline<S, C> {
 
     /// [`Self::upsample`] for a render, each depth's SDF kept: each ray then trimmed by
     /// [`trim_to_weight`] when `trim` is given, chunk by chunk (the trimmed depths release their
-    /// memory). Returns the SDF at every ray's final depths, for [`Self::render_known`].
+    /// memory). Returns the SDF at every ray's final depths, for [`Self::render`].
     pub fn upsample_for_render(
         &self,
         params: &[f32],
@@ -147,10 +146,7 @@ impl<S, C> Pipeline<S, C> {
         rounds: usize,
         base_s: f64,
         trim: Option<Trim>,
-    ) -> Vec<Vec<f32>>
-    where
-        S: Module<f32> + Sync,
-    {
+    ) -> Vec<Vec<f32>> {
         use rayon::prelude::*;
         let net = &self.sdf;
         rays.par_chunks_mut(CHUNK)
@@ -169,10 +165,7 @@ impl<S, C> Pipeline<S, C> {
     }
 
     /// The SDF at every depth of every ray (no up-sampling), in parallel chunks.
-    pub fn sdf_along(&self, params: &[f32], rays: &[RayInput<f32>]) -> Vec<Vec<f32>>
-    where
-        S: Module<f32> + Sync,
-    {
+    pub fn sdf_along(&self, params: &[f32], rays: &[RayInput<f32>]) -> Vec<Vec<f32>> {
         use rayon::prelude::*;
         let net = &self.sdf;
         rays.par_chunks(CHUNK)

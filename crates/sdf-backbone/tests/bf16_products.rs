@@ -8,7 +8,11 @@ mod common;
 use common::rays_through_the_sphere as rays;
 
 /// Loss, gradient and ray outputs of `backbone` in `products`.
-fn pass<R: Real>(backbone: &mut Backbone, products: Products, params: &[R]) -> (R, Vec<R>, Vec<RayOutput<R>>) {
+fn pass<R: Real + sdf_backbone::pipeline::TangentPrecision>(
+    backbone: &mut Backbone,
+    products: Products,
+    params: &[R],
+) -> (R, Vec<R>, Vec<RayOutput<R>>) {
     backbone.set_products(products);
     let mut grads = vec![R::ZERO; params.len()];
     let (loss, out) = backbone.loss_parallel(params, &rays::<R>(64, 48), &mut grads, 8, &NoSampleLoss);

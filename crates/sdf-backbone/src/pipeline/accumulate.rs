@@ -8,7 +8,7 @@
 
 use super::analytic::InputGradientFn;
 use super::deferred::Deferred;
-use super::{Pipeline, RayInput, RayOutput, SampleLoss, TangentFns, scale_derivative, scale_from_variance};
+use super::{Pipeline, RayInput, RayOutput, SampleLoss, TangentFns, TangentPrecision, scale_derivative, scale_from_variance};
 use crate::background::BackgroundPass;
 use crate::encoding::SphericalHarmonics;
 use crate::module::{DeferringModule, Module, TangentAdjoints};
@@ -208,7 +208,7 @@ impl<S, C> Pipeline<S, C> {
     /// every parameter after the SDF network's deferred ones ([`DeferringModule::deferred_params`]);
     /// their gradient is returned as (points, record) for [`DeferringModule::apply_deferred`].
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn accumulate<R: Real>(
+    pub(super) fn accumulate<R: Real + TangentPrecision>(
         &self,
         params: &[R],
         rays: &[RayInput<R>],
@@ -259,7 +259,13 @@ impl<S, C> Pipeline<S, C> {
 
     /// The sample points and probes of every ray through the SDF network: its outputs and
     /// context, and with analytic normals ∇ₓS at every point (rows × 3).
-    fn sdf_pass<R: Real>(&self, p_sdf: &[R], rays: &[RayInput<R>], rows: &Rows, dims: &Dims) -> (Buf<R>, Buf<R>, Buf<R>, Option<Buf<R>>)
+    fn sdf_pass<R: Real + TangentPrecision>(
+        &self,
+        p_sdf: &[R],
+        rays: &[RayInput<R>],
+        rows: &Rows,
+        dims: &Dims,
+    ) -> (Buf<R>, Buf<R>, Buf<R>, Option<Buf<R>>)
     where
         S: Module<R>,
     {

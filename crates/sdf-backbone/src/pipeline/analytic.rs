@@ -85,6 +85,9 @@ impl<S: DeferringTangentModule<R>, R: Real> TangentFns<S, R> {
 /// it ([`crate::NormalScheme::Analytic`]).
 pub struct AnalyticNormals<S> {
     f32: TangentFns<S, f32>,
+    /// Only with the feature `f64-tangents` (the gradient checks): the passes in f64 are as much
+    /// code again, which a training build does not run.
+    #[cfg(feature = "f64-tangents")]
     f64: TangentFns<S, f64>,
 }
 
@@ -104,7 +107,11 @@ impl<S> std::fmt::Debug for AnalyticNormals<S> {
 impl<S: DeferringTangentModule<f32> + DeferringTangentModule<f64>> AnalyticNormals<S> {
     /// The tangent passes of `S`.
     pub fn new() -> Self {
-        AnalyticNormals { f32: TangentFns::of(), f64: TangentFns::of() }
+        AnalyticNormals {
+            f32: TangentFns::of(),
+            #[cfg(feature = "f64-tangents")]
+            f64: TangentFns::of(),
+        }
     }
 }
 
@@ -114,8 +121,10 @@ impl<S: DeferringTangentModule<f32> + DeferringTangentModule<f64>> Default for A
     }
 }
 
-/// The precisions the tangent passes are compiled for (a supertrait of [`Real`]: f32 to train,
-/// f64 to check gradients).
+/// The precisions the tangent passes are compiled for: f32 to train, and f64 to check gradients
+/// with the feature `f64-tangents` (the crate's tests turn it on). What renders or differentiates
+/// a pipeline in precision `R` asks `R: TangentPrecision`, so a pipeline in f64 without the
+/// feature does not compile.
 pub trait TangentPrecision: Sized {
     /// This precision's passes.
     fn tangent_fns<S>(normals: &AnalyticNormals<S>) -> &TangentFns<S, Self>;
@@ -127,6 +136,7 @@ impl TangentPrecision for f32 {
     }
 }
 
+#[cfg(feature = "f64-tangents")]
 impl TangentPrecision for f64 {
     fn tangent_fns<S>(normals: &AnalyticNormals<S>) -> &TangentFns<S, f64> {
         &normals.f64

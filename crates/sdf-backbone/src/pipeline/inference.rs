@@ -23,7 +23,7 @@
 //! (a ray's last sample, the samples that carry no weight, the background of opaque rays).
 
 use super::accumulate::{COLOR_IN_FIXED, Tangents, color_row, probe_normal, sdf_forward};
-use super::{Pipeline, RayInput, RayOutput, scale_from_variance};
+use super::{Pipeline, RayInput, RayOutput, TangentPrecision, scale_from_variance};
 use crate::encoding::SphericalHarmonics;
 use crate::module::Module;
 use crate::real::Real;
@@ -45,7 +45,7 @@ impl<S, C> Pipeline<S, C> {
     /// carry at most `negligible` of its colour (see the module docs; 0 drops only what carries
     /// nothing), the colour networks run on every `colour_stride`-th kept interval of a run (1:
     /// every one). Sequential: callers run chunks of rays in parallel.
-    pub fn render_known<R: Real>(
+    pub fn render_known<R: Real + TangentPrecision>(
         &self,
         params: &[R],
         rays: &[RayInput<R>],
@@ -105,7 +105,14 @@ impl<S, C> Pipeline<S, C> {
 
     /// The colour (rows × 3) and normal of every kept interval: the SDF network at its first
     /// sample (and the probes, for normals by differences), then the colour network.
-    fn kept_colors<R: Real>(&self, p_sdf: &[R], p_col: &[R], rays: &[RayInput<R>], sh: &[[R; 16]], kept: &[Kept<R>]) -> (Buf<R>, Vec<[R; 3]>)
+    fn kept_colors<R: Real + TangentPrecision>(
+        &self,
+        p_sdf: &[R],
+        p_col: &[R],
+        rays: &[RayInput<R>],
+        sh: &[[R; 16]],
+        kept: &[Kept<R>],
+    ) -> (Buf<R>, Vec<[R; 3]>)
     where
         S: Module<R>,
         C: Module<R>,

@@ -240,7 +240,7 @@ impl<S, C> Pipeline<S, C> {
 
     /// The deferred gradient of these per-work-item records: applied by the tangent passes when
     /// they came from analytic normals.
-    fn deferred_gradient<R: Real>(&self, records: Vec<(Buf<R>, Buf<R>)>) -> DeferredGradient<S, R> {
+    fn deferred_gradient<R: Real + TangentPrecision>(&self, records: Vec<(Buf<R>, Buf<R>)>) -> DeferredGradient<S, R> {
         DeferredGradient { records, tangent: self.analytic.as_ref().map(|a| R::tangent_fns(a).apply_block) }
     }
 
@@ -255,7 +255,13 @@ impl<S, C> Pipeline<S, C> {
 
     /// Loss of a batch (averaged over rays) and, if `d_params` is given, its gradient added into
     /// it. Returns the loss and the per-ray outputs. Sequential; see [`Self::loss_parallel`].
-    pub fn loss<R: Real>(&self, params: &[R], rays: &[RayInput<R>], d_params: Option<&mut [R]>, extra: &dyn SampleLoss) -> (R, Vec<RayOutput<R>>)
+    pub fn loss<R: Real + TangentPrecision>(
+        &self,
+        params: &[R],
+        rays: &[RayInput<R>],
+        d_params: Option<&mut [R]>,
+        extra: &dyn SampleLoss,
+    ) -> (R, Vec<RayOutput<R>>)
     where
         S: DeferringModule<R>,
         C: Module<R>,
@@ -290,7 +296,7 @@ impl<S, C> Pipeline<S, C> {
     /// [`Self::loss`] over chunks of `chunk` rays in parallel: one gradient buffer per chunk,
     /// summed in chunk order, so the result is the same for any thread count (and equals `loss`
     /// up to the order of additions).
-    pub fn loss_parallel<R: Real>(
+    pub fn loss_parallel<R: Real + TangentPrecision>(
         &self,
         params: &[R],
         rays: &[RayInput<R>],
@@ -315,7 +321,7 @@ impl<S, C> Pipeline<S, C> {
     /// [`DeferringModule::deferred_params`], the first ones) left out: `d_rest` is the gradient of the
     /// parameters after them, and their own gradient comes back as records to apply (whole, or one
     /// block at a time with [`DeferredGradient::apply_block`]).
-    pub fn loss_parallel_split<R: Real>(
+    pub fn loss_parallel_split<R: Real + TangentPrecision>(
         &self,
         params: &[R],
         rays: &[RayInput<R>],
@@ -376,7 +382,13 @@ impl<S, C> Pipeline<S, C> {
     /// parameters per chunk (the learned background's tables included), summed in chunk order:
     /// the reference whose bits its records of the background's tables are tested against.
     #[cfg(test)]
-    pub(crate) fn loss_split_dense_reference<R: Real>(&self, params: &[R], rays: &[RayInput<R>], d_rest: &mut [R], chunk: usize) -> R
+    pub(crate) fn loss_split_dense_reference<R: Real + TangentPrecision>(
+        &self,
+        params: &[R],
+        rays: &[RayInput<R>],
+        d_rest: &mut [R],
+        chunk: usize,
+    ) -> R
     where
         S: DeferringModule<R>,
         C: Module<R>,

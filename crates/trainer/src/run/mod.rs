@@ -142,7 +142,7 @@ pub fn stop_message(source: StopSource) -> String {
 /// what to change when the peak exceeds `max_memory` (default: the memory available).
 pub fn check_memory(config: &TrainConfig, size: &SceneSize, max_memory: Option<f64>) -> Result<MemoryEstimate> {
     let mut backbone = crate::sizing::architecture(&config.model, size.footprint)?;
-    backbone.set_normals(config.model.normal_scheme());
+    backbone.set_normal_scheme(config.model.normal_scheme());
     if config.model.background_model.learned(config.data.masks && size.masks) {
         backbone.add_learned_background(&mut Vec::new(), crate::trainer::background_model(config), 0);
     }

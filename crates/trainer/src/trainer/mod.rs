@@ -200,7 +200,7 @@ fn configured(config: &TrainConfig, use_masks: bool, grid: Option<&GridChoice>, 
     backbone.config.opacity_guard = opacity_guard(config, use_masks);
     backbone.config.masked_color = use_masks;
     backbone.config.background = config.model.background;
-    backbone.set_normals(config.model.normal_scheme());
+    backbone.set_normal_scheme(config.model.normal_scheme());
     backbone.set_products(config.model.products.into());
     Ok((backbone, params))
 }
@@ -528,7 +528,7 @@ impl Trainer {
         self.grads.resize(self.state.params.len(), 0.0);
         let hook = SurfaceHook { config: self.config.surface, rays: &batch.surfaces };
         let extra: &dyn SampleLoss = if self.surface_losses_on() { &hook } else { &NoSampleLoss };
-        self.backbone.loss_parallel(&self.state.params, &batch.rays, &mut self.grads, self.config.render.chunk, extra)
+        self.backbone.gradient(&self.state.params, &batch.rays, &mut self.grads, self.config.render.chunk, extra)
     }
 
     /// Whether the surface losses apply: guided runs with a positive weight.

@@ -38,14 +38,14 @@ impl Trainer {
     /// Renders `rays` forward only, in parallel chunks, given the SDF at every depth of every
     /// ray (`None`: evaluated here), dropping what carries at most `render.render_trim` of a
     /// ray's colour, the colour networks on every `render.render_colour_stride`-th kept interval
-    /// ([`sdf_backbone::Pipeline::render_known`]).
+    /// ([`sdf_backbone::Backbone::render`]).
     pub fn render_rays(&self, rays: &[RayInput<f32>], sdf: Option<Vec<Vec<f32>>>) -> Vec<RayOutput<f32>> {
         let params = &self.state.params;
         let sdf = sdf.unwrap_or_else(|| self.backbone.sdf_along(params, rays));
         let (negligible, stride) = (self.config.render.render_trim as f32, self.config.render.render_colour_stride);
         rays.par_chunks(RENDER_CHUNK)
             .zip(sdf.par_chunks(RENDER_CHUNK))
-            .flat_map_iter(|(rays, sdf)| self.backbone.render_known(params, rays, sdf, negligible, stride))
+            .flat_map_iter(|(rays, sdf)| self.backbone.render(params, rays, sdf, negligible, stride))
             .collect()
     }
 

@@ -55,10 +55,12 @@ pub struct ExtractionStats {
     pub blocks: usize,
     /// Blocks evaluated (near the surface).
     pub blocks_evaluated: usize,
-    /// Field queries made.
+    /// Field queries of the final pass: every block centre and the corners of the blocks it
+    /// evaluated (a block an earlier pass meshed counts here once; its centre queries do not).
     pub field_queries: usize,
     /// The field's Lipschitz claim checked against its values (block centres against their
-    /// neighbours and their blocks' corners); a broken claim redoes the extraction.
+    /// neighbours and their blocks' corners); a broken claim redoes the extraction with a larger
+    /// bound, meshing only the blocks it adds.
     pub lipschitz: LipschitzCheck,
 }
 
@@ -76,21 +78,22 @@ pub fn marching_cubes(field: &dyn SdfField, config: &MarchingCubesConfig) -> Res
 
 /// [`marching_cubes`], calling `progress(blocks done, blocks to evaluate)` as blocks finish (from
 /// worker threads). The blocks to evaluate are those near the surface; a broken Lipschitz claim
-/// restarts the count with more blocks.
+/// restarts the count with more blocks, those already meshed counted done.
 pub fn marching_cubes_with_progress(
     field: &dyn SdfField,
     config: &MarchingCubesConfig,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<(IsoMesh, ExtractionStats), GridError> {
     // Blocks meshed by an earlier pass: a redo with a larger bound only adds blocks, and a block's
-    // mesh does not depend on the bound.
+    // mesh does not depend on the bound. The mesh is merged once, from the last pass's blocks.
     let mut meshed = HashMap::new();
-    let ((mesh, mut stats), check) = LipschitzCheck::run(field.lipschitz_bound(), |bound| {
-        let (mesh, stats, measured) = extract(field, config, bound, progress, &mut meshed)?;
-        Ok::<_, GridError>(((mesh, stats), measured))
+    let ((near, mut stats), check) = LipschitzCheck::run(field.lipschitz_bound(), |bound| {
+        let (near, stats, measured) = extract(field, config, bound, progress, &mut meshed)?;
+        Ok::<_, GridError>(((near, stats), measured))
     })?;
     stats.lipschitz = check;
-    Ok((mesh, stats))
+    let parts = near.iter().map(|b| meshed.remove(b).expect("every block near the surface is meshed"));
+    Ok((merge(parts), stats))
 }
 
 /// The lattice of an extraction: `resolution` cells per axis from `min`, cut into cubic blocks
@@ -127,15 +130,16 @@ struct BlockMesh {
     slope: f32,
 }
 
-/// One extraction with Lipschitz bound `lipschitz`, taking the blocks in `meshed` (an earlier
-/// pass's) as they are and adding those it meshes; also returns the largest slope measured.
+/// One pass with Lipschitz bound `lipschitz`: meshes the blocks near the surface that `meshed`
+/// (an earlier pass's) lacks, into it. Returns the blocks near the surface in order, the pass's
+/// stats and the largest slope measured (between block centres and in every block near).
 fn extract(
     field: &dyn SdfField,
     config: &MarchingCubesConfig,
     lipschitz: f32,
     progress: &(dyn Fn(usize, usize) + Sync),
     meshed: &mut HashMap<UVec3, BlockMesh>,
-) -> Result<(IsoMesh, ExtractionStats, f32), GridError> {
+) -> Result<(Vec<UVec3>, ExtractionStats, f32), GridError> {
     let invalid = |message: String| GridError::InvalidConfig { what: "marching cubes", message };
     if config.resolution < 2 || config.block < 1 {
         return Err(invalid(format!("resolution {} must be ≥ 2 and block {} ≥ 1", config.resolution, config.block)));
@@ -185,8 +189,10 @@ fn extract(
         })
         .collect();
     meshed.extend(new);
-    let stats = ExtractionStats { blocks: blocks.len(), blocks_evaluated: near.len(), field_queries: centres.len(), ..Default::default() };
-    Ok(merge(near.iter().map(|(b, _, _)| &meshed[b]), stats, measured))
+    let near: Vec<UVec3> = near.into_iter().map(|(b, _, _)| b).collect();
+    let (queries, measured) = near.iter().map(|b| &meshed[b]).fold((centres.len(), measured), |(q, m), part| (q + part.queries, m.max(part.slope)));
+    let stats = ExtractionStats { blocks: blocks.len(), blocks_evaluated: near.len(), field_queries: queries, ..Default::default() };
+    Ok((near, stats, measured))
 }
 
 /// Block `b`'s corners through the field (its slopes against its centre's value, which the
@@ -274,12 +280,10 @@ fn mesh_cell(lattice: &Lattice, corner: UVec3, vals: &[f32; 8], local: &mut Hash
 }
 
 /// The blocks' meshes as one: vertices on block faces appear in both blocks; the first one wins.
-fn merge<'a>(parts: impl Iterator<Item = &'a BlockMesh>, mut stats: ExtractionStats, mut measured: f32) -> (IsoMesh, ExtractionStats, f32) {
+fn merge(parts: impl Iterator<Item = BlockMesh>) -> IsoMesh {
     let mut mesh = IsoMesh::default();
     let mut global: HashMap<u64, u32> = HashMap::new();
     for part in parts {
-        stats.field_queries += part.queries;
-        measured = measured.max(part.slope);
         let remap: Vec<u32> = part
             .keys
             .iter()
@@ -293,7 +297,7 @@ fn merge<'a>(parts: impl Iterator<Item = &'a BlockMesh>, mut stats: ExtractionSt
             .collect();
         mesh.triangles.extend(part.triangles.iter().map(|t| t.map(|i| remap[i as usize])));
     }
-    (mesh, stats, measured)
+    mesh
 }
 
 impl IsoMesh {
@@ -482,20 +486,37 @@ mod tests {
         assert!((sorted[0] - 0.2827).abs() < 0.02 && (sorted[1] - 2.0106).abs() < 0.1, "{areas:?}");
     }
 
+    /// A sphere's SDF times 4 (slope 4) that claims `claim` as its Lipschitz bound, counting the
+    /// points it is asked for.
+    struct Steep {
+        claim: f32,
+        queries: std::sync::atomic::AtomicUsize,
+    }
+
+    impl Steep {
+        fn claiming(claim: f32) -> Steep {
+            Steep { claim, queries: Default::default() }
+        }
+    }
+
+    impl SdfField for Steep {
+        fn sdf_batch(&self, points: &[Vec3], out: &mut [f32]) {
+            self.queries.fetch_add(points.len(), std::sync::atomic::Ordering::Relaxed);
+            for (p, o) in points.iter().zip(out) {
+                *o = 4.0 * ((*p - Vec3::new(0.13, -0.07, 0.05)).length() - 0.45);
+            }
+        }
+        fn lipschitz_bound(&self) -> f32 {
+            self.claim
+        }
+    }
+
     /// Regression: blocks were skipped by the field's claimed bound without checking it; a field
     /// steeper than it claims lost parts of its surface (holes) silently.
     #[test]
     fn marching_cubes_detects_a_broken_lipschitz_claim_and_keeps_the_surface_closed() {
-        struct Steep;
-        impl SdfField for Steep {
-            fn sdf_batch(&self, points: &[Vec3], out: &mut [f32]) {
-                for (p, o) in points.iter().zip(out) {
-                    *o = 4.0 * ((*p - Vec3::new(0.13, -0.07, 0.05)).length() - 0.45);
-                }
-            }
-        }
         let config = MarchingCubesConfig { resolution: 64, block: 8, ..Default::default() };
-        let (mesh, stats) = marching_cubes(&Steep, &config).unwrap();
+        let (mesh, stats) = marching_cubes(&Steep::claiming(1.0), &config).unwrap();
         assert!(stats.lipschitz.retries >= 1 && stats.lipschitz.measured > 3.5, "{:?}", stats.lipschitz);
         assert_eq!(mesh.euler_characteristic(), 2, "the sphere must come out closed");
     }
@@ -505,31 +526,14 @@ mod tests {
     /// its claim broke), and the mesh is the one an honest claim gives.
     #[test]
     fn a_broken_lipschitz_claim_reuses_the_blocks_already_meshed() {
-        use std::sync::atomic::{AtomicUsize, Ordering};
-        struct Steep {
-            claim: f32,
-            queries: AtomicUsize,
-        }
-        impl SdfField for Steep {
-            fn sdf_batch(&self, points: &[Vec3], out: &mut [f32]) {
-                self.queries.fetch_add(points.len(), Ordering::Relaxed);
-                for (p, o) in points.iter().zip(out) {
-                    *o = 4.0 * ((*p - Vec3::new(0.13, -0.07, 0.05)).length() - 0.45);
-                }
-            }
-            fn lipschitz_bound(&self) -> f32 {
-                self.claim
-            }
-        }
         let config = MarchingCubesConfig { resolution: 64, block: 8, ..Default::default() };
-        let broken = Steep { claim: 1.0, queries: AtomicUsize::new(0) };
+        let broken = Steep::claiming(1.0);
         let (mesh, stats) = marching_cubes(&broken, &config).unwrap();
         assert!(stats.lipschitz.retries >= 1, "{:?}", stats.lipschitz);
         // Each pass queries every block's centre; each block's corners are queried once.
         let passes = stats.lipschitz.retries as usize + 1;
-        assert_eq!(broken.queries.load(Ordering::Relaxed), stats.field_queries + (passes - 1) * stats.blocks);
-        let honest = Steep { claim: 6.0, queries: AtomicUsize::new(0) };
-        let (expected, _) = marching_cubes(&honest, &config).unwrap();
+        assert_eq!(broken.queries.into_inner(), stats.field_queries + (passes - 1) * stats.blocks);
+        let (expected, _) = marching_cubes(&Steep::claiming(6.0), &config).unwrap();
         assert_eq!((mesh.vertices, mesh.triangles), (expected.vertices, expected.triangles));
     }
 

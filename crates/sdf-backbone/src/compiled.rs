@@ -41,7 +41,7 @@ impl Backbone {
 
     /// [`Pipeline::loss_parallel`] in f32: the loss of `rays` and its gradient added into
     /// `d_params`, over chunks of `chunk` rays in parallel.
-    pub fn gradient(
+    pub fn loss_and_gradient(
         &self,
         params: &[f32],
         rays: &[RayInput<f32>],

@@ -7,7 +7,7 @@
 //! encoding, spherical harmonics of degree 4 ([`PositionalEncoding`], [`SphericalHarmonics`]);
 //! the multi-resolution hash grid with coarse-to-fine levels ([`HashGrid`]); NeuS volume rendering
 //! of one ray and its backward ([`render_ray`], [`render_ray_backward`]), hierarchical
-//! up-sampling ([`sample_intervals`], [`Pipeline::upsample`]); the whole render + loss pipeline
+//! up-sampling ([`sample_intervals`], [`Backbone::upsample`]); the whole render + loss pipeline
 //! for a batch of rays ([`Pipeline`]: SDF network, tetrahedral or central normals, colour network
 //! on [x, n, SH(d), features], L1/L2 colour over a fixed or learned background, eikonal,
 //! curvature, mask BCE, a [`SampleLoss`] hook for the surface losses, learnt variance); Adam/AdamW

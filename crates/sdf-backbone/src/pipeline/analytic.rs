@@ -18,9 +18,10 @@
 //! ```
 //!
 //! The pipeline's code is generic over the precision `R`, while the network's tangent passes
-//! exist only where the type has them; so the passes are taken at construction, for both
-//! precisions, as function pointers ([`TangentFns`]), and each precision picks its own
-//! ([`TangentPrecision`]).
+//! exist only where the type has them; so the passes are taken at construction, for each
+//! precision they are compiled for, as function pointers ([`TangentFns`]), and each precision
+//! picks its own ([`TangentPrecision`]): f32, and f64 with the feature `f64-tangents` (the
+//! gradient checks; without it a pipeline in f64 does not compile).
 
 #[cfg(doc)]
 use crate::module::TangentModule;
@@ -79,7 +80,8 @@ impl<S: DeferringTangentModule<R>, R: Real> TangentFns<S, R> {
     }
 }
 
-/// Proof that the SDF network `S` has tangents, and its tangent passes in f32 and f64: a
+/// Proof that the SDF network `S` has tangents (in f32 and f64), and its tangent passes in f32
+/// (and f64 with the feature `f64-tangents`): a
 /// [`crate::Pipeline`] with one takes its normals as the exact gradient ∇ₓS by one reverse pass,
 /// and the loss's gradient through them by a forward-mode tangent and the reverse pass through
 /// it ([`crate::NormalScheme::Analytic`]).

@@ -528,7 +528,7 @@ impl Trainer {
         self.grads.resize(self.state.params.len(), 0.0);
         let hook = SurfaceHook { config: self.config.surface, rays: &batch.surfaces };
         let extra: &dyn SampleLoss = if self.surface_losses_on() { &hook } else { &NoSampleLoss };
-        self.backbone.gradient(&self.state.params, &batch.rays, &mut self.grads, self.config.render.chunk, extra)
+        self.backbone.loss_and_gradient(&self.state.params, &batch.rays, &mut self.grads, self.config.render.chunk, extra)
     }
 
     /// Whether the surface losses apply: guided runs with a positive weight.

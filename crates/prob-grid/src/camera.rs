@@ -29,6 +29,7 @@
 use crate::scene::ActiveCells;
 use camera_geom::{DepthBounds, ImageSpaceBounds, PinholeCamera};
 use glam::{DVec3, Mat3, Vec3};
+use wide::f32x8;
 
 /// How a projected sub-cell's mass is weighted (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
@@ -200,16 +201,22 @@ pub fn reproject(active: &ActiveCells, camera: &PinholeCamera, config: &CameraGr
     // padding lanes are masked out.
     let offsets: Vec<Vec3> = active.offsets.iter().map(|o| rotation * *o).collect();
     let share = 1.0 / offsets.len().max(1) as f32;
-    let lanes: Vec<Lanes> = offsets
-        .chunks(LANES)
+    let lanes: Vec<(f32x8, f32x8, f32x8, f32x8)> = offsets
+        .chunks(8)
         .map(|c| {
-            let pick = |f: fn(&Vec3) -> f32| std::array::from_fn(|l| c.get(l).map_or(0.0, f));
-            Lanes { x: pick(|o| o.x), y: pick(|o| o.y), z: pick(|o| o.z), valid: std::array::from_fn(|l| l < c.len()) }
+            let pick = |f: fn(&Vec3) -> f32| f32x8::from(std::array::from_fn::<f32, 8, _>(|l| c.get(l).map_or(0.0, f)));
+            let valid = f32x8::from(std::array::from_fn::<f32, 8, _>(|l| if l < c.len() { 1.0 } else { 0.0 }));
+            (pick(|o| o.x), pick(|o| o.y), pick(|o| o.z), valid)
         })
         .collect();
     // Lanes outside the grid scatter zero into a spare cell at index `cells`: no branches.
     let cells = ru * rv * rl;
     grid.values.push(0.0);
+    let zero = f32x8::ZERO;
+    let (sfx, sfy, sskew) = (f32x8::splat(fx), f32x8::splat(fy), f32x8::splat(skew));
+    let (su0, sv0, sl0) = (f32x8::splat(u0), f32x8::splat(v0), f32x8::splat(l0));
+    let (sdu, sdv, sdl) = (f32x8::splat(inv_du), f32x8::splat(inv_dv), f32x8::splat(inv_dl));
+    let (sru, srv, srl) = (f32x8::splat(fru), f32x8::splat(frv), f32x8::splat(frl));
     let mut inside = 0.0f64;
     if offsets.len() < 8 {
         // F = 1 (one offset): lanes would be mostly padding; the scalar loop is faster.
@@ -231,21 +238,41 @@ pub fn reproject(active: &ActiveCells, camera: &PinholeCamera, config: &CameraGr
             }
         }
     } else {
-        let projection = LaneProjection { fx, fy, skew, u0, v0, l0, inv_du, inv_dv, inv_dl, fru, frv, frl };
         for (p, &mass) in active.points.iter().zip(&active.masses) {
             let center = rotation * *p + translation;
-            let m = mass * share;
-            for lane in &lanes {
-                let (cell, weight, kept) = projection.project(center, lane, m, inverse_square);
-                // Per-axis cells combined in usize, so that grids of any size index correctly (a
-                // flat index in f32 is exact only below 2²⁴ cells); the lanes not kept scatter 0.
-                for l in 0..LANES {
-                    let index = if kept[l] { (cell[l][0] as usize * rv + cell[l][1] as usize) * rl + cell[l][2] as usize } else { cells };
+            let m = f32x8::splat(mass * share);
+            let (cx, cy, cz) = (f32x8::splat(center.x), f32x8::splat(center.y), f32x8::splat(center.z));
+            for &(ox, oy, oz, valid) in &lanes {
+                let (x, y, z) = (cx + ox, cy + oy, cz + oz);
+                let inv_z = f32x8::ONE / z;
+                let fu = ((sfx * x + sskew * y) * inv_z - su0) * sdu;
+                let fv = (sfy * y * inv_z - sv0) * sdv;
+                let fl = (z - sl0) * sdl;
+                // NaN fails every comparison; z ≤ 0 (behind the camera) gives fl < 0.
+                let ok = fu.simd_ge(zero)
+                    & fu.simd_lt(sru)
+                    & fv.simd_ge(zero)
+                    & fv.simd_lt(srv)
+                    & fl.simd_ge(zero)
+                    & fl.simd_lt(srl)
+                    & valid.simd_gt(zero);
+                // Per-axis cell coordinates as integers (exact: each < 4096), combined in usize
+                // so that grids of any size index correctly (a flat index in f32 is exact only
+                // below 2²⁴ cells). Truncation is floor for the lanes kept; the others go to the
+                // spare cell.
+                let (iu, iv, il) = (
+                    ok.bitselect(fu, zero).fast_trunc_int().to_array(),
+                    ok.bitselect(fv, zero).fast_trunc_int().to_array(),
+                    ok.bitselect(fl, zero).fast_trunc_int().to_array(),
+                );
+                let kept = ok.to_bitmask();
+                let w = if inverse_square { m * inv_z * inv_z } else { m };
+                let weight = ok.bitselect(w, zero).to_array();
+                for l in 0..8 {
+                    let index = if kept & (1 << l) != 0 { (iu[l] as usize * rv + iv[l] as usize) * rl + il[l] as usize } else { cells };
                     grid.values[index] += weight[l];
                 }
-                // Summed as the two halves of 4, each in order (the lanes' sum as it was).
-                let in_grid: [f32; LANES] = std::array::from_fn(|l| if kept[l] { m } else { 0.0 });
-                inside += (in_grid[..4].iter().sum::<f32>() + in_grid[4..].iter().sum::<f32>()) as f64;
+                inside += ok.bitselect(m, zero).reduce_add() as f64;
             }
         }
     }
@@ -254,60 +281,6 @@ pub fn reproject(active: &ActiveCells, camera: &PinholeCamera, config: &CameraGr
     grid.mass_outside = outside;
     apply_view_dependency(&mut grid, config);
     grid
-}
-
-/// Sub-cell offsets projected together (F = 2 fills one exactly): plain arrays whose loops the
-/// compiler vectorises.
-const LANES: usize = 8;
-
-/// [`LANES`] sub-cell offsets in camera axes; padding lanes are not `valid`.
-struct Lanes {
-    x: [f32; LANES],
-    y: [f32; LANES],
-    z: [f32; LANES],
-    valid: [bool; LANES],
-}
-
-/// A camera's projection onto its grid in f32: `fu = ((fx·x + skew·y)/z − u0)·inv_du`,
-/// `fv = (fy·y/z − v0)·inv_dv`, `fl = (z − l0)·inv_dl` (cx, cy and the grid's origin folded into
-/// u0, v0), kept where `0 ≤ f < r` on each axis.
-struct LaneProjection {
-    fx: f32,
-    fy: f32,
-    skew: f32,
-    u0: f32,
-    v0: f32,
-    l0: f32,
-    inv_du: f32,
-    inv_dv: f32,
-    inv_dl: f32,
-    fru: f32,
-    frv: f32,
-    frl: f32,
-}
-
-impl LaneProjection {
-    /// The cells (u, v, depth), weights (`m`, times 1/z² when `inverse_square`) and whether each
-    /// lane of `lane` around `center` (camera axes) falls in the grid: NaN fails every comparison,
-    /// z ≤ 0 (behind the camera) gives fl < 0. Cells and weights are 0 for the lanes not kept.
-    #[inline(always)]
-    fn project(&self, center: Vec3, lane: &Lanes, m: f32, inverse_square: bool) -> ([[u32; 3]; LANES], [f32; LANES], [bool; LANES]) {
-        let (mut cell, mut weight, mut kept) = ([[0; 3]; LANES], [0.0; LANES], [false; LANES]);
-        for l in 0..LANES {
-            let (x, y, z) = (center.x + lane.x[l], center.y + lane.y[l], center.z + lane.z[l]);
-            let inv_z = 1.0 / z;
-            let fu = ((self.fx * x + self.skew * y) * inv_z - self.u0) * self.inv_du;
-            let fv = (self.fy * y * inv_z - self.v0) * self.inv_dv;
-            let fl = (z - self.l0) * self.inv_dl;
-            let ok = fu >= 0.0 && fu < self.fru && fv >= 0.0 && fv < self.frv && fl >= 0.0 && fl < self.frl && lane.valid[l];
-            // Truncation is floor for the lanes kept (each coordinate < 4096: exact).
-            cell[l] = if ok { [fu as u32, fv as u32, fl as u32] } else { [0; 3] };
-            let w = if inverse_square { m * inv_z * inv_z } else { m };
-            weight[l] = if ok { w } else { 0.0 };
-            kept[l] = ok;
-        }
-        (cell, weight, kept)
-    }
 }
 
 /// Applies view dependency to every (u, v) column of a grid holding p (see the module docs).

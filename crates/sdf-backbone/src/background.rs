@@ -136,6 +136,7 @@ impl BackgroundModel {
     /// The background colour of each ray (`origins`, unit `directions`, `sh` = SH₄ of each
     /// direction), with what the backward pass needs.
     pub fn forward<R: Real>(&self, params: &[R], origins: &[[R; 3]], directions: &[[R; 3]], sh: &[[R; 16]]) -> BackgroundPass<R> {
+        let _span = crate::profile::span(crate::profile::Stage::Background);
         let (k_n, n_in) = (self.samples, Module::<R>::n_inputs(&self.net));
         let (p_net, p_grid) = params.split_at(self.tables().start);
         let rays = origins.len();

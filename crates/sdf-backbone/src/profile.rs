@@ -12,7 +12,8 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Instant;
 
 /// A stage of the training step. Stages do not nest, except [`Stage::LossPass`], which holds
-/// the module stages run inside it (the pipeline's own work is the difference).
+/// the module stages run inside it (the pipeline's own work is the difference), the render's
+/// [`Stage::Upsample`] and [`Stage::RenderPass`], and [`Stage::Background`], inside a pass.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stage {
     /// The hash grid's feature gathers (trilinear interpolation of every level).
@@ -39,10 +40,13 @@ pub enum Stage {
     Upsample,
     /// A render's forward-only pass ([`crate::Pipeline::render_known`], modules included).
     RenderPass,
+    /// The learned background's forward pass ([`crate::BackgroundModel::forward`], its modules
+    /// included), inside a render's pass or a loss pass: what the rays' background costs.
+    Background,
 }
 
 /// Every stage, in report order (the enum's order: a stage's index is its discriminant).
-pub const STAGES: [Stage; 11] = [
+pub const STAGES: [Stage; 12] = [
     Stage::HashForward,
     Stage::HashTangents,
     Stage::MlpForward,
@@ -54,6 +58,7 @@ pub const STAGES: [Stage; 11] = [
     Stage::Adam,
     Stage::Upsample,
     Stage::RenderPass,
+    Stage::Background,
 ];
 
 static ENABLED: AtomicBool = AtomicBool::new(false);
@@ -74,6 +79,7 @@ impl Stage {
             Stage::Adam => "Adam",
             Stage::Upsample => "render: up-sampling (modules included)",
             Stage::RenderPass => "render: forward pass (modules included)",
+            Stage::Background => "background: forward (modules included; inside the passes)",
         }
     }
     fn index(self) -> usize {

@@ -1,19 +1,22 @@
-//! Where a training step's time goes: CPU time per stage (hash-grid gathers, scatters and
-//! tangents, MLP passes, the pipeline's own per-ray work, Adam), summed over threads.
+//! Where a training step's or a render's time goes: CPU time per stage (hash-grid gathers,
+//! scatters and tangents, MLP passes, the pipeline's own per-ray work, Adam, a render's
+//! up-sampling and pass, the learned background), summed over threads.
 //!
 //! The kernels run inside one runtime-dispatched function ([`crate::kernels::dispatch`]) into
 //! which everything is inlined, so a sampling profiler cannot tell them apart; these counters
 //! can. They cost one relaxed atomic load per module call while disabled (the default), and two
 //! clock reads per call while enabled — calls are per work item (thousands of rows), not per row.
 //! The counters are process-wide: everything that runs while they are enabled adds to them.
-//! `cargo xtask bench backbone --preset P --profile` prints them for one step.
+//! `cargo xtask bench backbone --preset P --profile` prints a step's module stages,
+//! `cargo xtask eval --run RUN --profile` every stage of a run's renders.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Instant;
 
-/// A stage of the training step. Stages do not nest, except [`Stage::LossPass`], which holds
-/// the module stages run inside it (the pipeline's own work is the difference), the render's
-/// [`Stage::Upsample`] and [`Stage::RenderPass`], and [`Stage::Background`], inside a pass.
+/// A stage of a training step or a render. Stages do not nest, except those that hold the
+/// module stages run inside them — [`Stage::LossPass`] (the pipeline's own work is the
+/// difference), a render's [`Stage::Upsample`] and [`Stage::RenderPass`] — and
+/// [`Stage::Background`], inside a loss or render pass and holding its own modules.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stage {
     /// The hash grid's feature gathers (trilinear interpolation of every level).

@@ -4,11 +4,12 @@
 //! shares no instances between crates: a generic method called on a [`Backbone`] from the
 //! trainer compiles there the networks' passes it reaches, their kernels once per instruction
 //! set, and from xtask again; analytic normals ([`Pipeline::set_normals`]) compile the tangent
-//! passes (in f64 too, before the feature `f64-tangents`). That was 60 % of the code generated for the trainer and for xtask,
-//! most of a first `cargo xtask train`'s build (BENCHMARKS.md, "The release build of a first
-//! run"). The methods here are not generic (the presets' networks, f32): they are compiled in
-//! sdf-backbone and called from the others, as [`Backbone::train_step`], [`Backbone::field`],
-//! [`Backbone::upsample`], [`Backbone::upsample_for_render`] and [`Backbone::sdf_along`] are.
+//! passes (in f64 too, before the feature `f64-tangents`). That was 60 % of the code generated
+//! for the trainer and for xtask, most of a first `cargo xtask train`'s build (BENCHMARKS.md,
+//! "The release build of a first run"). The methods here are not generic (the presets'
+//! networks, f32): they are compiled in sdf-backbone and called from the others, as
+//! [`Backbone::train_step`], [`Backbone::field`], [`Backbone::upsample`],
+//! [`Backbone::upsample_for_render`] and [`Backbone::sdf_along`] are.
 //! Other crates call these; the generic methods stay for other networks and for the f64
 //! gradient checks.
 

@@ -81,10 +81,9 @@ impl<S: DeferringTangentModule<R>, R: Real> TangentFns<S, R> {
 }
 
 /// Proof that the SDF network `S` has tangents (in f32 and f64), and its tangent passes in f32
-/// (and f64 with the feature `f64-tangents`): a
-/// [`crate::Pipeline`] with one takes its normals as the exact gradient ∇ₓS by one reverse pass,
-/// and the loss's gradient through them by a forward-mode tangent and the reverse pass through
-/// it ([`crate::NormalScheme::Analytic`]).
+/// (and f64 with the feature `f64-tangents`): a [`crate::Pipeline`] with one takes its normals
+/// as the exact gradient ∇ₓS by one reverse pass, and the loss's gradient through them by a
+/// forward-mode tangent and the reverse pass through it ([`crate::NormalScheme::Analytic`]).
 pub struct AnalyticNormals<S> {
     f32: TangentFns<S, f32>,
     /// Only with the feature `f64-tangents` (the gradient checks): the passes in f64 are as much

@@ -133,86 +133,160 @@ impl BackgroundModel {
         }
     }
 
+    /// Sample k's 1/r and depth along the ray from `o` in unit direction `d`: `1/r = (1 − (k +
+    /// ½)/K) / near` (increasing t), the far root of `|o + t d| = r` (points beyond the bound, in
+    /// front).
+    fn sample_depth<R: Real>(&self, o: [R; 3], d: [R; 3], k: usize) -> (R, R) {
+        let inv_r = R::of((1.0 - (k as f64 + 0.5) / self.samples as f64) * (1.0 / self.near));
+        let radius = R::ONE / inv_r;
+        let od = o[0] * d[0] + o[1] * d[1] + o[2] * d[2];
+        let oo = o[0] * o[0] + o[1] * o[1] + o[2] * o[2];
+        let disc = (od * od - oo + radius * radius).max(R::ZERO);
+        (inv_r, -od + disc.sqrt())
+    }
+
+    /// Writes sample k of the ray (`o`, `d`, `sh` = SH₄(d)) as a row of the network's input (the
+    /// grid's columns left as they are) and, with a grid, its contracted point (`point`, 3
+    /// values; empty without a grid); returns the sample's depth.
+    fn sample_row<R: Real>(&self, o: [R; 3], d: [R; 3], sh: &[R; 16], k: usize, row: &mut [R], point: &mut [R]) -> R {
+        let (inv_r, t) = self.sample_depth(o, d, k);
+        let p = [0, 1, 2].map(|j| (o[j] + t * d[j]) * inv_r);
+        let q = [p[0], p[1], p[2], inv_r];
+        row[..4].copy_from_slice(&q);
+        let mut f = R::ONE;
+        for l in 0..self.frequencies {
+            for j in 0..4 {
+                row[4 + 8 * l + j] = (f * q[j]).sin();
+                row[8 + 8 * l + j] = (f * q[j]).cos();
+            }
+            f = f + f;
+        }
+        if self.view_dependent {
+            row[self.grid_columns().end..].copy_from_slice(sh);
+        }
+        if !point.is_empty() {
+            // Contracted: radius (2 − 1/r)/2 ∈ [½, 1) of the grid's cube.
+            let c = (R::of(2.0) - inv_r) * R::of(0.5);
+            point.copy_from_slice(&p.map(|v| v * c));
+        }
+        t
+    }
+
+    /// With a grid, its features at `points` (rows × 3) written into their columns of `input`.
+    fn add_grid_features<R: Real>(&self, p_grid: &[R], points: &[R], input: &mut [R]) {
+        let Some(grid) = &self.grid else { return };
+        let (columns, n_in) = (self.grid_columns(), Module::<R>::n_inputs(&self.net));
+        let mut features = Buf::<R>::zeroed(points.len() / 3 * columns.len());
+        grid.forward(p_grid, points, &mut features, &mut []);
+        for (row, f) in input.chunks_exact_mut(n_in).zip(features.chunks_exact(columns.len())) {
+            row[columns.clone()].copy_from_slice(f);
+        }
+    }
+
     /// The background colour of each ray (`origins`, unit `directions`, `sh` = SH₄ of each
     /// direction), with what the backward pass needs.
     pub fn forward<R: Real>(&self, params: &[R], origins: &[[R; 3]], directions: &[[R; 3]], sh: &[[R; 16]]) -> BackgroundPass<R> {
         let _span = crate::profile::span(crate::profile::Stage::Background);
         let (k_n, n_in) = (self.samples, Module::<R>::n_inputs(&self.net));
-        let (p_net, p_grid) = params.split_at(self.tables().start);
         let rays = origins.len();
         let rows_n = rays * k_n;
         let mut input = Buf::<R>::zeroed(rows_n * n_in);
-        let columns = self.grid_columns();
-        let mut points = Buf::<R>::zeroed(if columns.is_empty() { 0 } else { rows_n * 3 });
+        let mut points = Buf::<R>::zeroed(if self.grid.is_some() { rows_n * 3 } else { 0 });
         let mut depths = vec![R::ZERO; rows_n];
-        let inv_near = 1.0 / self.near;
         for r in 0..rays {
-            let (o, d) = (origins[r], directions[r]);
-            let od = o[0] * d[0] + o[1] * d[1] + o[2] * d[2];
-            let oo = o[0] * o[0] + o[1] * o[1] + o[2] * o[2];
             for k in 0..k_n {
-                // Far to near in 1/r reversed: sample k has 1/r = (1 − (k + ½)/K) / near
-                // (increasing t).
-                let inv_r = R::of((1.0 - (k as f64 + 0.5) / k_n as f64) * inv_near);
-                let radius = R::ONE / inv_r;
-                // |o + t d| = radius, the far root (points beyond the bound, in front).
-                let disc = (od * od - oo + radius * radius).max(R::ZERO);
-                let t = -od + disc.sqrt();
-                depths[r * k_n + k] = t;
-                let row = &mut input[(r * k_n + k) * n_in..(r * k_n + k + 1) * n_in];
-                let p = [0, 1, 2].map(|j| (o[j] + t * d[j]) * inv_r);
-                let q = [p[0], p[1], p[2], inv_r];
-                row[..4].copy_from_slice(&q);
-                let mut f = R::ONE;
-                for l in 0..self.frequencies {
-                    for j in 0..4 {
-                        row[4 + 8 * l + j] = (f * q[j]).sin();
-                        row[8 + 8 * l + j] = (f * q[j]).cos();
-                    }
-                    f = f + f;
-                }
-                if self.view_dependent {
-                    row[columns.end..].copy_from_slice(&sh[r]);
-                }
-                if !columns.is_empty() {
-                    // Contracted: radius (2 − 1/r)/2 ∈ [½, 1) of the grid's cube.
-                    let c = (R::of(2.0) - inv_r) * R::of(0.5);
-                    let i = r * k_n + k;
-                    points[3 * i..3 * i + 3].copy_from_slice(&p.map(|v| v * c));
-                }
+                let i = r * k_n + k;
+                let point = points.get_mut(3 * i..3 * i + 3).unwrap_or_default();
+                depths[i] = self.sample_row(origins[r], directions[r], &sh[r], k, &mut input[i * n_in..(i + 1) * n_in], point);
             }
         }
-        if let Some(grid) = &self.grid {
-            let mut features = Buf::<R>::zeroed(rows_n * columns.len());
-            grid.forward(p_grid, &points, &mut features, &mut []);
-            for (row, f) in input.chunks_exact_mut(n_in).zip(features.chunks_exact(columns.len())) {
-                row[columns.clone()].copy_from_slice(f);
-            }
-        }
+        self.add_grid_features(&params[self.tables().start..], &points, &mut input);
         let mut raw = Buf::<R>::to_overwrite(rows_n * 4);
         let mut ctx = Buf::<R>::to_overwrite(rows_n * Module::<R>::ctx_per_row(&self.net));
-        self.net.forward(p_net, &input, &mut raw, &mut ctx);
+        self.net.forward(&params[..self.tables().start], &input, &mut raw, &mut ctx);
         let mut rows = vec![[R::ZERO; 10]; rows_n];
         let mut colors = vec![[R::ZERO; 3]; rays];
         for r in 0..rays {
             let mut transmittance = R::ONE;
             for k in 0..k_n {
                 let i = r * k_n + k;
-                let z = &raw[4 * i..4 * i + 4];
-                let (sigma, d_sigma) = z[0].softplus_with_derivative(R::ONE);
-                let c = [1, 2, 3].map(|j| crate::module::sigmoid(z[j]));
-                let last = k + 1 == k_n;
-                let delta = if last { R::ZERO } else { depths[i + 1] - depths[i] };
-                let alpha = if last { R::ONE } else { R::ONE - (-sigma * delta).exp() };
+                let delta = if k + 1 == k_n { None } else { Some(depths[i + 1] - depths[i]) };
+                let Sample { sigma, d_sigma, c, alpha } = Sample::of(&raw[4 * i..4 * i + 4], delta);
                 let w = transmittance * alpha;
                 for j in 0..3 {
                     colors[r][j] += w * c[j];
                 }
-                rows[i] = [sigma, d_sigma, c[0], c[1], c[2], c[0] * (R::ONE - c[0]), c[1] * (R::ONE - c[1]), c[2] * (R::ONE - c[2]), delta, w];
+                rows[i] = [
+                    sigma,
+                    d_sigma,
+                    c[0],
+                    c[1],
+                    c[2],
+                    c[0] * (R::ONE - c[0]),
+                    c[1] * (R::ONE - c[1]),
+                    c[2] * (R::ONE - c[2]),
+                    delta.unwrap_or(R::ZERO),
+                    w,
+                ];
                 transmittance *= R::ONE - alpha;
             }
         }
         BackgroundPass { input, ctx, points, raw, rows, colors }
+    }
+
+    /// The background colour of each ray as [`Self::forward`] gives it, forward only (no
+    /// context kept), front to back in blocks of [`RENDER_BLOCK`] samples: a ray is evaluated no
+    /// further once the transmittance past its evaluated samples is at most `budgets[r]`, the
+    /// rest of its colour (at most that, per channel) dropped. A ray's samples behind an opaque
+    /// backdrop carry nothing, so a render need not evaluate them; with budgets 0 nothing is
+    /// dropped and the colours are [`Self::forward`]'s to the bit (rows of the network are
+    /// independent). Returns the colours and the samples evaluated.
+    pub fn render<R: Real>(&self, params: &[R], origins: &[[R; 3]], directions: &[[R; 3]], sh: &[[R; 16]], budgets: &[R]) -> (Vec<[R; 3]>, usize) {
+        let _span = crate::profile::span(crate::profile::Stage::Background);
+        let (k_n, n_in) = (self.samples, Module::<R>::n_inputs(&self.net));
+        let (p_net, p_grid) = params.split_at(self.tables().start);
+        let mut colors = vec![[R::ZERO; 3]; origins.len()];
+        let mut transmittance = vec![R::ONE; origins.len()];
+        let mut active: Vec<usize> = (0..origins.len()).collect();
+        let mut evaluated = 0;
+        for first in (0..k_n).step_by(RENDER_BLOCK) {
+            let block = first..(first + RENDER_BLOCK).min(k_n);
+            let rows_n = active.len() * block.len();
+            let mut input = Buf::<R>::zeroed(rows_n * n_in);
+            let mut points = Buf::<R>::zeroed(if self.grid.is_some() { rows_n * 3 } else { 0 });
+            let mut depths = vec![R::ZERO; rows_n];
+            for (a, &r) in active.iter().enumerate() {
+                for (b, k) in block.clone().enumerate() {
+                    let i = a * block.len() + b;
+                    let point = points.get_mut(3 * i..3 * i + 3).unwrap_or_default();
+                    depths[i] = self.sample_row(origins[r], directions[r], &sh[r], k, &mut input[i * n_in..(i + 1) * n_in], point);
+                }
+            }
+            self.add_grid_features(p_grid, &points, &mut input);
+            let mut raw = Buf::<R>::to_overwrite(rows_n * 4);
+            let mut ctx = Buf::<R>::to_overwrite(rows_n * Module::<R>::ctx_per_row(&self.net));
+            self.net.forward(p_net, &input, &mut raw, &mut ctx);
+            evaluated += rows_n;
+            for (a, &r) in active.iter().enumerate() {
+                for (b, k) in block.clone().enumerate() {
+                    let i = a * block.len() + b;
+                    // The next sample's depth, in this block or the next one's first.
+                    let next = || if b + 1 < block.len() { depths[i + 1] } else { self.sample_depth(origins[r], directions[r], k + 1).1 };
+                    let delta = if k + 1 == k_n { None } else { Some(next() - depths[i]) };
+                    let Sample { c, alpha, .. } = Sample::of(&raw[4 * i..4 * i + 4], delta);
+                    let w = transmittance[r] * alpha;
+                    for j in 0..3 {
+                        colors[r][j] += w * c[j];
+                    }
+                    transmittance[r] *= R::ONE - alpha;
+                }
+            }
+            active.retain(|&r| transmittance[r] > budgets[r]);
+            if active.is_empty() {
+                break;
+            }
+        }
+        (colors, evaluated)
     }
 
     /// Adds the gradient of the loss into `d_params` from `d_colors` (∂L/∂C_bg per ray).
@@ -287,7 +361,96 @@ impl BackgroundModel {
     }
 }
 
+/// Samples a render evaluates at once per ray ([`BackgroundModel::render`]): after each block,
+/// the rays whose transmittance has fallen to their budget stop.
+pub const RENDER_BLOCK: usize = 4;
+
+/// A sample's density σ (softplus of the first raw output) with dσ/draw, its colour (sigmoid of
+/// the other three) and its opacity α over the interval `delta` to the next sample (`None`: the
+/// last sample, which takes all the transmittance left).
+struct Sample<R> {
+    sigma: R,
+    d_sigma: R,
+    c: [R; 3],
+    alpha: R,
+}
+
+impl<R: Real> Sample<R> {
+    fn of(raw: &[R], delta: Option<R>) -> Sample<R> {
+        let (sigma, d_sigma) = raw[0].softplus_with_derivative(R::ONE);
+        let c = [1, 2, 3].map(|j| crate::module::sigmoid(raw[j]));
+        let alpha = delta.map_or(R::ONE, |delta| R::ONE - (-sigma * delta).exp());
+        Sample { sigma, d_sigma, c, alpha }
+    }
+}
+
 /// Columns of the positional encoding `PE_L(x/r, 1/r)` with `frequencies` frequencies L.
 fn encoding_width(frequencies: usize) -> usize {
     4 + 8 * frequencies
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng, rngs::StdRng};
+
+    /// A small model (a grid or not, the view among the inputs) with its parameters, the density
+    /// output's bias raised by `opaque`, and `n` rays from inside the bound with their SH inputs.
+    #[allow(clippy::type_complexity)]
+    fn model_and_rays(grid: bool, opaque: f32, n: usize) -> (BackgroundModel, Vec<f32>, Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 16]>) {
+        let mut model = BackgroundModel::with_view(16, 3, 16, 2, true);
+        if grid {
+            model = model.with_grid(HashGridConfig { levels: 2, features: 2, log2_table: 8, base_resolution: 4, finest_resolution: 16 });
+        }
+        let mut params = vec![0.0f32; model.n_params()];
+        model.init(&mut params, 7);
+        params[model.tables().start - 4] += opaque;
+        let mut rng = StdRng::seed_from_u64(3);
+        let unit = |rng: &mut StdRng| {
+            let v: [f32; 3] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+            let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+            v.map(|x| x / norm)
+        };
+        let origins = (0..n).map(|_| unit(&mut rng).map(|x| 0.5 * x)).collect();
+        let directions = (0..n).map(|_| unit(&mut rng)).collect();
+        let sh = (0..n).map(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0))).collect();
+        (model, params, origins, directions, sh)
+    }
+
+    #[test]
+    fn a_background_render_with_no_budget_is_the_forward_pass_to_the_bit() {
+        for grid in [false, true] {
+            let (model, params, origins, directions, sh) = model_and_rays(grid, 0.0, 37);
+            let expected = model.forward(&params, &origins, &directions, &sh).colors;
+            let (colors, evaluated) = model.render(&params, &origins, &directions, &sh, &[0.0; 37]);
+            assert_eq!(evaluated, 37 * 16, "grid {grid}: every sample evaluated");
+            assert_eq!(colors, expected, "grid {grid}");
+        }
+    }
+
+    #[test]
+    fn a_background_render_drops_at_most_each_rays_budget_behind_an_opaque_backdrop() {
+        for grid in [false, true] {
+            let (model, params, origins, directions, sh) = model_and_rays(grid, 40.0, 40);
+            let to_f64 = |v: &[[f32; 3]]| v.iter().map(|c| c.map(f64::from)).collect::<Vec<_>>();
+            let params: Vec<f64> = params.iter().map(|&p| f64::from(p)).collect();
+            let (origins, directions) = (to_f64(&origins), to_f64(&directions));
+            let sh: Vec<[f64; 16]> = sh.iter().map(|s| s.map(f64::from)).collect();
+            let budgets: Vec<f64> = (0..40).map(|r| [1e-4, 1e-3, 1e-2, 0.1][r % 4]).collect();
+            let expected = model.forward(&params, &origins, &directions, &sh).colors;
+            let (colors, evaluated) = model.render(&params, &origins, &directions, &sh, &budgets);
+            assert!(evaluated < 40 * 16 / 2, "grid {grid}: {evaluated} samples evaluated: the rays were not stopped");
+            for (r, (a, b)) in colors.iter().zip(&expected).enumerate() {
+                for j in 0..3 {
+                    // The dropped tail is a sum of non-negative weights times colours in (0, 1).
+                    let dropped = b[j] - a[j];
+                    assert!(
+                        (-1e-12..=budgets[r]).contains(&dropped),
+                        "grid {grid}, ray {r}, channel {j}: {dropped:e} dropped, budget {}",
+                        budgets[r]
+                    );
+                }
+            }
+        }
+    }
 }

@@ -58,4 +58,4 @@ pub use pipeline::{
 pub use presets::{Preset, Variation, architecture, architecture_varied, architecture_with_grid, build, build_varied, build_with_grid};
 pub use real::Real;
 pub use render::{RayGradients, RayRender, merge_sorted, render_ray, render_ray_backward, sample_intervals};
-pub use upsample::{Trim, interval_weights, trim_to_weight};
+pub use upsample::{Trim, interval_weights, proven_faint, trim_to_weight};

@@ -61,9 +61,19 @@ fn ray_sdf<S: Module<f32>>(net: &S, params: &[f32], ray: &RayInput<f32>, depths:
     chunk_sdf(net, params, std::slice::from_ref(ray), &[depths]).remove(0)
 }
 
-/// Up-samples a chunk of rays (one forward pass per round over all of them); with `keep` (a
-/// render), weighs intervals by [`render_weights_into`] and returns the SDF at each ray's final
-/// depths; without (training), weighs them by [`weights_into`].
+/// What an up-sampling is for: training (weights by [`weights_into`], no values kept) or a
+/// render (weights by [`render_weights_into`], the SDF at each final depth kept), trimmed by
+/// [`Trim`] when given.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Purpose {
+    Training,
+    Render(Option<Trim>),
+}
+
+/// Up-samples a chunk of rays (one forward pass per round over all of them); for a render,
+/// returns the SDF at each ray's final depths, no depth added to a ray once its values are
+/// [`proven_faint`] (before any round), each ray trimmed by [`trim_to_weight`] when
+/// `Purpose::Render` has a [`Trim`].
 fn upsample_chunk<S: Module<f32>>(
     net: &S,
     params: &[f32],
@@ -71,29 +81,41 @@ fn upsample_chunk<S: Module<f32>>(
     n_fine: usize,
     rounds: usize,
     base_s: f64,
-    keep: bool,
+    purpose: Purpose,
 ) -> Vec<Vec<f32>> {
     let _span = crate::profile::span(crate::profile::Stage::Upsample);
     let rounds = if n_fine == 0 { 0 } else { rounds };
-    if rounds == 0 && !keep {
+    if rounds == 0 && purpose == Purpose::Training {
         return Vec::new();
     }
     let lists: Vec<&[f32]> = rays.iter().map(|r| r.depths.as_slice()).collect();
     let mut sdf = chunk_sdf(net, params, rays, &lists);
+    let mut faint = vec![false; rays.len()];
+    let mut placed_before = 0;
     for round in 0..rounds {
         let k = n_fine / rounds + usize::from(round < n_fine % rounds);
+        if let Purpose::Render(Some(trim)) = purpose {
+            // Each round's values prove more: its samples lie where the SDF is lowest.
+            let still = n_fine - placed_before;
+            for ((faint, ray), sdf) in faint.iter_mut().zip(rays.iter()).zip(&sdf) {
+                *faint = *faint || proven_faint(&ray.depths, sdf, trim, ray.depths.len() - 1 + still);
+            }
+        }
+        placed_before += k;
         let s = (base_s * f64::from(1u32 << round.min(30))) as f32;
         let mut weights = Vec::new();
-        let mut placed = |depths: &[f32], sdf: &[f32]| {
-            if keep {
-                render_weights_into(sdf, s, &mut weights)
-            } else {
-                weights_into(sdf, s, &mut weights)
+        let mut placed = |depths: &[f32], sdf: &[f32], faint: bool| {
+            if faint {
+                return Vec::new();
+            }
+            match purpose {
+                Purpose::Training => weights_into(sdf, s, &mut weights),
+                Purpose::Render(_) => render_weights_into(sdf, s, &mut weights),
             }
             sample_intervals(depths, &weights, k)
         };
-        let new: Vec<Vec<f32>> = rays.iter().zip(&sdf).map(|(ray, sdf)| placed(&ray.depths, sdf)).collect();
-        if round + 1 == rounds && !keep {
+        let new: Vec<Vec<f32>> = rays.iter().zip(&sdf).zip(&faint).map(|((ray, sdf), &faint)| placed(&ray.depths, sdf, faint)).collect();
+        if round + 1 == rounds && purpose == Purpose::Training {
             for (ray, new) in rays.iter_mut().zip(&new) {
                 ray.depths = merge_sorted(&ray.depths, new);
             }
@@ -105,17 +127,53 @@ fn upsample_chunk<S: Module<f32>>(
             }
         }
     }
-    if keep { sdf } else { Vec::new() }
+    let Purpose::Render(trim) = purpose else { return Vec::new() };
+    if let Some(Trim { s, negligible, .. }) = trim {
+        for (ray, sdf) in rays.iter_mut().zip(sdf.iter_mut()) {
+            trim_to_weight(&mut ray.depths, sdf, s, negligible);
+            ray.depths.shrink_to_fit();
+            sdf.shrink_to_fit();
+        }
+    }
+    sdf
+}
+
+/// Whether a render's ray (`depths` with the SDF `sdf` at each) is proven to carry at most
+/// `trim.negligible` of weight in all, wherever `intervals` intervals between its first and last
+/// depth are put: with the field's Lipschitz bound L (`trim.lipschitz`; without one, never),
+/// the SDF is at least `m = min_i (f_i + f_{i+1} − L (t_{i+1} − t_i)) / 2` between them, and an
+/// interval's NeuS opacity is at most `1 − Φ_s(f_end) ≤ e^{−s m}` (Φ_s the logistic at scale
+/// s), so the weights sum to at most `n e^{−s m}` ≤ `negligible` when `m ≥ ln(n / negligible) /
+/// s`. Such a ray's up-sampled samples would all be trimmed away ([`trim_to_weight`] keeps its
+/// last interval), so a render need not place them. A value that is not finite, or two values
+/// further apart than the bound allows (the claim is broken there), prove nothing.
+pub fn proven_faint(depths: &[f32], sdf: &[f32], trim: Trim, intervals: usize) -> bool {
+    let Some(lipschitz) = trim.lipschitz else { return false };
+    if depths.len() < 2 || sdf.len() != depths.len() || !sdf.iter().all(|v| v.is_finite()) {
+        return false;
+    }
+    let pairs = || depths.windows(2).zip(sdf.windows(2));
+    if pairs().any(|(t, f)| (f[1] - f[0]).abs() > lipschitz * (t[1] - t[0])) {
+        // A slope steeper than the bound: the claim is broken here.
+        return false;
+    }
+    let floor = (intervals as f32 / trim.negligible).ln() / trim.s;
+    let lowest = pairs().map(|(t, f)| 0.5 * (f[0] + f[1] - lipschitz * (t[1] - t[0]))).fold(f32::INFINITY, f32::min);
+    lowest >= floor && floor.is_finite()
 }
 
 /// How a render trims its rays ([`trim_to_weight`]): at the model's scale `s`, dropping at most
-/// `negligible` of a ray's weight on each side.
+/// `negligible` of a ray's weight on each side; with the field's Lipschitz bound, a ray whose
+/// coarse values prove it carries at most `negligible` in all is not up-sampled
+/// ([`proven_faint`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Trim {
     /// The model's logistic scale.
     pub s: f32,
     /// The weight a ray may drop on each side.
     pub negligible: f32,
+    /// A bound on the SDF's Lipschitz constant (`None`: no ray is proven faint).
+    pub lipschitz: Option<f32>,
 }
 
 /// Rays per forward pass of the up-sampling.
@@ -131,13 +189,14 @@ impl Backbone {
         use rayon::prelude::*;
         let net = &self.sdf;
         rays.par_chunks_mut(CHUNK).for_each(|rays| {
-            upsample_chunk(net, params, rays, n_fine, rounds, base_s, false);
+            upsample_chunk(net, params, rays, n_fine, rounds, base_s, Purpose::Training);
         });
     }
 
     /// [`Self::upsample`] for a render, each depth's SDF kept: each ray then trimmed by
     /// [`trim_to_weight`] when `trim` is given, chunk by chunk (the trimmed depths release their
-    /// memory). Returns the SDF at every ray's final depths, for [`Self::render`].
+    /// memory), no depth placed on a ray that `trim`'s Lipschitz bound proves faint
+    /// ([`proven_faint`]). Returns the SDF at every ray's final depths, for [`Self::render`].
     pub fn upsample_for_render(
         &self,
         params: &[f32],
@@ -149,19 +208,7 @@ impl Backbone {
     ) -> Vec<Vec<f32>> {
         use rayon::prelude::*;
         let net = &self.sdf;
-        rays.par_chunks_mut(CHUNK)
-            .flat_map_iter(|rays| {
-                let mut sdf = upsample_chunk(net, params, rays, n_fine, rounds, base_s, true);
-                if let Some(Trim { s, negligible }) = trim {
-                    for (ray, sdf) in rays.iter_mut().zip(sdf.iter_mut()) {
-                        trim_to_weight(&mut ray.depths, sdf, s, negligible);
-                        ray.depths.shrink_to_fit();
-                        sdf.shrink_to_fit();
-                    }
-                }
-                sdf
-            })
-            .collect()
+        rays.par_chunks_mut(CHUNK).flat_map_iter(|rays| upsample_chunk(net, params, rays, n_fine, rounds, base_s, Purpose::Render(trim))).collect()
     }
 
     /// The SDF at every depth of every ray (no up-sampling), in parallel chunks.
@@ -296,7 +343,7 @@ mod tests {
         backbone.upsample(&params, &mut new, n_fine, rounds, base_s);
         let mut kept = rays.clone();
         let values: Vec<Vec<f32>> =
-            kept.chunks_mut(CHUNK).flat_map(|c| upsample_chunk(&backbone.sdf, &params, c, n_fine, rounds, base_s, true)).collect();
+            kept.chunks_mut(CHUNK).flat_map(|c| upsample_chunk(&backbone.sdf, &params, c, n_fine, rounds, base_s, Purpose::Render(None))).collect();
         // Training weighs by `weights_into`, a render by `render_weights_into`.
         let reference = |ray: &RayInput<f32>, weigh: fn(&[f32], f32, &mut Vec<f32>)| {
             let mut depths = ray.depths.clone();
@@ -316,6 +363,125 @@ mod tests {
             assert_eq!(b.depths, depths);
             assert_eq!(*v, ray_sdf(&backbone.sdf, &params, ray, &depths));
         }
+    }
+
+    fn trim(lipschitz: Option<f32>) -> Trim {
+        Trim { s: 200.0, negligible: 1e-4, lipschitz }
+    }
+
+    #[test]
+    fn a_ray_is_proven_faint_only_with_a_lipschitz_bound_finite_values_and_room_between_samples() {
+        let depths: Vec<f32> = (0..=16).map(|i| 1.0 + 0.05 * i as f32).collect();
+        let far = vec![0.3f32; 17];
+        // m = 0.3 − 0.025 L against ln(48 / 10⁻⁴) / 200 = 0.065.
+        assert!(proven_faint(&depths, &far, trim(Some(1.0)), 48));
+        assert!(!proven_faint(&depths, &far, trim(None), 48), "no bound, no proof");
+        assert!(!proven_faint(&depths, &far, trim(Some(10.0)), 48), "a steep field may dip between the samples");
+        let mut nan = far.clone();
+        nan[5] = f32::NAN;
+        assert!(!proven_faint(&depths, &nan, trim(Some(1.0)), 48), "a NaN proves nothing");
+        let mut steep = far.clone();
+        steep[9] = 0.05;
+        assert!(!proven_faint(&depths, &steep, trim(Some(1.0)), 48), "a slope steeper than the bound breaks the claim");
+        let near: Vec<f32> = (0..17).map(|i| (0.05 + 0.05 * (i as f32 - 9.0).abs()).min(0.3)).collect();
+        assert!(!proven_faint(&depths, &near, trim(Some(1.05)), 48), "a dip below the floor");
+        assert!(proven_faint(&depths, &near.iter().map(|v| v + 0.05).collect::<Vec<_>>(), trim(Some(1.05)), 48), "the dip lifted");
+        assert!(!proven_faint(&depths[..1], &far[..1], trim(Some(1.0)), 48), "one depth, no interval");
+    }
+
+    /// Soundness, as a property over random fields: wherever a proven ray's samples are put (any
+    /// number up to the proof's), its weights sum to at most `negligible`. The fields are sums of
+    /// sines along the ray with a known slope bound, offset so that many rays come near zero.
+    #[test]
+    fn a_proven_faint_ray_carries_at_most_the_negligible_weight_wherever_its_samples_lie() {
+        let mut rng = 0x9E37_79B9_7F4A_7C15u64;
+        let mut uniform = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let (mut proven, intervals) = (0, 48);
+        for _ in 0..400 {
+            let waves: Vec<[f32; 3]> = (0..3).map(|_| [0.05 * uniform(), 5.0 + 60.0 * uniform(), 6.3 * uniform()]).collect();
+            let offset = 0.02 + 0.2 * uniform();
+            let field = |t: f32| offset + waves.iter().map(|[a, k, p]| a * (k * t + p).sin()).sum::<f32>();
+            let lipschitz = waves.iter().map(|[a, k, _]| a * k).sum::<f32>() * 1.001;
+            let coarse: Vec<f32> = (0..=16).map(|i| 1.0 + 0.03 * i as f32).collect();
+            let values: Vec<f32> = coarse.iter().map(|&t| field(t)).collect();
+            if !proven_faint(&coarse, &values, trim(Some(lipschitz)), intervals) {
+                continue;
+            }
+            proven += 1;
+            for placement in 0..20 {
+                // The coarse depths and `intervals − 16` more, uniform or bunched where the
+                // field is lowest.
+                let mut depths = coarse.clone();
+                let lowest = coarse.iter().copied().min_by(|a, b| field(*a).total_cmp(&field(*b))).unwrap_or(1.0);
+                for _ in 0..intervals - 16 {
+                    let t = if placement % 2 == 0 { 1.0 + 0.48 * uniform() } else { (lowest + 0.03 * (uniform() - 0.5)).clamp(1.0, 1.48) };
+                    depths.push(t);
+                }
+                depths.sort_by(f32::total_cmp);
+                let sdf: Vec<f32> = depths.iter().map(|&t| field(t)).collect();
+                let mut weights = Vec::new();
+                render_weights_into(&sdf, 200.0, &mut weights);
+                let total: f32 = weights.iter().sum();
+                assert!(total <= 1e-4, "proven faint, yet {total:e} of weight");
+            }
+        }
+        assert!((20..380).contains(&proven), "{proven} of 400 rays proven: the fields do not test the proof");
+    }
+
+    /// A render up-sampled with the proof against one without: a ray with the same samples renders
+    /// bit for bit the same, one proven by its coarse values keeps its last coarse interval, and
+    /// every ray whose samples changed renders (colour, opacity) within the trim's bound of the
+    /// full up-sampling.
+    #[test]
+    fn rays_proven_faint_render_as_the_full_upsampling_within_the_trim() {
+        let (backbone, params) = crate::build(crate::Preset::NeuralangeloCpu, 0.5, 4);
+        let rays: Vec<RayInput<f32>> = (0..48)
+            .map(|i| {
+                // From 2.5 away, aimed at offsets from the sphere's centre of 0 to 0.94.
+                let offset = 0.02 * i as f32;
+                let origin = [0.0, -2.5, offset];
+                RayInput {
+                    origin,
+                    direction: [0.0, 1.0, 0.0],
+                    depths: (0..=32).map(|k| 1.5 + k as f32 * 2.0 / 32.0).collect(),
+                    target: [0.0; 3],
+                    mask: None,
+                    weight: 1.0,
+                }
+            })
+            .collect();
+        let (s, negligible, lipschitz) = (200.0, 1e-4, 1.5);
+        let render = |trim: Trim| {
+            let mut rays = rays.clone();
+            let sdf = backbone.upsample_for_render(&params, &mut rays, 32, 2, 64.0, Some(trim));
+            let outputs = backbone.render(&params, &rays, &sdf, negligible, std::num::NonZeroUsize::MIN);
+            (rays, outputs)
+        };
+        let (full, full_out) = render(Trim { s, negligible, lipschitz: None });
+        let (proof, proof_out) = render(Trim { s, negligible, lipschitz: Some(lipschitz) });
+        let mut proven = 0;
+        for (r, ((a, b), (x, y))) in full.iter().zip(&proof).zip(full_out.iter().zip(&proof_out)).enumerate() {
+            let coarse = &rays[r].depths;
+            if proven_faint(coarse, &ray_sdf(&backbone.sdf, &params, &rays[r], coarse), Trim { s, negligible, lipschitz: Some(lipschitz) }, 64) {
+                proven += 1;
+                assert_eq!(b.depths, coarse[31..], "ray {r}: a ray proven by its coarse values keeps its last coarse interval");
+            }
+            if a.depths == b.depths {
+                assert_eq!((x.color, x.opacity), (y.color, y.opacity), "ray {r}: the same samples, the same render");
+                continue;
+            }
+            assert!(x.opacity <= negligible && y.opacity <= negligible, "ray {r}: opacity {} and {}", x.opacity, y.opacity);
+            for k in 0..3 {
+                assert!((x.color[k] - y.color[k]).abs() <= 2.0 * negligible, "ray {r}, colour {k}: {} against {}", x.color[k], y.color[k]);
+            }
+        }
+        // Rays that miss the sphere (radius 0.5) by more than ≈ 0.11 are proven.
+        assert!((10..24).contains(&proven), "{proven} of 48 rays proven faint");
     }
 
     #[test]

@@ -11,7 +11,8 @@
 //!    (and its last), and the intervals between take the colour and normal on the line in depth
 //!    between the two evaluated on either side ([`colour_sources`]): a soft model keeps a
 //!    dozen or more intervals per ray, along which the colour changes little.
-//! 3. The learned background only for the rays that let more than `negligible` through.
+//! 3. The learned background only for the rays that let more than `negligible` through, and
+//!    along each only as far as what lies behind can carry more than `negligible`.
 //! 4. Each ray composited: `colour = Σ_kept wᵢ cᵢ + (1 − O) C_bg` (the background term dropped
 //!    where 1 − O ≤ `negligible`), opacity O and depth from every interval, normal from the kept.
 //!
@@ -155,7 +156,9 @@ impl<S, C> Pipeline<S, C> {
     }
 
     /// Adds `(1 − O) C_bg` to every output: the learned background for the rays that let more
-    /// than `negligible` through (the others keep their colour), or the fixed background colour.
+    /// than `negligible` through (the others keep their colour), each evaluated no further along
+    /// than it carries more than `negligible` of the colour ([`crate::BackgroundModel::render`]),
+    /// or the fixed background colour.
     fn composite_background<R: Real>(&self, p_bg: &[R], rays: &[RayInput<R>], sh: &[[R; 16]], outputs: &mut [RayOutput<R>], negligible: R) {
         let Some(model) = &self.background else {
             let background = self.config.background.map(R::of);
@@ -174,8 +177,10 @@ impl<S, C> Pipeline<S, C> {
         let origins: Vec<[R; 3]> = through.iter().map(|&r| rays[r].origin).collect();
         let directions: Vec<[R; 3]> = through.iter().map(|&r| rays[r].direction).collect();
         let sh: Vec<[R; 16]> = through.iter().map(|&r| sh[r]).collect();
-        let pass = model.forward(p_bg, &origins, &directions, &sh);
-        for (&r, c) in through.iter().zip(&pass.colors) {
+        // What a ray's background may drop: `(1 − O) T ≤ negligible` past its evaluated samples.
+        let budgets: Vec<R> = through.iter().map(|&r| negligible / (R::ONE - outputs[r].opacity)).collect();
+        let (colors, _) = model.render(p_bg, &origins, &directions, &sh, &budgets);
+        for (&r, c) in through.iter().zip(&colors) {
             let out = &mut outputs[r];
             let left = R::ONE - out.opacity;
             for k in 0..3 {

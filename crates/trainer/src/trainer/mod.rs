@@ -134,7 +134,7 @@ pub struct Trainer {
     timing: Timing,
     last_step_seconds: f64,
     /// The renders' occupancy and the key of the field it was made of ([`renders`]).
-    render_occupancy: std::sync::Mutex<Option<(u64, std::sync::Arc<prob_grid::Occupancy>)>>,
+    render_occupancy: std::sync::Mutex<Option<(u64, std::sync::Arc<renders::RenderOccupancy>)>>,
 }
 
 /// The surface losses as the backbone's per-ray hook.

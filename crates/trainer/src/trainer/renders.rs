@@ -14,6 +14,13 @@ use std::hash::Hasher;
 use std::sync::Arc;
 use view_sampler::march_through;
 
+/// A render's occupancy ([`Trainer::render_occupancy`]) and the Lipschitz bound of the field it
+/// was made of.
+pub(crate) struct RenderOccupancy {
+    occupancy: Occupancy,
+    lipschitz: f32,
+}
+
 /// Rays per work item of a render.
 const RENDER_CHUNK: usize = 64;
 
@@ -93,8 +100,16 @@ impl Trainer {
 
     /// The outputs of the pixels of `rows` (row-major) seen by `camera`: the estimator's coarse
     /// samples without jitter through `occupancy` (else the estimator's), up-sampled and trimmed
-    /// where they cross occupied space, one interval at the far end where they do not.
-    fn render_rows(&self, camera: &camera_geom::PinholeCamera, rows: std::ops::Range<u32>, occupancy: Option<&Occupancy>) -> Vec<RayOutput<f32>> {
+    /// where they cross occupied space (not up-sampled where their coarse values and the
+    /// occupancy's Lipschitz bound prove them faint: [`sdf_backbone::proven_faint`]), one
+    /// interval at the far end where they do not.
+    fn render_rows(
+        &self,
+        camera: &camera_geom::PinholeCamera,
+        rows: std::ops::Range<u32>,
+        render_occupancy: Option<&RenderOccupancy>,
+    ) -> Vec<RayOutput<f32>> {
+        let occupancy = render_occupancy.map(|o| &o.occupancy);
         let r = &self.config.render;
         let width = camera.width;
         let (mut rays, hits): (Vec<RayInput<f32>>, Vec<bool>) = rows
@@ -120,7 +135,8 @@ impl Trainer {
         let mut crossing: Vec<RayInput<f32>> =
             index.iter().map(|&i| RayInput { depths: std::mem::take(&mut rays[i].depths), ..rays[i].clone() }).collect();
         let (params, fine, rounds) = (&self.state.params, r.render_fine, r.render_upsample_rounds);
-        let trim = (r.render_trim > 0.0).then(|| Trim { s: self.s() as f32, negligible: r.render_trim as f32 });
+        let lipschitz = render_occupancy.map(|o| o.lipschitz);
+        let trim = (r.render_trim > 0.0).then(|| Trim { s: self.s() as f32, negligible: r.render_trim as f32, lipschitz });
         let values = self.backbone.upsample_for_render(params, &mut crossing, fine, rounds, r.upsample_s, trim);
         let mut sdf = vec![Vec::new(); rays.len()];
         for ((ray, values), &i) in crossing.into_iter().zip(values).zip(&index) {
@@ -164,8 +180,9 @@ impl Trainer {
     /// made once for all the views rendered of one field, keyed by a hash of the parameters'
     /// bits, the active hash-grid levels, the field's Lipschitz bound and the dilation (the scene
     /// grid does not change in a trainer's life), so that no change of the model can reuse a
-    /// stale one.
-    fn render_occupancy(&self) -> Result<Arc<Occupancy>> {
+    /// stale one. It carries the Lipschitz bound its evaluation checked (the claim, raised where
+    /// the evaluation measured a steeper slope), which proves rays faint ([`Trim`]).
+    fn render_occupancy(&self) -> Result<Arc<RenderOccupancy>> {
         let key = {
             let mut h = std::hash::DefaultHasher::new();
             for p in &self.state.params {
@@ -188,7 +205,8 @@ impl Trainer {
         field.lipschitz = self.estimator.lipschitz_bound();
         let scene = &self.config.guide.scene;
         let active = prob_grid::evaluate(&field, self.s() as f32, scene).context("the occupancy of a render")?;
-        let occupancy = Arc::new(Occupancy::from_active(&active, scene, self.config.render.occupancy_dilation.max(1)));
+        let occupancy = Occupancy::from_active(&active, scene, self.config.render.occupancy_dilation.max(1));
+        let occupancy = Arc::new(RenderOccupancy { occupancy, lipschitz: active.lipschitz.used.max(active.lipschitz.measured) });
         *cache = Some((key, Arc::clone(&occupancy)));
         Ok(occupancy)
     }

@@ -396,11 +396,17 @@ mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng, rngs::StdRng};
 
-    /// A small model (a grid or not, the view among the inputs) with its parameters, the density
-    /// output's bias raised by `opaque`, and `n` rays from inside the bound with their SH inputs.
+    /// A small model (`samples` a ray, a grid or not, the view among the inputs) with its
+    /// parameters, the density output's bias raised by `opaque`, and `n` rays from inside the
+    /// bound with their SH inputs.
     #[allow(clippy::type_complexity)]
-    fn model_and_rays(grid: bool, opaque: f32, n: usize) -> (BackgroundModel, Vec<f32>, Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 16]>) {
-        let mut model = BackgroundModel::with_view(16, 3, 16, 2, true);
+    fn model_and_rays(
+        samples: usize,
+        grid: bool,
+        opaque: f32,
+        n: usize,
+    ) -> (BackgroundModel, Vec<f32>, Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 16]>) {
+        let mut model = BackgroundModel::with_view(samples, 3, 16, 2, true);
         if grid {
             model = model.with_grid(HashGridConfig { levels: 2, features: 2, log2_table: 8, base_resolution: 4, finest_resolution: 16 });
         }
@@ -444,38 +450,46 @@ mod tests {
 
     #[test]
     fn a_background_render_with_no_budget_is_the_forward_pass_to_the_bit() {
-        for grid in [false, true] {
-            let (model, params, origins, directions, sh) = model_and_rays(grid, 0.0, 37);
+        // 18 samples: the last block shorter than `RENDER_BLOCK`.
+        for (samples, grid) in [(16, false), (16, true), (18, true)] {
+            let (model, params, origins, directions, sh) = model_and_rays(samples, grid, 0.0, 37);
             let expected = model.forward(&params, &origins, &directions, &sh).colors;
             let (colors, evaluated) = model.render(&params, &origins, &directions, &sh, &[0.0; 37]);
-            assert_eq!(evaluated, 37 * 16, "grid {grid}: every sample evaluated");
-            assert_eq!(colors, expected, "grid {grid}");
+            assert_eq!(evaluated, 37 * samples, "{samples} samples, grid {grid}: every sample evaluated");
+            assert_eq!(colors, expected, "{samples} samples, grid {grid}");
         }
     }
 
+    /// Each ray stops after the first block past which its transmittance (one minus the forward
+    /// pass's weights so far) is within its budget — the samples evaluated counted exactly — and
+    /// drops at most its budget of colour.
     #[test]
-    fn a_background_render_drops_at_most_each_rays_budget_behind_an_opaque_backdrop() {
+    fn a_background_render_stops_each_ray_after_the_block_where_its_budget_is_reached() {
         for grid in [false, true] {
-            let (model, params, origins, directions, sh) = model_and_rays(grid, 40.0, 40);
+            let (model, params, origins, directions, sh) = model_and_rays(16, grid, 4.0, 40);
             let to_f64 = |v: &[[f32; 3]]| v.iter().map(|c| c.map(f64::from)).collect::<Vec<_>>();
             let params: Vec<f64> = params.iter().map(|&p| f64::from(p)).collect();
             let (origins, directions) = (to_f64(&origins), to_f64(&directions));
             let sh: Vec<[f64; 16]> = sh.iter().map(|s| s.map(f64::from)).collect();
-            let budgets: Vec<f64> = (0..40).map(|r| [1e-4, 1e-3, 1e-2, 0.1][r % 4]).collect();
-            let expected = model.forward(&params, &origins, &directions, &sh).colors;
+            let budgets: Vec<f64> = (0..40).map(|r| [1e-4, 1e-3, 1e-2, 0.1, 0.5][r % 5]).collect();
+            let pass = model.forward(&params, &origins, &directions, &sh);
             let (colors, evaluated) = model.render(&params, &origins, &directions, &sh, &budgets);
-            assert!(evaluated < 40 * 16 / 2, "grid {grid}: {evaluated} samples evaluated: the rays were not stopped");
-            for (r, (a, b)) in colors.iter().zip(&expected).enumerate() {
+            let mut expected = 0;
+            let mut stops = std::collections::BTreeSet::new();
+            for (r, budget) in budgets.iter().enumerate() {
+                let weights = pass.rows[r * 16..(r + 1) * 16].iter().map(|row| row[9]);
+                let left: Vec<f64> = weights.scan(1.0, |t, w| Some(*t - w).inspect(|v| *t = *v)).collect();
+                let blocks = (1..=16 / RENDER_BLOCK).find(|b| left[b * RENDER_BLOCK - 1] <= *budget).unwrap_or(16 / RENDER_BLOCK);
+                expected += blocks * RENDER_BLOCK;
+                stops.insert(blocks);
                 for j in 0..3 {
                     // The dropped tail is a sum of non-negative weights times colours in (0, 1).
-                    let dropped = b[j] - a[j];
-                    assert!(
-                        (-1e-12..=budgets[r]).contains(&dropped),
-                        "grid {grid}, ray {r}, channel {j}: {dropped:e} dropped, budget {}",
-                        budgets[r]
-                    );
+                    let dropped = pass.colors[r][j] - colors[r][j];
+                    assert!((-1e-12..=*budget).contains(&dropped), "grid {grid}, ray {r}, channel {j}: {dropped:e} dropped, budget {budget}");
                 }
             }
+            assert_eq!(evaluated, expected, "grid {grid}: the samples evaluated");
+            assert!(stops.len() >= 3, "grid {grid}: the rays stop after blocks {stops:?}: the budgets do not test stopping");
         }
     }
 }

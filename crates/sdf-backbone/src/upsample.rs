@@ -143,12 +143,13 @@ fn upsample_chunk<S: Module<f32>>(
 /// depth are put: with the field's Lipschitz bound L (`trim.lipschitz`; without one, never),
 /// the SDF is at least `m = min_i (f_i + f_{i+1} − L (t_{i+1} − t_i)) / 2` between them, and an
 /// interval's NeuS opacity is at most `1 − Φ_s(f_end) ≤ e^{−s m}` (Φ_s the logistic at scale
-/// s), so the weights sum to at most `n e^{−s m}` ≤ `negligible` when `m ≥ ln(n / negligible) /
-/// s`. Such a ray's up-sampled samples would all be trimmed away ([`trim_to_weight`] keeps its
-/// last interval), so a render need not place them. A value that is not finite, or two values
-/// further apart than the bound allows (the claim is broken there), prove nothing.
+/// s), so the weights sum to at most `n e^{−s m}` ≤ `negligible / 2` (half kept for the f32
+/// rounding) when `m ≥ ln(2n / negligible) / s`. Such a ray's up-sampled samples would all be
+/// trimmed away ([`trim_to_weight`] keeps its last interval), so a render need not place them.
+/// A bound or a value that is not finite, or two values further apart than the bound allows
+/// (the claim is broken there), prove nothing.
 pub fn proven_faint(depths: &[f32], sdf: &[f32], trim: Trim, intervals: usize) -> bool {
-    let Some(lipschitz) = trim.lipschitz else { return false };
+    let Some(lipschitz) = trim.lipschitz.filter(|l| l.is_finite() && *l >= 0.0) else { return false };
     if depths.len() < 2 || sdf.len() != depths.len() || !sdf.iter().all(|v| v.is_finite()) {
         return false;
     }
@@ -157,7 +158,8 @@ pub fn proven_faint(depths: &[f32], sdf: &[f32], trim: Trim, intervals: usize) -
         // A slope steeper than the bound: the claim is broken here.
         return false;
     }
-    let floor = (intervals as f32 / trim.negligible).ln() / trim.s;
+    // Half the trim, for the f32 rounding of the weights and of their sum in the trim.
+    let floor = (intervals as f32 / (0.5 * trim.negligible)).ln() / trim.s;
     let lowest = pairs().map(|(t, f)| 0.5 * (f[0] + f[1] - lipschitz * (t[1] - t[0]))).fold(f32::INFINITY, f32::min);
     lowest >= floor && floor.is_finite()
 }
@@ -373,9 +375,10 @@ mod tests {
     fn a_ray_is_proven_faint_only_with_a_lipschitz_bound_finite_values_and_room_between_samples() {
         let depths: Vec<f32> = (0..=16).map(|i| 1.0 + 0.05 * i as f32).collect();
         let far = vec![0.3f32; 17];
-        // m = 0.3 − 0.025 L against ln(48 / 10⁻⁴) / 200 = 0.065.
+        // m = 0.3 − 0.025 L against ln(2 · 48 / 10⁻⁴) / 200 = 0.069.
         assert!(proven_faint(&depths, &far, trim(Some(1.0)), 48));
         assert!(!proven_faint(&depths, &far, trim(None), 48), "no bound, no proof");
+        assert!(!proven_faint(&depths, &far, trim(Some(f32::NAN)), 48), "a NaN bound proves nothing");
         assert!(!proven_faint(&depths, &far, trim(Some(10.0)), 48), "a steep field may dip between the samples");
         let mut nan = far.clone();
         nan[5] = f32::NAN;
@@ -433,7 +436,8 @@ mod tests {
         assert!((20..380).contains(&proven), "{proven} of 400 rays proven: the fields do not test the proof");
     }
 
-    /// A render up-sampled with the proof against one without: a ray with the same samples renders
+    /// A render up-sampled with the proof against one without (the presets' backbone, its
+    /// geometric initialisation a sphere of radius 0.5): a ray with the same samples renders
     /// bit for bit the same, one proven by its coarse values keeps its last coarse interval, and
     /// every ray whose samples changed renders (colour, opacity) within the trim's bound of the
     /// full up-sampling.

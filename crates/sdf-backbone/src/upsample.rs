@@ -146,11 +146,11 @@ fn upsample_chunk<S: Module<f32>>(
 /// s), so the weights sum to at most `n e^{−s m}` ≤ `negligible / 2` (half kept for the f32
 /// rounding) when `m ≥ ln(2n / negligible) / s`. Such a ray's up-sampled samples would all be
 /// trimmed away ([`trim_to_weight`] keeps its last interval), so a render need not place them.
-/// A bound or a value that is not finite, or two values further apart than the bound allows
-/// (the claim is broken there), prove nothing.
+/// A bound or a value that is not finite, a scale s that is not positive, or two values further
+/// apart than the bound allows (the claim is broken there), prove nothing.
 pub fn proven_faint(depths: &[f32], sdf: &[f32], trim: Trim, intervals: usize) -> bool {
     let Some(lipschitz) = trim.lipschitz.filter(|l| l.is_finite() && *l >= 0.0) else { return false };
-    if depths.len() < 2 || sdf.len() != depths.len() || !sdf.iter().all(|v| v.is_finite()) {
+    if !(trim.s > 0.0) || depths.len() < 2 || sdf.len() != depths.len() || !sdf.iter().all(|v| v.is_finite()) {
         return false;
     }
     let pairs = || depths.windows(2).zip(sdf.windows(2));
@@ -379,6 +379,7 @@ mod tests {
         assert!(proven_faint(&depths, &far, trim(Some(1.0)), 48));
         assert!(!proven_faint(&depths, &far, trim(None), 48), "no bound, no proof");
         assert!(!proven_faint(&depths, &far, trim(Some(f32::NAN)), 48), "a NaN bound proves nothing");
+        assert!(!proven_faint(&depths, &far, Trim { s: -200.0, ..trim(Some(1.0)) }, 48), "nor a negative scale");
         assert!(!proven_faint(&depths, &far, trim(Some(10.0)), 48), "a steep field may dip between the samples");
         let mut nan = far.clone();
         nan[5] = f32::NAN;

@@ -185,27 +185,42 @@ impl BackgroundModel {
         }
     }
 
+    /// The network on `rows` samples, row i being sample `which(i) = (ray, k)` of the rays
+    /// (`origins`, `directions`, `sh`): its inputs, the grid's points (empty without a grid),
+    /// the samples' depths, the network's context and raw outputs (rows × 4).
+    fn evaluate<R: Real>(
+        &self,
+        params: &[R],
+        origins: &[[R; 3]],
+        directions: &[[R; 3]],
+        sh: &[[R; 16]],
+        rows: usize,
+        which: impl Fn(usize) -> (usize, usize),
+    ) -> NetworkRows<R> {
+        let n_in = Module::<R>::n_inputs(&self.net);
+        let (p_net, p_grid) = params.split_at(self.tables().start);
+        let mut input = Buf::<R>::zeroed(rows * n_in);
+        let mut points = Buf::<R>::zeroed(if self.grid.is_some() { rows * 3 } else { 0 });
+        let mut depths = vec![R::ZERO; rows];
+        for i in 0..rows {
+            let (r, k) = which(i);
+            let point = points.get_mut(3 * i..3 * i + 3).unwrap_or_default();
+            depths[i] = self.sample_row(origins[r], directions[r], &sh[r], k, &mut input[i * n_in..(i + 1) * n_in], point);
+        }
+        self.add_grid_features(p_grid, &points, &mut input);
+        let mut raw = Buf::<R>::to_overwrite(rows * 4);
+        let mut ctx = Buf::<R>::to_overwrite(rows * Module::<R>::ctx_per_row(&self.net));
+        self.net.forward(p_net, &input, &mut raw, &mut ctx);
+        NetworkRows { input, points, depths, ctx, raw }
+    }
+
     /// The background colour of each ray (`origins`, unit `directions`, `sh` = SH₄ of each
     /// direction), with what the backward pass needs.
     pub fn forward<R: Real>(&self, params: &[R], origins: &[[R; 3]], directions: &[[R; 3]], sh: &[[R; 16]]) -> BackgroundPass<R> {
         let _span = crate::profile::span(crate::profile::Stage::Background);
-        let (k_n, n_in) = (self.samples, Module::<R>::n_inputs(&self.net));
-        let rays = origins.len();
+        let (k_n, rays) = (self.samples, origins.len());
         let rows_n = rays * k_n;
-        let mut input = Buf::<R>::zeroed(rows_n * n_in);
-        let mut points = Buf::<R>::zeroed(if self.grid.is_some() { rows_n * 3 } else { 0 });
-        let mut depths = vec![R::ZERO; rows_n];
-        for r in 0..rays {
-            for k in 0..k_n {
-                let i = r * k_n + k;
-                let point = points.get_mut(3 * i..3 * i + 3).unwrap_or_default();
-                depths[i] = self.sample_row(origins[r], directions[r], &sh[r], k, &mut input[i * n_in..(i + 1) * n_in], point);
-            }
-        }
-        self.add_grid_features(&params[self.tables().start..], &points, &mut input);
-        let mut raw = Buf::<R>::to_overwrite(rows_n * 4);
-        let mut ctx = Buf::<R>::to_overwrite(rows_n * Module::<R>::ctx_per_row(&self.net));
-        self.net.forward(&params[..self.tables().start], &input, &mut raw, &mut ctx);
+        let NetworkRows { input, points, depths, ctx, raw } = self.evaluate(params, origins, directions, sh, rows_n, |i| (i / k_n, i % k_n));
         let mut rows = vec![[R::ZERO; 10]; rows_n];
         let mut colors = vec![[R::ZERO; 3]; rays];
         for r in 0..rays {
@@ -245,8 +260,7 @@ impl BackgroundModel {
     /// independent). Returns the colours and the samples evaluated.
     pub fn render<R: Real>(&self, params: &[R], origins: &[[R; 3]], directions: &[[R; 3]], sh: &[[R; 16]], budgets: &[R]) -> (Vec<[R; 3]>, usize) {
         let _span = crate::profile::span(crate::profile::Stage::Background);
-        let (k_n, n_in) = (self.samples, Module::<R>::n_inputs(&self.net));
-        let (p_net, p_grid) = params.split_at(self.tables().start);
+        let k_n = self.samples;
         let mut colors = vec![[R::ZERO; 3]; origins.len()];
         let mut transmittance = vec![R::ONE; origins.len()];
         let mut active: Vec<usize> = (0..origins.len()).collect();
@@ -254,20 +268,8 @@ impl BackgroundModel {
         for first in (0..k_n).step_by(RENDER_BLOCK) {
             let block = first..(first + RENDER_BLOCK).min(k_n);
             let rows_n = active.len() * block.len();
-            let mut input = Buf::<R>::zeroed(rows_n * n_in);
-            let mut points = Buf::<R>::zeroed(if self.grid.is_some() { rows_n * 3 } else { 0 });
-            let mut depths = vec![R::ZERO; rows_n];
-            for (a, &r) in active.iter().enumerate() {
-                for (b, k) in block.clone().enumerate() {
-                    let i = a * block.len() + b;
-                    let point = points.get_mut(3 * i..3 * i + 3).unwrap_or_default();
-                    depths[i] = self.sample_row(origins[r], directions[r], &sh[r], k, &mut input[i * n_in..(i + 1) * n_in], point);
-                }
-            }
-            self.add_grid_features(p_grid, &points, &mut input);
-            let mut raw = Buf::<R>::to_overwrite(rows_n * 4);
-            let mut ctx = Buf::<R>::to_overwrite(rows_n * Module::<R>::ctx_per_row(&self.net));
-            self.net.forward(p_net, &input, &mut raw, &mut ctx);
+            let which = |i: usize| (active[i / block.len()], first + i % block.len());
+            let NetworkRows { depths, raw, .. } = self.evaluate(params, origins, directions, sh, rows_n, which);
             evaluated += rows_n;
             for (a, &r) in active.iter().enumerate() {
                 for (b, k) in block.clone().enumerate() {
@@ -361,6 +363,15 @@ impl BackgroundModel {
             }
         });
     }
+}
+
+/// What the network's forward pass on a set of samples leaves ([`BackgroundModel::evaluate`]).
+struct NetworkRows<R: Real> {
+    input: Buf<R>,
+    points: Buf<R>,
+    depths: Vec<R>,
+    ctx: Buf<R>,
+    raw: Buf<R>,
 }
 
 /// Samples a render evaluates at once per ray ([`BackgroundModel::render`]): after each block,

@@ -43,8 +43,9 @@ pub enum Stage {
     Upsample,
     /// A render's forward-only pass ([`crate::Pipeline::render_known`], modules included).
     RenderPass,
-    /// The learned background's forward pass ([`crate::BackgroundModel::forward`], its modules
-    /// included), inside a render's pass or a loss pass: what the rays' background costs.
+    /// The learned background's forward pass ([`crate::BackgroundModel::forward`], in a render
+    /// [`crate::BackgroundModel::render`]; its modules included), inside a render's pass or a
+    /// loss pass: what the rays' background costs.
     Background,
 }
 

@@ -98,7 +98,7 @@ fn upsample_chunk<S: Module<f32>>(
             // Each round's values prove more: its samples lie where the SDF is lowest.
             let still = n_fine - placed_before;
             for ((faint, ray), sdf) in faint.iter_mut().zip(rays.iter()).zip(&sdf) {
-                *faint = *faint || proven_faint(&ray.depths, sdf, trim, ray.depths.len() - 1 + still);
+                *faint = *faint || proven_faint(&ray.depths, sdf, trim, ray.depths.len().saturating_sub(1) + still);
             }
         }
         placed_before += k;

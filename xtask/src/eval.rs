@@ -98,6 +98,10 @@ pub struct EvalArgs {
     /// `render.render_trim`; 0 renders every sample).
     #[arg(long, requires = "run")]
     pub render_trim: Option<f64>,
+    /// Weight above which no interval of a --run render's ray may be for its up-sampling to stop
+    /// after the first round (default: the run's `render.render_resolved`; 0: every round).
+    #[arg(long, requires = "run")]
+    pub render_resolved: Option<f64>,
     /// Whether --run renders skip empty space (default: the run's `render.render_skip_empty`).
     #[arg(long, requires = "run")]
     pub render_skip_empty: Option<bool>,
@@ -288,6 +292,7 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
         r.render_fine = args.render_fine.unwrap_or(r.render_fine);
         r.render_upsample_rounds = args.render_rounds.unwrap_or(r.render_upsample_rounds);
         r.render_trim = args.render_trim.unwrap_or(r.render_trim);
+        r.render_resolved = args.render_resolved.map_or(r.render_resolved, |most| (most != 0.0).then_some(most));
         r.render_skip_empty = args.render_skip_empty.unwrap_or(r.render_skip_empty);
         r.render_colour_stride = args.render_colour_stride.unwrap_or(r.render_colour_stride);
     })?;
@@ -323,7 +328,7 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     let r = &trainer.config().render;
     let result = json!({"run": dir.display().to_string(), "step": trainer.state().step, "views": views, "psnr": mean("psnr"),
         "psnr_masked": mean("psnr_masked"), "ssim": mean("ssim"), "per_view": per_view, "downscale": downscale,
-        "render_fine": r.render_fine, "render_upsample_rounds": r.render_upsample_rounds, "render_trim": r.render_trim,
+        "render_fine": r.render_fine, "render_upsample_rounds": r.render_upsample_rounds, "render_trim": r.render_trim, "render_resolved": r.render_resolved,
         "render_skip_empty": r.render_skip_empty, "render_colour_stride": r.render_colour_stride, "seconds": seconds, "pixels_per_s": pixels as f64 / seconds});
     // A speed figure: it names the machine.
     let result = crate::machine::tag(result);

@@ -112,23 +112,26 @@ fn kernels() {
     for (act, pairs) in
         [Activation::Identity, Activation::Relu, Activation::Softplus { beta: 100.0 }].into_iter().flat_map(|a| in_bf16.iter().map(move |p| (a, *p)))
     {
-        let t = best(|| {
-            dispatch(
-                #[inline(always)]
-                || {
-                    dense_forward(
-                        &Dense { a: &a, a_s: 64, n_in: 64, wt: &wt, bias: &bias, n_out_pad: 64, act, scale: 1.0, pairs },
-                        &mut y,
-                        64,
-                        0,
-                        &mut d,
-                        rows,
-                    )
-                },
-            )
-        });
-        let products = if pairs.is_some() { "bf16" } else { "f32" };
-        println!("dense_forward 64 → 64, {act:?}, {products}: {:.2} ms = {:.1} GFLOP/s", t * 1e3, flop / t / 1e9);
+        for keep in [true, false] {
+            let t = best(|| {
+                dispatch(
+                    #[inline(always)]
+                    || {
+                        dense_forward(
+                            &Dense { a: &a, a_s: 64, n_in: 64, wt: &wt, bias: &bias, n_out_pad: 64, act, scale: 1.0, pairs },
+                            &mut y,
+                            64,
+                            0,
+                            keep.then_some(&mut d[..]),
+                            rows,
+                        )
+                    },
+                )
+            });
+            let products = if pairs.is_some() { "bf16" } else { "f32" };
+            let slopes = if keep { "slopes kept" } else { "no slopes" };
+            println!("dense_forward 64 → 64, {act:?}, {products}, {slopes}: {:.2} ms = {:.1} GFLOP/s", t * 1e3, flop / t / 1e9);
+        }
     }
     let mut c = vec![0.0f32; rows * 64];
     let t = best(|| {

@@ -187,7 +187,9 @@ impl BackgroundModel {
 
     /// The network on `rows` samples, row i being sample `which(i) = (ray, k)` of the rays
     /// (`origins`, `directions`, `sh`): its inputs, the grid's points (empty without a grid),
-    /// the samples' depths, the network's context and raw outputs (rows × 4).
+    /// the samples' depths, the network's context (for a backward pass, else empty: a render's
+    /// rows through [`Module::infer`], the same outputs to the bit) and raw outputs (rows × 4).
+    #[allow(clippy::too_many_arguments)]
     fn evaluate<R: Real>(
         &self,
         params: &[R],
@@ -196,6 +198,7 @@ impl BackgroundModel {
         sh: &[[R; 16]],
         rows: usize,
         which: impl Fn(usize) -> (usize, usize),
+        backward: bool,
     ) -> NetworkRows<R> {
         let n_in = Module::<R>::n_inputs(&self.net);
         let (p_net, p_grid) = params.split_at(self.tables().start);
@@ -209,8 +212,12 @@ impl BackgroundModel {
         }
         self.add_grid_features(p_grid, &points, &mut input);
         let mut raw = Buf::<R>::to_overwrite(rows * 4);
-        let mut ctx = Buf::<R>::to_overwrite(rows * Module::<R>::ctx_per_row(&self.net));
-        self.net.forward(p_net, &input, &mut raw, &mut ctx);
+        let mut ctx = Buf::<R>::to_overwrite(if backward { rows * Module::<R>::ctx_per_row(&self.net) } else { 0 });
+        if backward {
+            self.net.forward(p_net, &input, &mut raw, &mut ctx);
+        } else {
+            self.net.infer(p_net, &input, &mut raw);
+        }
         NetworkRows { input, points, depths, ctx, raw }
     }
 
@@ -220,7 +227,7 @@ impl BackgroundModel {
         let _span = crate::profile::span(crate::profile::Stage::Background);
         let (k_n, rays) = (self.samples, origins.len());
         let rows_n = rays * k_n;
-        let NetworkRows { input, points, depths, ctx, raw } = self.evaluate(params, origins, directions, sh, rows_n, |i| (i / k_n, i % k_n));
+        let NetworkRows { input, points, depths, ctx, raw } = self.evaluate(params, origins, directions, sh, rows_n, |i| (i / k_n, i % k_n), true);
         let mut rows = vec![[R::ZERO; 10]; rows_n];
         let mut colors = vec![[R::ZERO; 3]; rays];
         for r in 0..rays {
@@ -269,7 +276,7 @@ impl BackgroundModel {
             let block = first..(first + RENDER_BLOCK).min(k_n);
             let rows_n = active.len() * block.len();
             let which = |i: usize| (active[i / block.len()], first + i % block.len());
-            let NetworkRows { depths, raw, .. } = self.evaluate(params, origins, directions, sh, rows_n, which);
+            let NetworkRows { depths, raw, .. } = self.evaluate(params, origins, directions, sh, rows_n, which, false);
             evaluated += rows_n;
             for (a, &r) in active.iter().enumerate() {
                 for (b, k) in block.clone().enumerate() {

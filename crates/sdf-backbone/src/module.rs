@@ -56,6 +56,13 @@ pub trait Module<R: Real>: Sync {
             *f = row[0];
         }
     }
+    /// Every output of every row as [`Module::forward`] writes them, with no backward pass after
+    /// it (a render): by default through a context that is dropped; an MLP keeps none.
+    fn infer(&self, params: &[R], input: &[R], output: &mut [R]) {
+        let rows = input.len() / self.n_inputs().max(1);
+        let mut ctx = crate::scratch::Buf::<R>::to_overwrite(rows * self.ctx_per_row());
+        self.forward(params, input, output, &mut ctx);
+    }
     /// Backward pass: adds ∂L/∂params into `d_params`, writes ∂L/∂input (every value) into
     /// `d_input` if given.
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>);
@@ -390,12 +397,16 @@ impl<R: Real, A: Module<R>, B: Module<R>> Module<R> for Chain<A, B> {
         self.b.forward(pb, mid, output, cb);
     }
     fn forward_first(&self, params: &[R], input: &[R], first: &mut [R]) {
-        let rows = first.len();
         let (pa, pb) = params.split_at(self.a.n_params());
-        let mut mid = crate::scratch::Buf::<R>::to_overwrite(rows * self.a.n_outputs());
-        let mut ca = crate::scratch::Buf::<R>::to_overwrite(rows * self.a.ctx_per_row());
-        self.a.forward(pa, input, &mut mid, &mut ca);
+        let mut mid = crate::scratch::Buf::<R>::to_overwrite(first.len() * self.a.n_outputs());
+        self.a.infer(pa, input, &mut mid);
         self.b.forward_first(pb, &mid, first);
+    }
+    fn infer(&self, params: &[R], input: &[R], output: &mut [R]) {
+        let (pa, pb) = params.split_at(self.a.n_params());
+        let mut mid = crate::scratch::Buf::<R>::to_overwrite(input.len() / self.a.n_inputs().max(1) * self.a.n_outputs());
+        self.a.infer(pa, input, &mut mid);
+        self.b.infer(pb, &mid, output);
     }
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
         let rows = input.len() / self.a.n_inputs();

@@ -72,8 +72,8 @@ enum Purpose {
 
 /// Up-samples a chunk of rays (one forward pass per round over all of them); for a render,
 /// returns the SDF at each ray's final depths, no depth added to a ray once its values are
-/// [`proven_faint`] (before any round), each ray trimmed by [`trim_to_weight`] when
-/// `Purpose::Render` has a [`Trim`].
+/// [`proven_faint`] (before any round) or [`resolved`] (before any round after the first), each
+/// ray trimmed by [`trim_to_weight`] when `Purpose::Render` has a [`Trim`].
 fn upsample_chunk<S: Module<f32>>(
     net: &S,
     params: &[f32],
@@ -95,10 +95,13 @@ fn upsample_chunk<S: Module<f32>>(
     for round in 0..rounds {
         let k = n_fine / rounds + usize::from(round < n_fine % rounds);
         if let Purpose::Render(Some(trim)) = purpose {
-            // Each round's values prove more: its samples lie where the SDF is lowest.
+            // Each round's values prove more: its samples lie where the SDF is lowest. A ray is
+            // judged resolved only once a round has placed samples where its weights are.
             let still = n_fine - placed_before;
             for ((faint, ray), sdf) in faint.iter_mut().zip(rays.iter()).zip(&sdf) {
-                *faint = *faint || proven_faint(&ray.depths, sdf, trim, ray.depths.len().saturating_sub(1) + still);
+                *faint = *faint
+                    || proven_faint(&ray.depths, sdf, trim, ray.depths.len().saturating_sub(1) + still)
+                    || (round >= 1 && trim.resolved.is_some_and(|most| resolved(sdf, trim.s, most)));
             }
         }
         placed_before += k;
@@ -164,10 +167,24 @@ pub fn proven_faint(depths: &[f32], sdf: &[f32], trim: Trim, intervals: usize) -
     lowest >= floor && floor.is_finite()
 }
 
+/// Whether a render's ray (the SDF `sdf` at its depths) is resolved at the model's scale `s`: no
+/// interval carries more than `most` of weight ([`render_weights_into`]). Unlike
+/// [`proven_faint`] this proves nothing about what lies between the samples: a render asks it
+/// only after a round has placed samples by the weights (NeuS's up-sampling at a lower scale,
+/// wider than the model's). Most rays it stops carry next to nothing in all (they graze or miss
+/// the object), where a last round's samples changed no colour measurably (docs/DECISIONS.md
+/// §55). A NaN weight is not resolved.
+pub fn resolved(sdf: &[f32], s: f32, most: f32) -> bool {
+    let mut weights = Vec::with_capacity(sdf.len());
+    render_weights_into(sdf, s, &mut weights);
+    weights.iter().all(|&w| w <= most)
+}
+
 /// How a render trims its rays ([`trim_to_weight`]): at the model's scale `s`, dropping at most
 /// `negligible` of a ray's weight on each side; with the field's Lipschitz bound, a ray whose
 /// coarse values prove it carries at most `negligible` in all is not up-sampled
-/// ([`proven_faint`]).
+/// ([`proven_faint`]); with `resolved`, a ray none of whose intervals carries more after a round
+/// is up-sampled no further ([`resolved`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Trim {
     /// The model's logistic scale.
@@ -176,6 +193,8 @@ pub struct Trim {
     pub negligible: f32,
     /// A bound on the SDF's Lipschitz constant (`None`: no ray is proven faint).
     pub lipschitz: Option<f32>,
+    /// No more depths on a ray once no interval carries more than this weight ([`resolved`]).
+    pub resolved: Option<f32>,
 }
 
 /// Rays per forward pass of the up-sampling.
@@ -368,7 +387,7 @@ mod tests {
     }
 
     fn trim(lipschitz: Option<f32>) -> Trim {
-        Trim { s: 200.0, negligible: 1e-4, lipschitz }
+        Trim { s: 200.0, negligible: 1e-4, lipschitz, resolved: None }
     }
 
     #[test]
@@ -467,12 +486,17 @@ mod tests {
             let outputs = backbone.render(&params, &rays, &sdf, negligible, std::num::NonZeroUsize::MIN);
             (rays, outputs)
         };
-        let (full, full_out) = render(Trim { s, negligible, lipschitz: None });
-        let (proof, proof_out) = render(Trim { s, negligible, lipschitz: Some(lipschitz) });
+        let (full, full_out) = render(Trim { s, negligible, lipschitz: None, resolved: None });
+        let (proof, proof_out) = render(Trim { s, negligible, lipschitz: Some(lipschitz), resolved: None });
         let mut proven = 0;
         for (r, ((a, b), (x, y))) in full.iter().zip(&proof).zip(full_out.iter().zip(&proof_out)).enumerate() {
             let coarse = &rays[r].depths;
-            if proven_faint(coarse, &ray_sdf(&backbone.sdf, &params, &rays[r], coarse), Trim { s, negligible, lipschitz: Some(lipschitz) }, 64) {
+            if proven_faint(
+                coarse,
+                &ray_sdf(&backbone.sdf, &params, &rays[r], coarse),
+                Trim { s, negligible, lipschitz: Some(lipschitz), resolved: None },
+                64,
+            ) {
                 proven += 1;
                 assert_eq!(b.depths, coarse[31..], "ray {r}: a ray proven by its coarse values keeps its last coarse interval");
             }
@@ -487,6 +511,56 @@ mod tests {
         }
         // Rays that miss the sphere (radius 0.5) by more than ≈ 0.11 are proven.
         assert!((10..24).contains(&proven), "{proven} of 48 rays proven faint");
+    }
+
+    #[test]
+    fn a_ray_is_resolved_only_when_no_interval_carries_more_than_the_bound() {
+        // A plane at t = 1.3: sampled every 0.05 its weight sits in one interval, every 0.002 it
+        // spreads over a dozen.
+        let plane = |step: f32| (0..=(2.0 / step) as usize).map(|i| 1.3 - i as f32 * step).collect::<Vec<f32>>();
+        assert!(!resolved(&plane(0.05), 200.0, 0.2), "one interval holds the surface's weight");
+        assert!(resolved(&plane(0.002), 200.0, 0.2), "a dozen intervals share it");
+        assert!(resolved(&[0.5, 0.4, 0.45, 0.6], 200.0, 0.02), "a ray that misses carries nothing");
+        assert!(!resolved(&[0.5, f32::NAN, 0.45], 200.0, 0.02), "a NaN is not resolved");
+    }
+
+    /// A render's rays either take every round, or stop after the first where they were
+    /// resolved: the presets' backbone (its initialisation a sphere of radius 0.5), rays from
+    /// through its centre to past its rim, two rounds with the bound against none.
+    #[test]
+    fn a_resolved_ray_gets_no_depths_after_the_first_round() {
+        let (backbone, params) = crate::build(crate::Preset::NeuralangeloCpu, 0.5, 4);
+        let rays: Vec<RayInput<f32>> = (0..40)
+            .map(|i| RayInput {
+                origin: [0.0, -2.5, 0.015 * i as f32],
+                direction: [0.0, 1.0, 0.0],
+                depths: (0..=16).map(|k| 1.5 + k as f32 * 2.0 / 16.0).collect(),
+                target: [0.0; 3],
+                mask: None,
+                weight: 1.0,
+            })
+            .collect();
+        let (s, most) = (300.0, 0.2);
+        let trim = |resolved| Trim { s, negligible: 0.0, lipschitz: None, resolved };
+        let run = |n_fine, rounds, resolved| {
+            let mut rays = rays.clone();
+            let values = backbone.upsample_for_render(&params, &mut rays, n_fine, rounds, 64.0, Some(trim(resolved)));
+            (rays, values)
+        };
+        let (all, _) = run(32, 2, None);
+        let (stopped, _) = run(32, 2, Some(most));
+        let (first, first_values) = run(16, 1, None);
+        let mut counts = [0, 0];
+        for r in 0..rays.len() {
+            if resolved(&first_values[r], s, most) {
+                assert_eq!(stopped[r].depths, first[r].depths, "ray {r}: resolved after the first round, it keeps that round's depths");
+                counts[0] += 1;
+            } else {
+                assert_eq!(stopped[r].depths, all[r].depths, "ray {r}: not resolved, it takes every round");
+                counts[1] += 1;
+            }
+        }
+        assert!(counts[0] >= 5 && counts[1] >= 5, "{counts:?} rays resolved / not: the rays do not test the rule");
     }
 
     #[test]

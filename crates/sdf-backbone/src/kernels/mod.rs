@@ -367,14 +367,17 @@ fn gemm_tiles<R: Real, P: Product<R>, const M: usize, const WMAX: usize>(c: &mut
 }
 
 /// The forward pass of a dense layer on `rows` rows, fused: `Z = A Wᵀ + b`, then `Y = act(Z)·scale`
-/// into `y` (row stride `ys`, columns `y0..y0 + n_out_pad`) and `act'(Z)` into `d` (row stride
-/// `n_out_pad`), for `rows` rows of the [`Dense`] layer's input. Call inside [`dispatch`].
+/// into `y` (row stride `ys`, columns `y0..y0 + n_out_pad`) and, when given, `act'(Z)` into `d`
+/// (row stride `n_out_pad`; a pass with no backward after it keeps none), for `rows` rows of
+/// the [`Dense`] layer's input. `y` is the same to the bit with or without `d`. Call inside
+/// [`dispatch`].
 #[inline(always)]
-pub fn dense_forward<R: Real>(layer: &Dense<'_, R>, y: &mut [R], ys: usize, y0: usize, d: &mut [R], rows: usize) {
-    if wide_tiles() {
-        dense_tiles::<R, WIDE_ROWS, WIDE_WIDTH>(layer, y, ys, y0, d, rows)
-    } else {
-        dense_tiles::<R, NARROW_ROWS, NARROW_WIDTH>(layer, y, ys, y0, d, rows)
+pub fn dense_forward<R: Real>(layer: &Dense<'_, R>, y: &mut [R], ys: usize, y0: usize, d: Option<&mut [R]>, rows: usize) {
+    match (wide_tiles(), d) {
+        (true, Some(d)) => dense_tiles::<R, WIDE_ROWS, WIDE_WIDTH, true>(layer, y, ys, y0, d, rows),
+        (true, None) => dense_tiles::<R, WIDE_ROWS, WIDE_WIDTH, false>(layer, y, ys, y0, &mut [], rows),
+        (false, Some(d)) => dense_tiles::<R, NARROW_ROWS, NARROW_WIDTH, true>(layer, y, ys, y0, d, rows),
+        (false, None) => dense_tiles::<R, NARROW_ROWS, NARROW_WIDTH, false>(layer, y, ys, y0, &mut [], rows),
     }
 }
 
@@ -402,20 +405,28 @@ pub struct Dense<'a, R> {
     pub pairs: Option<bf16::Pairs<'a>>,
 }
 
-/// [`dense_forward`] with tiles of `M` rows and at most `WMAX` columns.
+/// [`dense_forward`] with tiles of `M` rows and at most `WMAX` columns, `act'(Z)` into `d` when
+/// `KEEP` (else `d` is not touched).
 #[inline(always)]
-fn dense_tiles<R: Real, const M: usize, const WMAX: usize>(layer: &Dense<'_, R>, y: &mut [R], ys: usize, y0: usize, d: &mut [R], rows: usize) {
+fn dense_tiles<R: Real, const M: usize, const WMAX: usize, const KEEP: bool>(
+    layer: &Dense<'_, R>,
+    y: &mut [R],
+    ys: usize,
+    y0: usize,
+    d: &mut [R],
+    rows: usize,
+) {
     let exact = Exact { l: Strided { data: layer.a, sm: layer.a_s, sk: 1 }, b: layer.wt, bs: layer.n_out_pad, k: layer.n_in };
     match &layer.pairs {
-        Some(pairs) => dense_product::<R, _, M, WMAX>(layer, pairs, y, ys, y0, d, rows),
-        None => dense_product::<R, _, M, WMAX>(layer, &exact, y, ys, y0, d, rows),
+        Some(pairs) => dense_product::<R, _, M, WMAX, KEEP>(layer, pairs, y, ys, y0, d, rows),
+        None => dense_product::<R, _, M, WMAX, KEEP>(layer, &exact, y, ys, y0, d, rows),
     }
 }
 
 /// [`dense_tiles`] with the product `product` (of the layer's operands).
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn dense_product<R: Real, P: Product<R>, const M: usize, const WMAX: usize>(
+fn dense_product<R: Real, P: Product<R>, const M: usize, const WMAX: usize, const KEEP: bool>(
     layer: &Dense<'_, R>,
     product: &P,
     y: &mut [R],
@@ -440,11 +451,10 @@ fn dense_product<R: Real, P: Product<R>, const M: usize, const WMAX: usize>(
                     }
                     product.tile::<M, $w>(&mut acc, m0, mr, n0);
                     for i in 0..mr {
-                        let (yr, dr) = (
-                            &mut y[(m0 + i) * ys + y0 + n0..(m0 + i) * ys + y0 + n0 + $w],
-                            &mut d[(m0 + i) * n_out_pad + n0..(m0 + i) * n_out_pad + n0 + $w],
-                        );
-                        activate::<R, $w>(&acc[i], act, scale, yr.try_into().expect("width"), dr.try_into().expect("width"));
+                        let yr = &mut y[(m0 + i) * ys + y0 + n0..(m0 + i) * ys + y0 + n0 + $w];
+                        let dr =
+                            KEEP.then(|| <&mut [R; $w]>::try_from(&mut d[(m0 + i) * n_out_pad + n0..(m0 + i) * n_out_pad + n0 + $w]).expect("width"));
+                        activate::<R, $w>(&acc[i], act, scale, yr.try_into().expect("width"), dr);
                     }
                 }};
             }
@@ -455,21 +465,22 @@ fn dense_product<R: Real, P: Product<R>, const M: usize, const WMAX: usize>(
     }
 }
 
-/// `y = act(z)·scale`, `d = act'(z)` on one tile row.
+/// `y = act(z)·scale` on one tile row, and `d = act'(z)` when given (the slopes are computed into a
+/// local row, dropped as dead code where `d` is `None` after inlining).
 #[inline(always)]
-fn activate<R: Real, const W: usize>(z: &[R; W], act: Activation, scale: R, y: &mut [R; W], d: &mut [R; W]) {
+fn activate<R: Real, const W: usize>(z: &[R; W], act: Activation, scale: R, y: &mut [R; W], d: Option<&mut [R; W]>) {
+    let mut slope = [R::ONE; W];
     match act {
         Activation::Identity => {
             for j in 0..W {
                 y[j] = z[j] * scale;
-                d[j] = R::ONE;
             }
         }
         Activation::Relu => {
             for j in 0..W {
                 let positive = z[j] > R::ZERO;
                 y[j] = if positive { z[j] * scale } else { R::ZERO };
-                d[j] = if positive { R::ONE } else { R::ZERO };
+                slope[j] = if positive { R::ONE } else { R::ZERO };
             }
         }
         Activation::Softplus { beta } => {
@@ -477,16 +488,19 @@ fn activate<R: Real, const W: usize>(z: &[R; W], act: Activation, scale: R, y: &
             for j in 0..W {
                 let (v, g) = z[j].softplus_with_derivative(b);
                 y[j] = v * scale;
-                d[j] = g;
+                slope[j] = g;
             }
         }
         Activation::Sigmoid => {
             for j in 0..W {
                 let (v, g) = act.apply_with_derivative(z[j]);
                 y[j] = v * scale;
-                d[j] = g;
+                slope[j] = g;
             }
         }
+    }
+    if let Some(d) = d {
+        *d = slope;
     }
 }
 
@@ -517,7 +531,7 @@ mod tests {
         };
         dispatch(
             #[inline(always)]
-            || dense_forward(&layer, &mut y, n_out, 0, &mut d, rows),
+            || dense_forward(&layer, &mut y, n_out, 0, Some(&mut d), rows),
         );
         for (r, row) in y.chunks_exact(n_out).enumerate() {
             assert_eq!(row.iter().all(|v| v.is_nan()), r == 4, "row {r}: {row:?}");

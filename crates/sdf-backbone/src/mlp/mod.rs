@@ -6,8 +6,11 @@ use crate::real::Real;
 use crate::scratch::Buf;
 
 mod backward;
+mod infer;
 mod init;
 mod tangents;
+
+pub(crate) use infer::pad_rows;
 
 /// Shape of a multi-layer perceptron.
 #[derive(Debug, Clone, PartialEq)]
@@ -140,12 +143,15 @@ impl<R: Real> Module<R> for Mlp {
     }
 
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
-        self.forward_into(params, input, Outputs::All(output), ctx);
+        self.forward_into(params, input, output, ctx);
     }
 
     fn forward_first(&self, params: &[R], input: &[R], first: &mut [R]) {
-        let mut ctx = Buf::<R>::to_overwrite(first.len() * self.ctx_layout());
-        self.forward_into(params, input, Outputs::First(first), &mut ctx);
+        self.infer_columns(params, input, first, 1);
+    }
+
+    fn infer(&self, params: &[R], input: &[R], output: &mut [R]) {
+        self.infer_columns(params, input, output, self.config.n_outputs);
     }
 
     fn backward(&self, params: &[R], input: &[R], ctx: &[R], d_output: &[R], d_params: &mut [R], d_input: Option<&mut [R]>) {
@@ -153,32 +159,75 @@ impl<R: Real> Module<R> for Mlp {
     }
 }
 
-/// What a forward pass writes: every output, or the first alone (its last layer's other rows
-/// of weights unused).
-enum Outputs<'a, R> {
-    All(&'a mut [R]),
-    First(&'a mut [R]),
+/// A layer's weights as a forward pass reads them: Wᵀ (n_in × out_pad) and the bias, zero-padded
+/// ([`Mlp::transposed`]), and Wᵀ packed in pairs where the layer's products run in bf16.
+pub(crate) struct PackedLayer<R: Real> {
+    wt: Buf<R>,
+    bias: Buf<R>,
+    pairs: Option<Buf<u32>>,
 }
 
 impl Mlp {
+    /// Every layer's [`PackedLayer`]: once per pass, shared by all its rows.
+    pub(crate) fn packed_layers<R: Real>(&self, params: &[R]) -> Vec<PackedLayer<R>> {
+        (0..self.layers.len())
+            .map(|l| {
+                let (n_in, n_out, _) = self.layers[l];
+                let (wt, bias) = self.transposed(params, l);
+                let pairs = R::f32s(&wt).filter(|_| self.in_bf16(l)).map(|wt| {
+                    let mut right = Buf::<u32>::zeroed(n_in.div_ceil(2) * pad(n_out));
+                    bf16::pack_right(wt, pad(n_out), n_in, pad(n_out), &mut right);
+                    right
+                });
+                PackedLayer { wt, bias, pairs }
+            })
+            .collect()
+    }
+
+    /// Layer `l` ([`PackedLayer`] `packed`) on the input rows `a` (row stride `pad(n_in)`): in
+    /// bf16 where the layer was packed for it.
+    pub(crate) fn dense<'a, R: Real>(&self, l: usize, packed: &'a PackedLayer<R>, a: &'a [R]) -> Dense<'a, R> {
+        let (n_in, n_out, _) = self.layers[l];
+        let (ip, op) = (pad(n_in), pad(n_out));
+        let (act, scale) = self.layer_activation::<R>(l);
+        let pairs = packed.pairs.as_deref().zip(R::f32s(a)).map(|(right, left)| bf16::Pairs { left, stride: ip, k: n_in, right, n: op });
+        Dense { a, a_s: ip, n_in, wt: &packed.wt, bias: &packed.bias, n_out_pad: op, act, scale, pairs }
+    }
+
+    /// After hidden layer `l` wrote `y` (rows of `pad` of the next layer's inputs): the skip's
+    /// `x / √2` after its outputs where the next layer is the skip layer (`input` the network's
+    /// rows), and the padding zeroed.
+    pub(crate) fn finish_next_input<R: Real>(&self, l: usize, y: &mut [R], input: &[R]) {
+        let (n_x, n_out) = (self.config.n_inputs, self.layers[l].1);
+        let next_ip = pad(self.layers[l + 1].0);
+        if self.config.skip == Some(l + 1) {
+            // [h, x] / √2: the raw input after the previous layer's output.
+            let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
+            for (row, x) in y.chunks_exact_mut(next_ip).zip(input.chunks_exact(n_x)) {
+                for k in 0..n_x {
+                    row[n_out + k] = x[k] * inv_sqrt2;
+                }
+                row[n_out + n_x..].fill(R::ZERO);
+            }
+        } else {
+            for row in y.chunks_exact_mut(next_ip) {
+                row[pad(n_out)..].fill(R::ZERO);
+            }
+        }
+    }
+
     /// [`Module::forward`] into `output`, layer by layer through `ctx`.
-    fn forward_into<R: Real>(&self, params: &[R], input: &[R], output: Outputs<'_, R>, ctx: &mut [R]) {
+    fn forward_into<R: Real>(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]) {
         let _span = crate::profile::span(crate::profile::Stage::MlpForward);
-        let mut output = output;
         let n_x = self.config.n_inputs;
         let n_y = self.config.n_outputs;
         let rows = input.len() / n_x;
         if rows == 0 {
             return;
         }
-        let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
-        let packed: Vec<(Buf<R>, Buf<R>)> = (0..self.layers.len()).map(|l| self.transposed(params, l)).collect();
+        let packed = self.packed_layers(params);
         // The first layer's input block: the input, padded.
-        let ip0 = pad(n_x);
-        for (dst, src) in ctx[..rows * ip0].chunks_exact_mut(ip0).zip(input.chunks_exact(n_x)) {
-            dst[..n_x].copy_from_slice(src);
-            dst[n_x..].fill(R::ZERO);
-        }
+        pad_rows(input, n_x, &mut ctx[..rows * pad(n_x)]);
         let last = self.layers.len() - 1;
         crate::kernels::dispatch(
             #[inline(always)]
@@ -186,56 +235,21 @@ impl Mlp {
                 let mut at = 0;
                 for (l, &(n_in, n_out, _)) in self.layers.iter().enumerate() {
                     let (ip, op) = (pad(n_in), pad(n_out));
-                    let (wt, bias) = &packed[l];
                     let (head, rest) = ctx[at..].split_at_mut(rows * ip);
                     let (d, next) = rest.split_at_mut(rows * op);
-                    let a = &*head;
-                    let (act, scale) = self.layer_activation::<R>(l);
-                    // In bf16: the weights packed in pairs, the input read as it is.
-                    let packed = self.in_bf16(l).then(|| R::f32s(a).zip(R::f32s(wt))).flatten().map(|(left, wt)| {
-                        let mut right = Buf::<u32>::zeroed(n_in.div_ceil(2) * op);
-                        bf16::pack_right(wt, op, n_in, op, &mut right);
-                        (left, right)
-                    });
-                    let pairs = packed.as_ref().map(|(left, right)| bf16::Pairs { left, stride: ip, k: n_in, right, n: op });
+                    let dense = self.dense(l, &packed[l], head);
                     if l == last {
-                        match &mut output {
-                            Outputs::All(output) => {
-                                // Into a padded temporary, then the unpadded output.
-                                let mut y = Buf::<R>::to_overwrite(rows * op);
-                                dense_forward(&Dense { a, a_s: ip, n_in, wt, bias, n_out_pad: op, act, scale, pairs }, &mut y, op, 0, d, rows);
-                                for (o, yr) in output.chunks_exact_mut(n_y).zip(y.chunks_exact(op)) {
-                                    o.copy_from_slice(&yr[..n_y]);
-                                }
-                            }
-                            // One dot product a row with the weights' first row (no act' kept).
-                            Outputs::First(first) => {
-                                let off = self.layers[l].2;
-                                let (w, b) = (&params[off..off + n_in], params[off + n_in * n_out]);
-                                for (f, row) in first.iter_mut().zip(a.chunks_exact(ip)) {
-                                    let z = row[..n_in].iter().zip(w).fold(b, |z, (&x, &w)| x.mul_add(w, z));
-                                    *f = act.apply(z) * scale;
-                                }
-                            }
+                        // Into a padded temporary, then the unpadded output.
+                        let mut y = Buf::<R>::to_overwrite(rows * op);
+                        dense_forward(&dense, &mut y, op, 0, Some(d), rows);
+                        for (o, yr) in output.chunks_exact_mut(n_y).zip(y.chunks_exact(op)) {
+                            o.copy_from_slice(&yr[..n_y]);
                         }
                     } else {
                         // Straight into the next layer's input block (its padding stays zero).
-                        let next_ip = pad(self.layers[l + 1].0);
-                        let y = &mut next[..rows * next_ip];
-                        dense_forward(&Dense { a, a_s: ip, n_in, wt, bias, n_out_pad: op, act, scale, pairs }, y, next_ip, 0, d, rows);
-                        if self.config.skip == Some(l + 1) {
-                            // [h, x] / √2: the raw input after the previous layer's output.
-                            for (row, x) in y.chunks_exact_mut(next_ip).zip(input.chunks_exact(n_x)) {
-                                for k in 0..n_x {
-                                    row[n_out + k] = x[k] * inv_sqrt2;
-                                }
-                                row[n_out + n_x..].fill(R::ZERO);
-                            }
-                        } else {
-                            for row in y.chunks_exact_mut(next_ip) {
-                                row[op..].fill(R::ZERO);
-                            }
-                        }
+                        let y = &mut next[..rows * pad(self.layers[l + 1].0)];
+                        dense_forward(&dense, y, pad(self.layers[l + 1].0), 0, Some(d), rows);
+                        self.finish_next_input(l, y, input);
                     }
                     at += rows * (ip + op);
                 }

@@ -150,8 +150,7 @@ impl<S, C> Pipeline<S, C> {
             color_row(row, &points[3 * j..3 * j + 3], &normals[j], &sh[k.ray], &sdf_out[j * n_out + 1..(j + 1) * n_out]);
         }
         let mut colors = Buf::<R>::to_overwrite(rows * 3);
-        let mut color_ctx = Buf::<R>::to_overwrite(rows * self.color.ctx_per_row());
-        self.color.forward(p_col, &color_in, &mut colors, &mut color_ctx);
+        self.color.infer(p_col, &color_in, &mut colors);
         (colors, normals)
     }
 

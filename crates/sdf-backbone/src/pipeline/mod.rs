@@ -411,17 +411,8 @@ impl<S, C> Pipeline<S, C> {
         use rayon::prelude::*;
         let net = &self.sdf;
         let p_sdf = &params[..net.n_params()];
-        let n_out = net.n_outputs();
         let mut out = vec![R::ZERO; points.len() / 3];
-        out.par_chunks_mut(1024).zip(points.par_chunks(3 * 1024)).for_each(|(o, x)| {
-            let rows = o.len();
-            let mut y = vec![R::ZERO; rows * n_out];
-            let mut ctx = vec![R::ZERO; rows * net.ctx_per_row()];
-            net.forward(p_sdf, x, &mut y, &mut ctx);
-            for (v, row) in o.iter_mut().zip(y.chunks_exact(n_out)) {
-                *v = row[0];
-            }
-        });
+        out.par_chunks_mut(1024).zip(points.par_chunks(3 * 1024)).for_each(|(o, x)| net.forward_first(p_sdf, x, o));
         out
     }
 }

@@ -104,6 +104,7 @@ impl Default for RenderConfig {
             render_fine: 32,
             render_upsample_rounds: 2,
             render_trim: 1e-4,
+            render_resolved: Some(0.02),
             render_colour_stride: NonZeroUsize::new(4).expect("4 > 0"),
             render_skip_empty: true,
             chunk: 8,

@@ -305,3 +305,18 @@ fn the_configuration_is_written_in_its_fields_order() {
         assert_eq!(TrainConfig::from_toml(&text).unwrap().to_toml(), text);
     }
 }
+
+/// `render.render_resolved`: on by default, 0 turns it off (and is written back as 0), a bound
+/// outside (0, 1) is refused naming the key.
+#[test]
+fn a_renders_resolution_bound_is_off_at_zero_and_checked() {
+    let load = |kv: &str| TrainConfig::load(None, &[kv.to_string()]).map(|c| c.render.render_resolved);
+    assert_eq!(TrainConfig::default().render.render_resolved, Some(0.02));
+    assert_eq!(load("render.render_resolved=0").unwrap(), None);
+    assert_eq!(load("render.render_resolved=0.1").unwrap(), Some(0.1));
+    for bad in ["render.render_resolved=-0.1", "render.render_resolved=1.5"] {
+        assert!(load(bad).unwrap_err().chain().contains("render.render_resolved"), "{bad}");
+    }
+    let config = TrainConfig::load(None, &["render.render_resolved=0".to_string()]).unwrap();
+    assert_eq!(TrainConfig::from_toml(&config.to_toml()).unwrap(), config);
+}

@@ -141,6 +141,9 @@ impl TrainConfig {
             "training times in seconds, each > 0",
         )?;
         need((0.0..0.5).contains(&self.render.render_trim), "render.render_trim", self.render.render_trim, "in [0, 0.5)")?;
+        if let Some(most) = self.render.render_resolved {
+            need(most > 0.0 && most < 1.0, "render.render_resolved", most, "in [0, 1) (0: off)")?;
+        }
         need(self.render.chunk >= 1, "render.chunk", self.render.chunk, "≥ 1")?;
         need(self.render.occupancy_dilation <= 8, "render.occupancy_dilation", self.render.occupancy_dilation, "in 0..=8")?;
         Ok(())

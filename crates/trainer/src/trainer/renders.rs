@@ -30,7 +30,7 @@ pub const RENDER_BAND_RAYS: usize = 1 << 16;
 
 impl Trainer {
     /// Changes how renders sample and evaluate (`render.render_fine`, `render_upsample_rounds`,
-    /// `render_trim`, `render_skip_empty`, `render_colour_stride`) by `edit`: what a render costs
+    /// `render_trim`, `render_resolved`, `render_skip_empty`, `render_colour_stride`) by `edit`: what a render costs
     /// and resolves, not what the model learnt, so a finished run can be re-rendered with others
     /// (`cargo xtask eval --run DIR --render-fine N …`). The changed configuration is validated
     /// before it is taken.
@@ -136,7 +136,8 @@ impl Trainer {
             index.iter().map(|&i| RayInput { depths: std::mem::take(&mut rays[i].depths), ..rays[i].clone() }).collect();
         let (params, fine, rounds) = (&self.state.params, r.render_fine, r.render_upsample_rounds);
         let lipschitz = render_occupancy.map(|o| o.lipschitz);
-        let trim = (r.render_trim > 0.0).then(|| Trim { s: self.s() as f32, negligible: r.render_trim as f32, lipschitz });
+        let resolved = r.render_resolved.map(|most| most as f32);
+        let trim = (r.render_trim > 0.0).then(|| Trim { s: self.s() as f32, negligible: r.render_trim as f32, lipschitz, resolved });
         let values = self.backbone.upsample_for_render(params, &mut crossing, fine, rounds, r.upsample_s, trim);
         let mut sdf = vec![Vec::new(); rays.len()];
         for ((ray, values), &i) in crossing.into_iter().zip(values).zip(&index) {

@@ -99,7 +99,8 @@ pub struct EvalArgs {
     #[arg(long, requires = "run")]
     pub render_trim: Option<f64>,
     /// Weight above which no interval of a --run render's ray may be for its up-sampling to stop
-    /// after the first round (default: the run's `render.render_resolved`; 0: every round).
+    /// after the first round (default: the run's `render.render_resolved`; 0: every round; with
+    /// a trim of 0 every ray takes every round).
     #[arg(long, requires = "run")]
     pub render_resolved: Option<f64>,
     /// Whether --run renders skip empty space (default: the run's `render.render_skip_empty`).
@@ -328,7 +329,7 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     let r = &trainer.config().render;
     let result = json!({"run": dir.display().to_string(), "step": trainer.state().step, "views": views, "psnr": mean("psnr"),
         "psnr_masked": mean("psnr_masked"), "ssim": mean("ssim"), "per_view": per_view, "downscale": downscale,
-        "render_fine": r.render_fine, "render_upsample_rounds": r.render_upsample_rounds, "render_trim": r.render_trim, "render_resolved": r.render_resolved,
+        "render_fine": r.render_fine, "render_upsample_rounds": r.render_upsample_rounds, "render_trim": r.render_trim, "render_resolved": r.render_resolved.filter(|_| r.render_trim > 0.0).unwrap_or(0.0),
         "render_skip_empty": r.render_skip_empty, "render_colour_stride": r.render_colour_stride, "seconds": seconds, "pixels_per_s": pixels as f64 / seconds});
     // A speed figure: it names the machine.
     let result = crate::machine::tag(result);

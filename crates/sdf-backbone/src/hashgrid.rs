@@ -558,7 +558,7 @@ fn level_input_adjoint<R: Real, const F: usize, const DENSE: bool>(
 /// through `get` (out of range reads 0, which the indices never are): a bounds check that panics
 /// is an early exit, and loops with early exits do not vectorise. A corner's F features are read
 /// as one entry (`[R; F]`, one check): read feature by feature, each with its own check, the
-/// level's pass ran 1.3–1.45× slower on a Zen 3 (AVX2; DECISIONS §55).
+/// level's pass ran 1.2–1.45× slower on a Zen 3 (AVX2; DECISIONS §55).
 #[inline(always)]
 fn level_features<R: Real, const F: usize, const DENSE: bool>(table: &[R], n: u32, mask: u32, input: &[R], out: &mut [R]) {
     let entries = table.as_chunks::<F>().0;

@@ -46,7 +46,7 @@ pub trait Module<R: Real>: Sync {
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]);
     /// The first output alone (an SDF network's value) of every row, into `first` (one value a
     /// row): what an up-sampling needs. By default [`Module::forward`]'s first column; an MLP
-    /// computes only that output of its last layer.
+    /// computes it with no context ([`Module::infer`]'s pass, its first column kept), to the bit.
     fn forward_first(&self, params: &[R], input: &[R], first: &mut [R]) {
         let (rows, n_out) = (first.len(), self.n_outputs());
         let mut output = crate::scratch::Buf::<R>::to_overwrite(rows * n_out);

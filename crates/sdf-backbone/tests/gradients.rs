@@ -649,7 +649,7 @@ fn no_pass_reads_what_a_pooled_buffer_held() {
     }
 }
 
-/// `forward_first` (an up-sampling's SDF values: the last layer's first row of weights alone)
+/// `forward_first` (an up-sampling's SDF values: an MLP's pass with no context, DECISIONS §55)
 /// is the first column of `forward` to the bit (the same sums in the same order, through the
 /// same tile kernel), for MLPs with skips and output activations and for a hash-grid network,
 /// in f64 and f32.

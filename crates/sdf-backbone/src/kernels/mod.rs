@@ -35,7 +35,7 @@ use std::sync::atomic::{AtomicU8, Ordering};
 pub const LANE: usize = 16;
 
 /// The wide tile, [`WIDE_ROWS`] × [`WIDE_WIDTH`] (AVX-512: 16 accumulators of its 32 registers).
-const WIDE_ROWS: usize = 4;
+pub(crate) const WIDE_ROWS: usize = 4;
 /// See [`WIDE_ROWS`].
 const WIDE_WIDTH: usize = 4 * LANE;
 /// The narrow tile, [`NARROW_ROWS`] × [`NARROW_WIDTH`]: BLIS's Haswell shape (AVX2: 12
@@ -45,7 +45,7 @@ const WIDE_WIDTH: usize = 4 * LANE;
 /// step's and the render's loops; 6 × 16 gave a Zen 3 1.04–1.20× the default run's iterations
 /// (DECISIONS §50). Each output's sum runs over k in the same order in every shape, so the shape
 /// changes no bit.
-const NARROW_ROWS: usize = 6;
+pub(crate) const NARROW_ROWS: usize = 6;
 /// See [`NARROW_ROWS`].
 const NARROW_WIDTH: usize = LANE;
 

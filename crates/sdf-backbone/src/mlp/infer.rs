@@ -15,6 +15,7 @@ use crate::scratch::Buf;
 /// Rows per block: a multiple of both tile heights (6 on AVX2, 4 on AVX-512), each 64-wide
 /// layer's output block 12 KB in f32.
 const BLOCK: usize = 48;
+const _: () = assert!(BLOCK.is_multiple_of(crate::kernels::NARROW_ROWS) && BLOCK.is_multiple_of(crate::kernels::WIDE_ROWS));
 
 /// `input` (rows of `n`) into `padded` (rows of `pad(n)`), the padding zeroed.
 pub(crate) fn pad_rows<R: Real>(input: &[R], n: usize, padded: &mut [R]) {
@@ -86,7 +87,8 @@ mod tests {
     }
 
     /// Guards the context-free pass: every output of every row is the forward pass's to the bit
-    /// (f32 and f64), for networks with a skip layer, each activation, row counts around the
+    /// (f32 and f64, and f32 with the hidden products in bf16 — exercised where the CPU has
+    /// AVX512_BF16), for networks with a skip layer, each activation, row counts around the
     /// block and the tiles, and the first output alone ([`Module::forward_first`]) too.
     #[test]
     fn inference_is_the_forward_pass_to_the_bit() {
@@ -106,6 +108,10 @@ mod tests {
                 let (params32, input32): (Vec<f32>, Vec<f32>) =
                     (params.iter().map(|&v| v as f32).collect(), input.iter().map(|&v| v as f32).collect());
                 check(&mlp, &params32, &input32, rows);
+                // The hidden products in bf16 where the CPU has AVX512_BF16 (else f32 again).
+                let mut bf16 = mlp.clone();
+                bf16.set_products(crate::Products::Bf16Hidden);
+                check(&bf16, &params32, &input32, rows);
             }
         }
     }

@@ -280,9 +280,10 @@ pub struct RenderConfig {
     pub render_trim: f64,
     /// A render's up-sampling places no more depths on a ray once no interval of it carries
     /// more than this weight at the model's scale, checked after the first round (0: every ray
-    /// every round). Most rays this stops carry next to nothing (grazing or missing the object,
-    /// not proven faint), where a last round placed samples nothing needed: 5–10 % fewer SDF
-    /// values, the PSNR within 10⁻⁴ dB (docs/DECISIONS.md §55; BENCHMARKS.md).
+    /// every round; like the trim's proof, it needs `render_trim` > 0). Most rays this stops
+    /// carry next to nothing (grazing or missing the object, not proven faint), where a last
+    /// round placed samples nothing needed: 4–10 % fewer SDF values, the PSNR within 10⁻⁴ dB
+    /// (docs/DECISIONS.md §55; BENCHMARKS.md).
     #[serde(with = "off::zero_is_none")]
     pub render_resolved: Option<f64>,
     /// A render's colour stride: the colour and SDF networks run on every k-th of a ray's

@@ -386,6 +386,22 @@ mod tests {
         }
     }
 
+    /// `count` parallel rays from 2.5 away along +y, the i-th aimed `spacing · i` above the
+    /// centre of the presets' initial sphere (radius 0.5), each with `intervals` equal intervals
+    /// over depths 1.5–3.5.
+    fn rays_past_the_sphere(count: usize, spacing: f32, intervals: usize) -> Vec<RayInput<f32>> {
+        (0..count)
+            .map(|i| RayInput {
+                origin: [0.0, -2.5, spacing * i as f32],
+                direction: [0.0, 1.0, 0.0],
+                depths: (0..=intervals).map(|k| 1.5 + k as f32 * 2.0 / intervals as f32).collect(),
+                target: [0.0; 3],
+                mask: None,
+                weight: 1.0,
+            })
+            .collect()
+    }
+
     fn trim(lipschitz: Option<f32>) -> Trim {
         Trim { s: 200.0, negligible: 1e-4, lipschitz, resolved: None }
     }
@@ -464,21 +480,8 @@ mod tests {
     #[test]
     fn rays_proven_faint_render_as_the_full_upsampling_within_the_trim() {
         let (backbone, params) = crate::build(crate::Preset::NeuralangeloCpu, 0.5, 4);
-        let rays: Vec<RayInput<f32>> = (0..48)
-            .map(|i| {
-                // From 2.5 away, aimed at offsets from the sphere's centre of 0 to 0.94.
-                let offset = 0.02 * i as f32;
-                let origin = [0.0, -2.5, offset];
-                RayInput {
-                    origin,
-                    direction: [0.0, 1.0, 0.0],
-                    depths: (0..=32).map(|k| 1.5 + k as f32 * 2.0 / 32.0).collect(),
-                    target: [0.0; 3],
-                    mask: None,
-                    weight: 1.0,
-                }
-            })
-            .collect();
+        // Aimed at offsets from the sphere's centre of 0 to 0.94.
+        let rays = rays_past_the_sphere(48, 0.02, 32);
         let (s, negligible, lipschitz) = (200.0, 1e-4, 1.5);
         let render = |trim: Trim| {
             let mut rays = rays.clone();
@@ -530,16 +533,7 @@ mod tests {
     #[test]
     fn a_resolved_ray_gets_no_depths_after_the_first_round() {
         let (backbone, params) = crate::build(crate::Preset::NeuralangeloCpu, 0.5, 4);
-        let rays: Vec<RayInput<f32>> = (0..40)
-            .map(|i| RayInput {
-                origin: [0.0, -2.5, 0.015 * i as f32],
-                direction: [0.0, 1.0, 0.0],
-                depths: (0..=16).map(|k| 1.5 + k as f32 * 2.0 / 16.0).collect(),
-                target: [0.0; 3],
-                mask: None,
-                weight: 1.0,
-            })
-            .collect();
+        let rays = rays_past_the_sphere(40, 0.015, 16);
         let (s, most) = (300.0, 0.2);
         let trim = |resolved| Trim { s, negligible: 0.0, lipschitz: None, resolved };
         let run = |n_fine, rounds, resolved| {

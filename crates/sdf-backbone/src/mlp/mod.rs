@@ -194,25 +194,22 @@ impl Mlp {
         Dense { a, a_s: ip, n_in, wt: &packed.wt, bias: &packed.bias, n_out_pad: op, act, scale, pairs }
     }
 
-    /// After hidden layer `l` wrote `y` (rows of `pad` of the next layer's inputs): the skip's
-    /// `x / √2` after its outputs where the next layer is the skip layer (`input` the network's
-    /// rows), and the padding zeroed.
+    /// After hidden layer `l` wrote `y` (rows of `pad` of the next layer's inputs): where the
+    /// next layer is the skip layer, the skip's `x / √2` after its outputs (`input` the network's
+    /// rows) and the padding zeroed. Otherwise the next layer's inputs are this layer's outputs,
+    /// whose row is exactly the `pad(n_out)` the tile wrote: nothing to add.
     pub(crate) fn finish_next_input<R: Real>(&self, l: usize, y: &mut [R], input: &[R]) {
+        if self.config.skip != Some(l + 1) {
+            return;
+        }
         let (n_x, n_out) = (self.config.n_inputs, self.layers[l].1);
-        let next_ip = pad(self.layers[l + 1].0);
-        if self.config.skip == Some(l + 1) {
-            // [h, x] / √2: the raw input after the previous layer's output.
-            let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
-            for (row, x) in y.chunks_exact_mut(next_ip).zip(input.chunks_exact(n_x)) {
-                for k in 0..n_x {
-                    row[n_out + k] = x[k] * inv_sqrt2;
-                }
-                row[n_out + n_x..].fill(R::ZERO);
+        // [h, x] / √2: the raw input after the previous layer's output.
+        let inv_sqrt2 = R::of(std::f64::consts::FRAC_1_SQRT_2);
+        for (row, x) in y.chunks_exact_mut(pad(self.layers[l + 1].0)).zip(input.chunks_exact(n_x)) {
+            for k in 0..n_x {
+                row[n_out + k] = x[k] * inv_sqrt2;
             }
-        } else {
-            for row in y.chunks_exact_mut(next_ip) {
-                row[pad(n_out)..].fill(R::ZERO);
-            }
+            row[n_out + n_x..].fill(R::ZERO);
         }
     }
 

@@ -466,7 +466,8 @@ fn dense_product<R: Real, P: Product<R>, const M: usize, const WMAX: usize, cons
 }
 
 /// `y = act(z)·scale` on one tile row, and `d = act'(z)` when given (the slopes are computed into a
-/// local row, dropped as dead code where `d` is `None` after inlining).
+/// local row, dropped as dead code where `d` is `None` after inlining; the softplus's by
+/// [`Real::softplus_lanes`], only where asked).
 #[inline(always)]
 fn activate<R: Real, const W: usize>(z: &[R; W], act: Activation, scale: R, y: &mut [R; W], d: Option<&mut [R; W]>) {
     let mut slope = [R::ONE; W];
@@ -484,12 +485,9 @@ fn activate<R: Real, const W: usize>(z: &[R; W], act: Activation, scale: R, y: &
             }
         }
         Activation::Softplus { beta } => {
-            let b = R::of(beta);
-            for j in 0..W {
-                let (v, g) = z[j].softplus_with_derivative(b);
-                y[j] = v * scale;
-                slope[j] = g;
-            }
+            // The row's lanes stage by stage (their chains of dependent steps overlap), the
+            // slopes computed only where kept (no division otherwise).
+            return R::softplus_lanes::<W>(z, R::of(beta), scale, y, d);
         }
         Activation::Sigmoid => {
             for j in 0..W {

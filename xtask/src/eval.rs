@@ -329,7 +329,7 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     let r = &trainer.config().render;
     let result = json!({"run": dir.display().to_string(), "step": trainer.state().step, "views": views, "psnr": mean("psnr"),
         "psnr_masked": mean("psnr_masked"), "ssim": mean("ssim"), "per_view": per_view, "downscale": downscale,
-        "render_fine": r.render_fine, "render_upsample_rounds": r.render_upsample_rounds, "render_trim": r.render_trim, "render_resolved": r.render_resolved.filter(|_| r.render_trim > 0.0).unwrap_or(0.0),
+        "render_fine": r.render_fine, "render_upsample_rounds": r.render_upsample_rounds, "render_trim": r.render_trim, "render_resolved": r.resolved_applied().unwrap_or(0.0),
         "render_skip_empty": r.render_skip_empty, "render_colour_stride": r.render_colour_stride, "seconds": seconds, "pixels_per_s": pixels as f64 / seconds});
     // A speed figure: it names the machine.
     let result = crate::machine::tag(result);

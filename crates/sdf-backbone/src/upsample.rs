@@ -98,10 +98,11 @@ fn upsample_chunk<S: Module<f32>>(
             // Each round's values prove more: its samples lie where the SDF is lowest. A ray is
             // judged resolved only once a round has placed samples where its weights are.
             let still = n_fine - placed_before;
+            let mut weights = Vec::new();
             for ((faint, ray), sdf) in faint.iter_mut().zip(rays.iter()).zip(&sdf) {
                 *faint = *faint
                     || proven_faint(&ray.depths, sdf, trim, ray.depths.len().saturating_sub(1) + still)
-                    || (round >= 1 && trim.resolved.is_some_and(|most| resolved(sdf, trim.s, most)));
+                    || (round >= 1 && trim.resolved.is_some_and(|most| resolved_with(sdf, trim.s, most, &mut weights)));
             }
         }
         placed_before += k;
@@ -175,8 +176,12 @@ pub fn proven_faint(depths: &[f32], sdf: &[f32], trim: Trim, intervals: usize) -
 /// the object), where a last round's samples changed no colour measurably (docs/DECISIONS.md
 /// §55). A NaN weight is not resolved.
 pub fn resolved(sdf: &[f32], s: f32, most: f32) -> bool {
-    let mut weights = Vec::with_capacity(sdf.len());
-    render_weights_into(sdf, s, &mut weights);
+    resolved_with(sdf, s, most, &mut Vec::new())
+}
+
+/// [`resolved`] with the weights in `weights` (a chunk's rays share one buffer).
+fn resolved_with(sdf: &[f32], s: f32, most: f32, weights: &mut Vec<f32>) -> bool {
+    render_weights_into(sdf, s, weights);
     weights.iter().all(|&w| w <= most)
 }
 

@@ -478,6 +478,14 @@ fn fits_alone(key: &str, value: &toml::Value) -> bool {
     set_dotted(&mut table, key, value.clone()).is_ok() && budget_from_short_keys(&mut table).is_ok() && table.try_into::<TrainConfig>().is_ok()
 }
 
+impl RenderConfig {
+    /// The bound of `render_resolved` a render applies: none without a trim (`render_trim` 0),
+    /// whose weights the rule reads.
+    pub fn resolved_applied(&self) -> Option<f64> {
+        self.render_resolved.filter(|_| self.render_trim > 0.0)
+    }
+}
+
 impl TrainConfig {
     /// The defaults, then `file` (if any), then the `key=value` overrides; validated.
     pub fn load(file: Option<&Path>, overrides: &[String]) -> Result<TrainConfig> {

@@ -307,9 +307,13 @@ fn the_configuration_is_written_in_its_fields_order() {
 }
 
 /// `render.render_resolved`: on by default, 0 turns it off (and is written back as 0), a bound
-/// outside (0, 1) is refused naming the key.
+/// outside (0, 1) is refused naming the key; it applies only with a trim, whose weights it reads.
 #[test]
 fn a_renders_resolution_bound_is_off_at_zero_and_checked() {
+    let applied = |kv: &[&str]| TrainConfig::load(None, &kv.iter().map(|k| k.to_string()).collect::<Vec<_>>()).unwrap().render.resolved_applied();
+    assert_eq!(applied(&[]), Some(0.02));
+    assert_eq!(applied(&["render.render_trim=0"]), None, "no trim, no rule");
+    assert_eq!(applied(&["render.render_resolved=0"]), None);
     let load = |kv: &str| TrainConfig::load(None, &[kv.to_string()]).map(|c| c.render.render_resolved);
     assert_eq!(TrainConfig::default().render.render_resolved, Some(0.02));
     assert_eq!(load("render.render_resolved=0").unwrap(), None);

@@ -136,7 +136,7 @@ impl Trainer {
             index.iter().map(|&i| RayInput { depths: std::mem::take(&mut rays[i].depths), ..rays[i].clone() }).collect();
         let (params, fine, rounds) = (&self.state.params, r.render_fine, r.render_upsample_rounds);
         let lipschitz = render_occupancy.map(|o| o.lipschitz);
-        let resolved = r.render_resolved.map(|most| most as f32);
+        let resolved = r.resolved_applied().map(|most| most as f32);
         let trim = (r.render_trim > 0.0).then(|| Trim { s: self.s() as f32, negligible: r.render_trim as f32, lipschitz, resolved });
         let values = self.backbone.upsample_for_render(params, &mut crossing, fine, rounds, r.upsample_s, trim);
         let mut sdf = vec![Vec::new(); rays.len()];

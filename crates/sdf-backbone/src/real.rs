@@ -195,27 +195,6 @@ pub fn exp_nonpositive_f32(x: f32) -> f32 {
     p * f32::from_bits(bits.wrapping_add(127) << 23)
 }
 
-/// ln(1 + t) for t ∈ [0, 1] in f32 without branches or library calls: 2 atanh(s) with
-/// s = t/(2 + t) ≤ 1/3 (exact for small t), odd series to s¹³. Relative error < 2e-7.
-#[inline(always)]
-pub fn ln_1p_unit_f32(t: f32) -> f32 {
-    ln_1p_by_atanh(t / (2.0 + t))
-}
-
-/// 2 atanh(s) for s ∈ [0, 1/3]: ln(1 + t) where s = t/(2 + t).
-#[inline(always)]
-fn ln_1p_by_atanh(s: f32) -> f32 {
-    let s2 = s * s;
-    let p = 1.0 / 13.0f32;
-    let p = p.mul_add(s2, 1.0 / 11.0);
-    let p = p.mul_add(s2, 1.0 / 9.0);
-    let p = p.mul_add(s2, 1.0 / 7.0);
-    let p = p.mul_add(s2, 1.0 / 5.0);
-    let p = p.mul_add(s2, 1.0 / 3.0);
-    let p = p.mul_add(s2, 1.0);
-    2.0 * s * p
-}
-
 /// Below this βz, f32 softplus and its derivative are flushed to exactly 0 (their true values
 /// are below e^−40 ≈ 4e-18): the tails would otherwise reach denormal numbers, which x86 handles
 /// in microcode, 10 × slower (measured: 1.0 instead of 0.4 ns per value).
@@ -223,8 +202,7 @@ const SOFTPLUS_FLUSH: f32 = -40.0;
 
 /// ln(1 + e) for e ∈ [0, 1] in f32 by e · P(e), P of degree 8 (Chebyshev interpolation of
 /// ln(1 + e)/e on [0, 1]): relative error < 2e-7 in f32's Horner (measured on 4·10⁵ points), no
-/// division — where [`ln_1p_unit_f32`]'s s = e/(2 + e) needs one, the costliest step of a
-/// softplus.
+/// division — where the former 2 atanh(s) needed s = e/(2 + e), a division in every pass.
 #[inline(always)]
 fn ln_1p_poly(e: f32) -> f32 {
     const C: [f32; 9] = [1.0, -0.499_995_02, 0.333_192_7, -0.248_443_7, 0.191_114_3, -0.136_747_7, 0.078_361_67, -0.029_588_507, 0.005_253_458];

@@ -179,7 +179,7 @@ pub fn resolved(sdf: &[f32], s: f32, most: f32) -> bool {
     resolved_with(sdf, s, most, &mut Vec::new())
 }
 
-/// [`resolved`] with the weights in `weights` (a chunk's rays share one buffer).
+/// [`resolved`] with the weights in `weights` (a round's rays share one buffer).
 fn resolved_with(sdf: &[f32], s: f32, most: f32, weights: &mut Vec<f32>) -> bool {
     render_weights_into(sdf, s, weights);
     weights.iter().all(|&w| w <= most)

@@ -200,72 +200,78 @@ pub fn exp_nonpositive_f32(x: f32) -> f32 {
 /// in microcode, 10 × slower (measured: 1.0 instead of 0.4 ns per value).
 const SOFTPLUS_FLUSH: f32 = -40.0;
 
-/// ln(1 + e) for e ∈ [0, 1] in f32 by e · P(e), P of degree 8 (Chebyshev interpolation of
-/// ln(1 + e)/e on [0, 1]): relative error < 2e-7 in f32's Horner (measured on 4·10⁵ points), no
-/// division — where the former 2 atanh(s) needed s = e/(2 + e), a division in every pass.
+/// 2 atanh(s) for s ∈ [0, 1/3]: ln(1 + t) where s = t/(2 + t) (t ∈ [0, 1]; exact for small t),
+/// odd series to s¹³. Relative error < 2e-7.
 #[inline(always)]
-fn ln_1p_poly(e: f32) -> f32 {
-    const C: [f32; 9] = [1.0, -0.499_995_02, 0.333_192_7, -0.248_443_7, 0.191_114_3, -0.136_747_7, 0.078_361_67, -0.029_588_507, 0.005_253_458];
-    let mut p = C[8];
-    for &c in C[..8].iter().rev() {
-        p = p.mul_add(e, c);
-    }
-    p * e
+fn ln_1p_by_atanh(s: f32) -> f32 {
+    let s2 = s * s;
+    let p = 1.0 / 13.0f32;
+    let p = p.mul_add(s2, 1.0 / 11.0);
+    let p = p.mul_add(s2, 1.0 / 9.0);
+    let p = p.mul_add(s2, 1.0 / 7.0);
+    let p = p.mul_add(s2, 1.0 / 5.0);
+    let p = p.mul_add(s2, 1.0 / 3.0);
+    let p = p.mul_add(s2, 1.0);
+    2.0 * s * p
 }
 
-/// The steps of the f32 softplus of x = βz shared by its value and its slope: e^{−|x|}, flushed
-/// to 0 below [`SOFTPLUS_FLUSH`] (NaN stays NaN: [`exp_nonpositive_f32`]).
+/// The steps of the f32 softplus of x = βz that its value and its slope share: e = e^{−|x|},
+/// flushed to 0 below [`SOFTPLUS_FLUSH`] (NaN stays NaN: [`exp_nonpositive_f32`]), and
+/// q = 1/((1 + e)(2 + e)), from which both the sigmoid's 1/(1 + e) and the logarithm's
+/// e/(2 + e) follow (a division costs as much as a dozen multiply-adds, and there were three:
+/// the softplus took a third of the SDF network's forward time).
 #[inline(always)]
-fn softplus_exp(x: f32) -> f32 {
+fn softplus_shared(x: f32) -> (f32, f32) {
     let neg = -x.abs();
     let e = exp_nonpositive_f32(neg);
-    if neg < SOFTPLUS_FLUSH { 0.0 } else { e }
+    let e = if neg < SOFTPLUS_FLUSH { 0.0 } else { e };
+    (e, 1.0 / ((1.0 + e) * (2.0 + e)))
 }
 
-/// The f32 softplus's value from x = βz and its [`softplus_exp`] e: `(max(x, 0) + ln(1 + e)) / β`.
+/// The f32 softplus's slope σ(x) from x, e and q: (2 + e)q = 1/(1 + e) for x > 0, e times it
+/// otherwise.
 #[inline(always)]
-fn softplus_value(x: f32, e: f32, beta: f32) -> f32 {
-    (x.max(0.0) + ln_1p_poly(e)) * beta.recip()
-}
-
-/// The f32 softplus's slope σ(x) from x and e: 1/(1 + e) for x > 0, e/(1 + e) otherwise (one
-/// division, which a pass without slopes does not make).
-#[inline(always)]
-fn softplus_slope(x: f32, e: f32) -> f32 {
-    let inv = 1.0 / (1.0 + e);
+fn softplus_slope(x: f32, e: f32, q: f32) -> f32 {
+    let inv = (2.0 + e) * q;
     if x > 0.0 { inv } else { e * inv }
 }
 
-/// f32 softplus and sigmoid from one [`exp_nonpositive_f32`] of −|βz|: the value by
-/// [`ln_1p_poly`] (no division), the sigmoid by one division. A NaN x leaves e NaN, so the
-/// value and the slope are NaN too.
+/// The f32 softplus's value from x, e and q: `(max(x, 0) + ln(1 + e)) / β`, ln(1 + e) as
+/// 2 atanh(e(1 + e)q).
+#[inline(always)]
+fn softplus_value(x: f32, e: f32, q: f32, beta: f32) -> f32 {
+    (x.max(0.0) + ln_1p_by_atanh(e * (1.0 + e) * q)) * beta.recip()
+}
+
+/// f32 softplus and sigmoid from one [`exp_nonpositive_f32`] of −|βz| and one division
+/// ([`softplus_shared`]). A NaN x leaves e NaN, so the value and the slope are NaN too.
 #[inline(always)]
 fn softplus_f32(z: f32, beta: f32) -> (f32, f32) {
     let x = beta * z;
-    let e = softplus_exp(x);
-    (softplus_value(x, e, beta), softplus_slope(x, e))
+    let (e, q) = softplus_shared(x);
+    (softplus_value(x, e, q, beta), softplus_slope(x, e, q))
 }
 
 /// [`softplus_f32`] on `N` lanes, stage by stage (the same operations on each lane, so the same
-/// bits): x = βz, e, the slope where asked, the value times `scale`. Lane by lane, a vector's
-/// chain of some 30 dependent steps left the FMA units idle: the core's scheduler holds too few
-/// steps to overlap more than two or three such chains (DECISIONS §56).
+/// bits): x = βz, then e and q, then the slopes where asked, then the values times `scale`. Lane
+/// by lane, a vector's chain of some 40 dependent steps left the FMA units idle: the core's
+/// scheduler holds too few steps to overlap more than two or three such chains (DECISIONS §56).
 #[inline(always)]
 fn softplus_lanes_f32<const N: usize>(z: &[f32; N], beta: f32, scale: f32, y: &mut [f32; N], slope: Option<&mut [f32; N]>) {
-    let (mut x, mut e) = ([0.0f32; N], [0.0f32; N]);
+    let (mut x, mut e, mut q) = ([0.0f32; N], [0.0f32; N], [0.0f32; N]);
     for j in 0..N {
         x[j] = beta * z[j];
     }
     for j in 0..N {
-        e[j] = softplus_exp(x[j]);
+        (e[j], q[j]) = softplus_shared(x[j]);
     }
     if let Some(slope) = slope {
         for j in 0..N {
-            slope[j] = softplus_slope(x[j], e[j]);
+            slope[j] = softplus_slope(x[j], e[j], q[j]);
         }
     }
     for j in 0..N {
-        y[j] = softplus_value(x[j], e[j], beta) * scale;
+        y[j] = softplus_value(x[j], e[j], q[j], beta) * scale;
     }
 }
 

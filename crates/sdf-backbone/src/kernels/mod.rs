@@ -486,7 +486,7 @@ fn activate<R: Real, const W: usize>(z: &[R; W], act: Activation, scale: R, y: &
         }
         Activation::Softplus { beta } => {
             // The row's lanes stage by stage (their chains of dependent steps overlap), the
-            // slopes computed only where kept (no division otherwise).
+            // slopes computed only where kept.
             return R::softplus_lanes::<W>(z, R::of(beta), scale, y, d);
         }
         Activation::Sigmoid => {

@@ -92,13 +92,14 @@ fn upsample_chunk<S: Module<f32>>(
     let mut sdf = chunk_sdf(net, params, rays, &lists);
     let mut faint = vec![false; rays.len()];
     let mut placed_before = 0;
+    // One buffer for the weights of every ray and round: the resolution rule's, then the placement's.
+    let mut weights = Vec::new();
     for round in 0..rounds {
         let k = n_fine / rounds + usize::from(round < n_fine % rounds);
         if let Purpose::Render(Some(trim)) = purpose {
             // Each round's values prove more: its samples lie where the SDF is lowest. A ray is
             // judged resolved only once a round has placed samples where its weights are.
             let still = n_fine - placed_before;
-            let mut weights = Vec::new();
             for ((faint, ray), sdf) in faint.iter_mut().zip(rays.iter()).zip(&sdf) {
                 *faint = *faint
                     || proven_faint(&ray.depths, sdf, trim, ray.depths.len().saturating_sub(1) + still)
@@ -107,7 +108,6 @@ fn upsample_chunk<S: Module<f32>>(
         }
         placed_before += k;
         let s = (base_s * f64::from(1u32 << round.min(30))) as f32;
-        let mut weights = Vec::new();
         let mut placed = |depths: &[f32], sdf: &[f32], faint: bool| {
             if faint {
                 return Vec::new();
@@ -179,7 +179,7 @@ pub fn resolved(sdf: &[f32], s: f32, most: f32) -> bool {
     resolved_with(sdf, s, most, &mut Vec::new())
 }
 
-/// [`resolved`] with the weights in `weights` (a round's rays share one buffer).
+/// [`resolved`] with the weights in `weights` (an up-sampling's rays share one buffer).
 fn resolved_with(sdf: &[f32], s: f32, most: f32, weights: &mut Vec<f32>) -> bool {
     render_weights_into(sdf, s, weights);
     weights.iter().all(|&w| w <= most)

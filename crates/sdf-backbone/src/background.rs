@@ -22,7 +22,7 @@
 //! `∂C/∂c_k = w_k`, `∂C/∂σ_m = δ_m (T_{m+1} c_m − Σ_{k>m} w_k c_k)`.
 
 use crate::hashgrid::{HashGrid, HashGridConfig};
-use crate::mlp::{Mlp, MlpConfig};
+use crate::mlp::{Mlp, MlpConfig, PackedLayer};
 use crate::module::{Activation, Module};
 use crate::real::Real;
 use crate::scratch::Buf;
@@ -64,14 +64,24 @@ pub struct BackgroundPass<R: Real> {
 }
 
 impl BackgroundModel {
+    /// The most frequencies a background's encoding has (2¹⁵ · 1/r: finer than f32 resolves).
+    pub const MAX_FREQUENCIES: usize = 16;
+
     /// A model with `samples` samples per ray, `frequencies` frequencies, an MLP of `layers` ×
     /// `width` (ReLU).
+    ///
+    /// # Panics
+    /// With more than [`Self::MAX_FREQUENCIES`] frequencies.
     pub fn new(samples: usize, frequencies: usize, width: usize, layers: usize) -> BackgroundModel {
         BackgroundModel::with_view(samples, frequencies, width, layers, true)
     }
 
     /// [`Self::new`], with the view direction among the inputs or not (`view_dependent`).
+    ///
+    /// # Panics
+    /// With more than [`Self::MAX_FREQUENCIES`] frequencies.
     pub fn with_view(samples: usize, frequencies: usize, width: usize, layers: usize, view_dependent: bool) -> BackgroundModel {
+        assert!(frequencies <= Self::MAX_FREQUENCIES, "a background of {frequencies} frequencies: at most {}", Self::MAX_FREQUENCIES);
         let net = Mlp::new(MlpConfig {
             n_inputs: encoding_width(frequencies) + if view_dependent { 16 } else { 0 },
             width,
@@ -133,11 +143,16 @@ impl BackgroundModel {
         }
     }
 
+    /// Sample k's 1/r: `(1 − (k + ½)/K) / near`, the same on every ray.
+    fn inverse_radius<R: Real>(&self, k: usize) -> R {
+        R::of((1.0 - (k as f64 + 0.5) / self.samples as f64) * (1.0 / self.near))
+    }
+
     /// Sample k's 1/r and depth along the ray from `o` in unit direction `d`: `1/r = (1 − (k +
     /// ½)/K) / near` (increasing t), the far root of `|o + t d| = r` (points beyond the bound, in
     /// front).
     fn sample_depth<R: Real>(&self, o: [R; 3], d: [R; 3], k: usize) -> (R, R) {
-        let inv_r = R::of((1.0 - (k as f64 + 0.5) / self.samples as f64) * (1.0 / self.near));
+        let inv_r = self.inverse_radius(k);
         let radius = R::ONE / inv_r;
         let od = o[0] * d[0] + o[1] * d[1] + o[2] * d[2];
         let oo = o[0] * o[0] + o[1] * o[1] + o[2] * o[2];
@@ -145,23 +160,50 @@ impl BackgroundModel {
         (inv_r, -od + disc.sqrt())
     }
 
+    /// sin and cos of 2^l v for l < `frequencies` (in pairs, `out` 2 × `frequencies` values) from
+    /// v's own by the double-angle formulas, in f64: off by ≈ 2^l · 10⁻¹⁶ before the one rounding
+    /// to R, as close as `sinf`/`cosf` of each (≈ 3 · 10⁻⁸).
+    fn sines_into<R: Real>(&self, v: R, out: &mut [R]) {
+        let (mut sin, mut cos) = v.to_f64().sin_cos();
+        for pair in out.chunks_exact_mut(2).take(self.frequencies) {
+            pair.copy_from_slice(&[R::of(sin), R::of(cos)]);
+            (sin, cos) = (2.0 * sin * cos, (cos - sin) * (cos + sin));
+        }
+    }
+
+    /// [`Self::sines_into`] of every sample's 1/r (the same on every ray: sample k's is fixed),
+    /// 2 × `frequencies` values per sample, for [`Self::sample_row`].
+    fn inverse_radius_sines<R: Real>(&self) -> Vec<R> {
+        let per = 2 * self.frequencies;
+        let mut out = vec![R::ZERO; self.samples * per];
+        for (k, sines) in out.chunks_exact_mut(per.max(1)).enumerate() {
+            self.sines_into(self.inverse_radius::<R>(k), sines);
+        }
+        out
+    }
+
     /// Writes sample k of the ray (`o`, `d`, `sh` = SH₄(d)) as a row of the network's input (the
-    /// grid's columns left as they are) and, with a grid, its contracted point (`point`, 3
+    /// grid's columns left as they are; `inv_r_sines`: sample k's of
+    /// [`Self::inverse_radius_sines`]) and, with a grid, its contracted point (`point`, 3
     /// values; empty without a grid); returns the sample's depth.
-    fn sample_row<R: Real>(&self, o: [R; 3], d: [R; 3], sh: &[R; 16], k: usize, row: &mut [R], point: &mut [R]) -> R {
+    #[allow(clippy::too_many_arguments)]
+    fn sample_row<R: Real>(&self, o: [R; 3], d: [R; 3], sh: &[R; 16], k: usize, inv_r_sines: &[R], row: &mut [R], point: &mut [R]) -> R {
         let (inv_r, t) = self.sample_depth(o, d, k);
         let p = [0, 1, 2].map(|j| (o[j] + t * d[j]) * inv_r);
         let q = [p[0], p[1], p[2], inv_r];
         row[..4].copy_from_slice(&q);
-        // sin and cos of 2^l q from q's own by the double-angle formulas, in f64: off by ≈ 2^l ·
-        // 10⁻¹⁶ before the one rounding to R, as close as `sinf`/`cosf` of each (≈ 3 · 10⁻⁸).
-        let mut sin_cos = q.map(|v| v.to_f64().sin_cos());
-        for l in 0..self.frequencies {
-            for (j, (sin, cos)) in sin_cos.iter_mut().enumerate() {
-                row[4 + 8 * l + j] = R::of(*sin);
-                row[8 + 8 * l + j] = R::of(*cos);
-                (*sin, *cos) = (2.0 * *sin * *cos, (*cos - *sin) * (*cos + *sin));
+        // Column j of frequency l: sin at 4 + 8l + j, cos at 8 + 8l + j.
+        let mut sines = [R::ZERO; 2 * Self::MAX_FREQUENCIES];
+        for (j, &v) in p.iter().enumerate() {
+            self.sines_into(v, &mut sines);
+            for l in 0..self.frequencies {
+                row[4 + 8 * l + j] = sines[2 * l];
+                row[8 + 8 * l + j] = sines[2 * l + 1];
             }
+        }
+        for l in 0..self.frequencies {
+            row[4 + 8 * l + 3] = inv_r_sines[2 * l];
+            row[8 + 8 * l + 3] = inv_r_sines[2 * l + 1];
         }
         if self.view_dependent {
             row[self.grid_columns().end..].copy_from_slice(sh);
@@ -188,7 +230,8 @@ impl BackgroundModel {
     /// The network on `rows` samples, row i being sample `which(i) = (ray, k)` of the rays
     /// (`origins`, `directions`, `sh`): its inputs, the grid's points (empty without a grid),
     /// the samples' depths, the network's context (for a backward pass, else empty: a render's
-    /// rows through [`Module::infer`], the same outputs to the bit) and raw outputs (rows × 4).
+    /// rows through the network's layers packed once per render, [`Mlp::infer_packed`], the
+    /// same outputs to the bit) and raw outputs (rows × 4).
     #[allow(clippy::too_many_arguments)]
     fn evaluate<R: Real>(
         &self,
@@ -198,25 +241,26 @@ impl BackgroundModel {
         sh: &[[R; 16]],
         rows: usize,
         which: impl Fn(usize) -> (usize, usize),
-        backward: bool,
+        pass: Pass<'_, R>,
     ) -> NetworkRows<R> {
         let n_in = Module::<R>::n_inputs(&self.net);
         let (p_net, p_grid) = params.split_at(self.tables().start);
         let mut input = Buf::<R>::zeroed(rows * n_in);
         let mut points = Buf::<R>::zeroed(if self.grid.is_some() { rows * 3 } else { 0 });
         let mut depths = vec![R::ZERO; rows];
+        let (inv_r_sines, per) = (self.inverse_radius_sines::<R>(), 2 * self.frequencies);
         for i in 0..rows {
             let (r, k) = which(i);
             let point = points.get_mut(3 * i..3 * i + 3).unwrap_or_default();
-            depths[i] = self.sample_row(origins[r], directions[r], &sh[r], k, &mut input[i * n_in..(i + 1) * n_in], point);
+            let row = &mut input[i * n_in..(i + 1) * n_in];
+            depths[i] = self.sample_row(origins[r], directions[r], &sh[r], k, &inv_r_sines[k * per..(k + 1) * per], row, point);
         }
         self.add_grid_features(p_grid, &points, &mut input);
         let mut raw = Buf::<R>::to_overwrite(rows * 4);
-        let mut ctx = Buf::<R>::to_overwrite(if backward { rows * Module::<R>::ctx_per_row(&self.net) } else { 0 });
-        if backward {
-            self.net.forward(p_net, &input, &mut raw, &mut ctx);
-        } else {
-            self.net.infer(p_net, &input, &mut raw);
+        let mut ctx = Buf::<R>::to_overwrite(if matches!(pass, Pass::Backward) { rows * Module::<R>::ctx_per_row(&self.net) } else { 0 });
+        match pass {
+            Pass::Backward => self.net.forward(p_net, &input, &mut raw, &mut ctx),
+            Pass::Infer(packed) => self.net.infer_packed(packed, &input, &mut raw, 4),
         }
         NetworkRows { input, points, depths, ctx, raw }
     }
@@ -227,34 +271,32 @@ impl BackgroundModel {
         let _span = crate::profile::span(crate::profile::Stage::Background);
         let (k_n, rays) = (self.samples, origins.len());
         let rows_n = rays * k_n;
-        let NetworkRows { input, points, depths, ctx, raw } = self.evaluate(params, origins, directions, sh, rows_n, |i| (i / k_n, i % k_n), true);
+        let NetworkRows { input, points, depths, ctx, raw } =
+            self.evaluate(params, origins, directions, sh, rows_n, |i| (i / k_n, i % k_n), Pass::Backward);
         let mut rows = vec![[R::ZERO; 10]; rows_n];
         let mut colors = vec![[R::ZERO; 3]; rays];
-        for r in 0..rays {
-            let mut transmittance = R::ONE;
-            for k in 0..k_n {
-                let i = r * k_n + k;
-                let delta = if k + 1 == k_n { None } else { Some(depths[i + 1] - depths[i]) };
-                let Sample { sigma, d_sigma, c, alpha } = Sample::of(&raw[4 * i..4 * i + 4], delta);
-                let w = transmittance * alpha;
-                for j in 0..3 {
-                    colors[r][j] += w * c[j];
+        // Compiled for the CPU's instruction set (the softplus's multiply-adds one instruction
+        // each, not a call: the same bits).
+        crate::kernels::dispatch(
+            #[inline(always)]
+            || {
+                for r in 0..rays {
+                    let mut transmittance = R::ONE;
+                    for k in 0..k_n {
+                        let i = r * k_n + k;
+                        let delta = if k + 1 == k_n { None } else { Some(depths[i + 1] - depths[i]) };
+                        let Sample { sigma, d_sigma, c, alpha } = Sample::of(&raw[4 * i..4 * i + 4], delta);
+                        let w = transmittance * alpha;
+                        for j in 0..3 {
+                            colors[r][j] += w * c[j];
+                        }
+                        let slope = c.map(|c| c * (R::ONE - c));
+                        rows[i] = [sigma, d_sigma, c[0], c[1], c[2], slope[0], slope[1], slope[2], delta.unwrap_or(R::ZERO), w];
+                        transmittance *= R::ONE - alpha;
+                    }
                 }
-                rows[i] = [
-                    sigma,
-                    d_sigma,
-                    c[0],
-                    c[1],
-                    c[2],
-                    c[0] * (R::ONE - c[0]),
-                    c[1] * (R::ONE - c[1]),
-                    c[2] * (R::ONE - c[2]),
-                    delta.unwrap_or(R::ZERO),
-                    w,
-                ];
-                transmittance *= R::ONE - alpha;
-            }
-        }
+            },
+        );
         BackgroundPass { input, ctx, points, raw, rows, colors }
     }
 
@@ -264,7 +306,8 @@ impl BackgroundModel {
     /// rest of its colour (at most that, per channel) dropped. A ray's samples behind an opaque
     /// backdrop carry nothing, so a render need not evaluate them; with budgets 0 nothing is
     /// dropped and the colours are [`Self::forward`]'s to the bit (rows of the network are
-    /// independent). Returns the colours and the samples evaluated.
+    /// independent). The network's layers are packed once for all the blocks. Returns the colours
+    /// and the samples evaluated.
     pub fn render<R: Real>(&self, params: &[R], origins: &[[R; 3]], directions: &[[R; 3]], sh: &[[R; 16]], budgets: &[R]) -> (Vec<[R; 3]>, usize) {
         let _span = crate::profile::span(crate::profile::Stage::Background);
         let k_n = self.samples;
@@ -272,26 +315,36 @@ impl BackgroundModel {
         let mut transmittance = vec![R::ONE; origins.len()];
         let mut active: Vec<usize> = (0..origins.len()).collect();
         let mut evaluated = 0;
+        if origins.is_empty() {
+            return (colors, evaluated);
+        }
+        let packed = self.net.packed_layers(&params[..self.tables().start]);
         for first in (0..k_n).step_by(RENDER_BLOCK) {
             let block = first..(first + RENDER_BLOCK).min(k_n);
             let rows_n = active.len() * block.len();
             let which = |i: usize| (active[i / block.len()], first + i % block.len());
-            let NetworkRows { depths, raw, .. } = self.evaluate(params, origins, directions, sh, rows_n, which, false);
+            let NetworkRows { depths, raw, .. } = self.evaluate(params, origins, directions, sh, rows_n, which, Pass::Infer(&packed));
             evaluated += rows_n;
-            for (a, &r) in active.iter().enumerate() {
-                for (b, k) in block.clone().enumerate() {
-                    let i = a * block.len() + b;
-                    // The next sample's depth, in this block or the next one's first.
-                    let next = || if b + 1 < block.len() { depths[i + 1] } else { self.sample_depth(origins[r], directions[r], k + 1).1 };
-                    let delta = if k + 1 == k_n { None } else { Some(next() - depths[i]) };
-                    let Sample { c, alpha, .. } = Sample::of(&raw[4 * i..4 * i + 4], delta);
-                    let w = transmittance[r] * alpha;
-                    for j in 0..3 {
-                        colors[r][j] += w * c[j];
+            // Compiled for the CPU's instruction set, as in `forward`.
+            crate::kernels::dispatch(
+                #[inline(always)]
+                || {
+                    for (a, &r) in active.iter().enumerate() {
+                        for (b, k) in block.clone().enumerate() {
+                            let i = a * block.len() + b;
+                            // The next sample's depth, in this block or the next one's first.
+                            let next = || if b + 1 < block.len() { depths[i + 1] } else { self.sample_depth(origins[r], directions[r], k + 1).1 };
+                            let delta = if k + 1 == k_n { None } else { Some(next() - depths[i]) };
+                            let Sample { c, alpha, .. } = Sample::of(&raw[4 * i..4 * i + 4], delta);
+                            let w = transmittance[r] * alpha;
+                            for j in 0..3 {
+                                colors[r][j] += w * c[j];
+                            }
+                            transmittance[r] *= R::ONE - alpha;
+                        }
                     }
-                    transmittance[r] *= R::ONE - alpha;
-                }
-            }
+                },
+            );
             active.retain(|&r| transmittance[r] > budgets[r]);
             if active.is_empty() {
                 break;
@@ -373,6 +426,13 @@ impl BackgroundModel {
 }
 
 /// What the network's forward pass on a set of samples leaves ([`BackgroundModel::evaluate`]).
+/// How [`BackgroundModel::evaluate`] runs the network: with a context for a backward pass, or
+/// forward only through layers packed once ([`Mlp::packed_layers`]).
+enum Pass<'a, R: Real> {
+    Backward,
+    Infer(&'a [PackedLayer<R>]),
+}
+
 struct NetworkRows<R: Real> {
     input: Buf<R>,
     points: Buf<R>,
@@ -396,6 +456,7 @@ struct Sample<R> {
 }
 
 impl<R: Real> Sample<R> {
+    #[inline(always)]
     fn of(raw: &[R], delta: Option<R>) -> Sample<R> {
         let (sigma, d_sigma) = raw[0].softplus_with_derivative(R::ONE);
         let c = [1, 2, 3].map(|j| crate::module::sigmoid(raw[j]));
@@ -450,11 +511,12 @@ mod tests {
         let model = BackgroundModel::with_view(16, 10, 8, 1, false);
         let mut row = vec![0.0f64; Module::<f64>::n_inputs(&model.net)];
         let mut worst = 0.0f64;
+        let inv_r_sines = model.inverse_radius_sines::<f64>();
         for i in 0..200 {
             let a = i as f64 * 0.731;
             let (o, d) = ([0.3 * a.sin(), -0.2, 0.1 * a.cos()], [a.cos() * 0.6, a.sin() * 0.6, 0.8]);
             for k in 0..16 {
-                model.sample_row(o, d, &[0.0; 16], k, &mut row, &mut []);
+                model.sample_row(o, d, &[0.0; 16], k, &inv_r_sines[20 * k..20 * k + 20], &mut row, &mut []);
                 for l in 0..10 {
                     for j in 0..4 {
                         let x = f64::from(1u32 << l) * row[j];

@@ -7,7 +7,7 @@
 //! Each output is that of the forward pass to the bit: the same packed weights, the same tile
 //! kernel summing each output over its inputs in the same order, the same activation.
 
-use super::Mlp;
+use super::{Mlp, PackedLayer};
 use crate::kernels::{dense_forward, pad};
 use crate::real::Real;
 use crate::scratch::Buf;
@@ -30,14 +30,24 @@ impl Mlp {
     /// `keep`), as [`Module::forward`](crate::Module::forward) computes them, to the bit, without
     /// its context.
     pub(crate) fn infer_columns<R: Real>(&self, params: &[R], input: &[R], output: &mut [R], keep: usize) {
+        if !output.is_empty() {
+            self.infer_packed(&self.packed_layers(params), input, output, keep);
+        }
+    }
+
+    /// [`Self::infer_columns`] with the layers packed once by the caller ([`Self::packed_layers`]
+    /// of the same parameters), for a caller that runs the network on many small batches (a
+    /// render's background, block by block): packing the weights is a pass over all of them,
+    /// as long as the products of a few hundred rows.
+    pub(crate) fn infer_packed<R: Real>(&self, packed: &[PackedLayer<R>], input: &[R], output: &mut [R], keep: usize) {
         let _span = crate::profile::span(crate::profile::Stage::MlpForward);
         let n_x = self.config.n_inputs;
         assert!(keep <= self.config.n_outputs, "{keep} outputs asked of a network of {}", self.config.n_outputs);
         assert_eq!(input.len() / n_x * keep, output.len(), "one row of {keep} outputs per input row");
+        assert_eq!(packed.len(), self.layers.len(), "one packed layer per layer");
         if output.is_empty() {
             return;
         }
-        let packed = self.packed_layers(params);
         let widest = self.layers.iter().map(|&(n_in, n_out, _)| pad(n_in).max(pad(n_out))).max().unwrap_or(0);
         // A block's layer input and output, in turn.
         let (mut a, mut y) = (Buf::<R>::to_overwrite(BLOCK * widest), Buf::<R>::to_overwrite(BLOCK * widest));

@@ -397,7 +397,8 @@ fn block_points<R: Real, const B: usize>(points: &[R]) -> [[R; 3]; B] {
     })
 }
 
-/// One level's features (rows × F into `out`, as [`level_features`], to the same bits) and
+/// One level's features (into columns `at..at + F` of `out`'s rows of `n_out`, as
+/// [`level_features`], to the same bits) and
 /// their Jacobian: ∂y_(at+q)/∂x_d at `(r · n_out + at + q) · 3 + d` of `jacobian` (rows × n_out ×
 /// 3), from the same corners and table values. In blocks of [`JACOBIAN_BLOCK`] rows computed into
 /// arrays of one component each (the last block repeats its last row), then copied to the rows:
@@ -419,7 +420,7 @@ fn level_features_jacobian<R: Real, const F: usize, const DENSE: bool>(
 ) {
     const B: usize = JACOBIAN_BLOCK;
     let entries = table.as_chunks::<F>().0;
-    for ((points, o), jac) in input.chunks(3 * B).zip(out.chunks_mut(F * B)).zip(jacobian.chunks_mut(3 * n_out * B)) {
+    for ((points, o), jac) in input.chunks(3 * B).zip(out.chunks_mut(n_out * B)).zip(jacobian.chunks_mut(3 * n_out * B)) {
         let p = block_points::<R, B>(points);
         let mut acc = [[R::ZERO; B]; F];
         let mut grad = [[[R::ZERO; B]; 3]; F];
@@ -436,9 +437,9 @@ fn level_features_jacobian<R: Real, const F: usize, const DENSE: bool>(
                 }
             }
         }
-        for (i, (o, jac)) in o.chunks_exact_mut(F).zip(jac.chunks_exact_mut(3 * n_out)).enumerate() {
+        for (i, (o, jac)) in o.chunks_exact_mut(n_out).zip(jac.chunks_exact_mut(3 * n_out)).enumerate() {
             for q in 0..F {
-                o[q] = acc[q][i];
+                o[at + q] = acc[q][i];
                 for d in 0..3 {
                     jac[3 * (at + q) + d] = grad[q][d][i];
                 }
@@ -554,24 +555,37 @@ fn level_input_adjoint<R: Real, const F: usize, const DENSE: bool>(
     }
 }
 
-/// One level's features for every row into `out` (rows × F, level-major). Table reads go
-/// through `get` (out of range reads 0, which the indices never are): a bounds check that panics
-/// is an early exit, and loops with early exits do not vectorise. A corner's F features are read
-/// as one entry (`[R; F]`, one check): read feature by feature, each with its own check, the
-/// level's pass ran 1.2–1.45× slower on a Zen 3 (AVX2; DECISIONS §55).
+/// One level's features for every row into columns `at..at + F` of `out` (rows of `n_out`),
+/// in blocks of [`JACOBIAN_BLOCK`] rows accumulated into arrays of one feature each, then
+/// written to the rows, as [`level_features_jacobian`] does: row by row, the loop did not
+/// vectorise with AVX-512 (each corner hashed and read in scalar code), and each row's features
+/// were copied from a level buffer by a call (DECISIONS §57). Table reads go through `get` (out
+/// of range reads 0, which the indices never are): a bounds check that panics is an early exit,
+/// and loops with early exits do not vectorise. A corner's F features are read as one entry
+/// (`[R; F]`, one check): read feature by feature, each with its own check, the level's pass ran
+/// 1.2–1.45× slower on a Zen 3 (AVX2; DECISIONS §55).
 #[inline(always)]
-fn level_features<R: Real, const F: usize, const DENSE: bool>(table: &[R], n: u32, mask: u32, input: &[R], out: &mut [R]) {
+#[allow(clippy::too_many_arguments)]
+fn level_features<R: Real, const F: usize, const DENSE: bool>(table: &[R], n: u32, mask: u32, input: &[R], out: &mut [R], n_out: usize, at: usize) {
+    const B: usize = JACOBIAN_BLOCK;
     let entries = table.as_chunks::<F>().0;
-    for (p, o) in input.chunks_exact(3).zip(out.chunks_exact_mut(F)) {
-        let (idx, w) = corner_weights::<R, DENSE>(p, n, mask);
-        let mut acc = [R::ZERO; F];
-        for c in 0..8 {
-            let entry = entries.get(idx[c] as usize).copied().unwrap_or([R::ZERO; F]);
-            for k in 0..F {
-                acc[k] = w[c].mul_add(entry[k], acc[k]);
+    for (points, o) in input.chunks(3 * B).zip(out.chunks_mut(n_out * B)) {
+        let p = block_points::<R, B>(points);
+        let mut acc = [[R::ZERO; B]; F];
+        for i in 0..B {
+            let (idx, w) = corner_weights::<R, DENSE>(&p[i], n, mask);
+            for c in 0..8 {
+                let entry = entries.get(idx[c] as usize).copied().unwrap_or([R::ZERO; F]);
+                for q in 0..F {
+                    acc[q][i] = w[c].mul_add(entry[q], acc[q][i]);
+                }
             }
         }
-        o.copy_from_slice(&acc);
+        for (i, o) in o.chunks_exact_mut(n_out).enumerate() {
+            for q in 0..F {
+                o[at + q] = acc[q][i];
+            }
+        }
     }
 }
 
@@ -592,15 +606,15 @@ impl HashGrid {
     fn forward_rows<R: Real>(&self, params: &[R], input: &[R], output: &mut [R]) {
         let f = self.config.features;
         let mask = (self.table - 1) as u32;
+        let n_out = self.config.levels * f;
         output.fill(R::ZERO);
-        let mut level_out = Buf::<R>::to_overwrite(input.len() / 3 * f);
         for level in 0..self.active_levels.min(self.config.levels) {
             let table = &params[self.level_params(level)];
             let (n, dense) = (self.resolutions[level], self.dense[level]);
-            by_kernel!(f, dense, |F, DENSE| level_features::<R, F, DENSE>(table, n, mask, input, &mut level_out), {
-                for (x, y) in input.chunks_exact(3).zip(level_out.chunks_exact_mut(f)) {
+            by_kernel!(f, dense, |F, DENSE| level_features::<R, F, DENSE>(table, n, mask, input, output, n_out, level * f), {
+                for (x, row) in input.chunks_exact(3).zip(output.chunks_exact_mut(n_out)) {
                     let (idx, w, _) = self.corners(level, x);
-                    y.fill(R::ZERO);
+                    let y = &mut row[level * f..level * f + f];
                     for c in 0..8 {
                         for k in 0..f {
                             y[k] = w[c].mul_add(table[idx[c] * f + k], y[k]);
@@ -608,10 +622,6 @@ impl HashGrid {
                     }
                 }
             });
-            let n_out = self.config.levels * f;
-            for (y, l) in output.chunks_exact_mut(n_out).zip(level_out.chunks_exact(f)) {
-                y[level * f..level * f + f].copy_from_slice(l);
-            }
         }
     }
 
@@ -628,18 +638,17 @@ impl HashGrid {
         if self.active_levels < self.config.levels {
             jacobian.fill(R::ZERO);
         }
-        let mut level_out = Buf::<R>::to_overwrite(input.len() / 3 * f);
         for level in 0..self.active_levels.min(self.config.levels) {
             let table = &params[self.level_params(level)];
             let (n, dense) = (self.resolutions[level], self.dense[level]);
             by_kernel!(
                 f,
                 dense,
-                |F, DENSE| level_features_jacobian::<R, F, DENSE>(table, n, mask, input, &mut level_out, jacobian, n_out, level * f),
-                for (r, (x, y)) in input.chunks_exact(3).zip(level_out.chunks_exact_mut(f)).enumerate() {
+                |F, DENSE| level_features_jacobian::<R, F, DENSE>(table, n, mask, input, output, jacobian, n_out, level * f),
+                for (r, (x, row)) in input.chunks_exact(3).zip(output.chunks_exact_mut(n_out)).enumerate() {
                     let (idx, w, dw) = self.corners(level, x);
                     let grad = &mut jacobian[3 * (r * n_out + level * f)..3 * (r * n_out + level * f + f)];
-                    y.fill(R::ZERO);
+                    let y = &mut row[level * f..level * f + f];
                     grad.fill(R::ZERO);
                     for c in 0..8 {
                         for k in 0..f {
@@ -652,9 +661,6 @@ impl HashGrid {
                     }
                 }
             );
-            for (y, l) in output.chunks_exact_mut(n_out).zip(level_out.chunks_exact(f)) {
-                y[level * f..level * f + f].copy_from_slice(l);
-            }
         }
     }
 

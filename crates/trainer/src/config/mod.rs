@@ -486,6 +486,17 @@ impl RenderConfig {
     }
 }
 
+/// The configuration from its TOML table, or what does not fit prefixed by the dotted key it
+/// is at (`data.builtin.backdrop: invalid type: …`): serde's own message names neither the key
+/// nor its section.
+fn from_table(table: toml::Table) -> std::result::Result<TrainConfig, String> {
+    serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
+        let path = e.path().to_string();
+        let message = e.into_inner().message().to_string();
+        if path == "." { message } else { format!("{path}: {message}") }
+    })
+}
+
 impl TrainConfig {
     /// The defaults, then `file` (if any), then the `key=value` overrides; validated.
     pub fn load(file: Option<&Path>, overrides: &[String]) -> Result<TrainConfig> {
@@ -520,16 +531,15 @@ impl TrainConfig {
             budget_from_short_keys(&mut table)?;
         }
         let origin = file.map_or("the overrides".to_string(), |p| format!("{} and the overrides", p.display()));
-        let config: TrainConfig = table.try_into().map_err(|e: toml::de::Error| {
-            // serde names the field, not its section: name the override that is not a key, or
-            // the one whose value does not fit its key.
+        let config = from_table(table).map_err(|message| {
+            // Name the override that is not a key, or the one whose value does not fit its key.
             let unknown = overrides.iter().map(|(k, _)| k).find(|k| !is_default_key(k));
             let key = match (unknown, overrides.iter().find(|(k, v)| !fits_alone(k, v))) {
                 (Some(k), _) => format!(" (no key {k})"),
                 (None, Some((k, v))) => format!(" ({k} = {v})"),
                 (None, None) => String::new(),
             };
-            crate::Error::Config(format!("config from {origin}{key}: {}", e.message()))
+            crate::Error::Config(format!("config from {origin}{key}: {message}"))
         })?;
         config.validate().with_context(|| format!("config from {origin}"))?;
         Ok(config)
@@ -539,7 +549,7 @@ impl TrainConfig {
     pub fn from_toml(text: &str) -> Result<TrainConfig> {
         let mut table: toml::Table = toml::from_str(text).map_err(|e| crate::Error::Config(e.message().to_string()))?;
         budget_from_short_keys(&mut table)?;
-        let config: TrainConfig = table.try_into().map_err(|e: toml::de::Error| crate::Error::Config(e.message().to_string()))?;
+        let config = from_table(table).map_err(crate::Error::Config)?;
         config.validate()?;
         Ok(config)
     }

@@ -133,6 +133,27 @@ fn unknown_keys_bad_enums_and_bad_values_are_named() {
     assert!(msg.contains("rayz") && msg.contains("bad.toml"), "{msg}");
 }
 
+/// Regression: a file's value of the wrong type came back as serde's bare "invalid type: unit
+/// variant, expected string only", naming neither the key nor its section. Now the dotted key
+/// leads the message, from a file given to `load` and from a run folder's `config.toml`.
+#[test]
+fn a_files_value_that_does_not_fit_is_named_by_its_dotted_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("config.toml");
+    for (text, key) in [
+        ("[data.builtin]\nbackdrop = true\n", "data.builtin.backdrop"),
+        ("[model]\neikonal = \"strong\"\n", "model.eikonal"),
+        ("[model]\neikonall = 0.1\n", "model.eikonall"),
+        ("[guide.scene]\nresolution = -4\n", "guide.scene.resolution"),
+    ] {
+        std::fs::write(&file, text).unwrap();
+        let msg = TrainConfig::load(Some(&file), &[]).unwrap_err().chain();
+        assert!(msg.contains(&format!("{key}: ")) && msg.contains("config.toml"), "{text:?}: {msg}");
+        let msg = TrainConfig::from_toml(text).unwrap_err().chain();
+        assert!(msg.contains(&format!("{key}: ")), "{text:?}: {msg}");
+    }
+}
+
 #[test]
 fn steps_alone_turn_the_time_budget_off() {
     assert!(TrainConfig::default().timed());

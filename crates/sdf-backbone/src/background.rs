@@ -425,7 +425,6 @@ impl BackgroundModel {
     }
 }
 
-/// What the network's forward pass on a set of samples leaves ([`BackgroundModel::evaluate`]).
 /// How [`BackgroundModel::evaluate`] runs the network: with a context for a backward pass, or
 /// forward only through layers packed once ([`Mlp::packed_layers`]).
 enum Pass<'a, R: Real> {
@@ -433,6 +432,7 @@ enum Pass<'a, R: Real> {
     Infer(&'a [PackedLayer<R>]),
 }
 
+/// What the network's forward pass on a set of samples leaves ([`BackgroundModel::evaluate`]).
 struct NetworkRows<R: Real> {
     input: Buf<R>,
     points: Buf<R>,

@@ -383,8 +383,8 @@ fn corner_gradients<R: Real, const DENSE: bool>(p: &[R], n: u32, mask: u32) -> (
     (idx, w, dw)
 }
 
-/// Rows per block of [`level_features_jacobian`] and [`level_input_adjoint`]: one AVX-512
-/// register of f32.
+/// Rows per block of [`level_features`], [`level_features_jacobian`] and [`level_input_adjoint`]:
+/// one AVX-512 register of f32.
 const JACOBIAN_BLOCK: usize = 16;
 
 /// The points of a block of at most `B` rows (rows × 3), as `B` rows: the last repeated.
@@ -402,10 +402,10 @@ fn block_points<R: Real, const B: usize>(points: &[R]) -> [[R; 3]; B] {
 /// their Jacobian: ∂y_(at+q)/∂x_d at `(r · n_out + at + q) · 3 + d` of `jacobian` (rows × n_out ×
 /// 3), from the same corners and table values. In blocks of [`JACOBIAN_BLOCK`] rows computed into
 /// arrays of one component each (the last block repeats its last row), then copied to the rows:
-/// the rows' interleaved, strided stores kept the row loop from vectorising as the plain
-/// gathers' does (with AVX-512 the level's pass takes half the time; with AVX2, whose 16
-/// registers cannot hold a row's corners in vectors, blocks of 16, of 8 and rows alone train at
-/// the same speed).
+/// the rows' interleaved, strided stores kept the row loop from vectorising (with AVX-512 the
+/// level's pass takes half the time; with AVX2, whose 16 registers cannot hold a row's corners in
+/// vectors, blocks of 16, of 8 and rows alone train at the same speed). [`level_features`] is
+/// blocked the same way since §57.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn level_features_jacobian<R: Real, const F: usize, const DENSE: bool>(

@@ -30,9 +30,16 @@ impl Mlp {
     /// `keep`), as [`Module::forward`](crate::Module::forward) computes them, to the bit, without
     /// its context.
     pub(crate) fn infer_columns<R: Real>(&self, params: &[R], input: &[R], output: &mut [R], keep: usize) {
+        self.check_inference(input, output, keep);
         if !output.is_empty() {
             self.infer_packed(&self.packed_layers(params), input, output, keep);
         }
+    }
+
+    /// Panics where `output` is not one row of `keep` (≤ the network's outputs) per input row.
+    fn check_inference<R: Real>(&self, input: &[R], output: &[R], keep: usize) {
+        assert!(keep <= self.config.n_outputs, "{keep} outputs asked of a network of {}", self.config.n_outputs);
+        assert_eq!(input.len() / self.config.n_inputs * keep, output.len(), "one row of {keep} outputs per input row");
     }
 
     /// [`Self::infer_columns`] with the layers packed once by the caller ([`Self::packed_layers`]
@@ -42,8 +49,7 @@ impl Mlp {
     pub(crate) fn infer_packed<R: Real>(&self, packed: &[PackedLayer<R>], input: &[R], output: &mut [R], keep: usize) {
         let _span = crate::profile::span(crate::profile::Stage::MlpForward);
         let n_x = self.config.n_inputs;
-        assert!(keep <= self.config.n_outputs, "{keep} outputs asked of a network of {}", self.config.n_outputs);
-        assert_eq!(input.len() / n_x * keep, output.len(), "one row of {keep} outputs per input row");
+        self.check_inference(input, output, keep);
         assert_eq!(packed.len(), self.layers.len(), "one packed layer per layer");
         if output.is_empty() {
             return;

@@ -4,7 +4,10 @@
 //! ≈ 150 MB at once, the largest working set of a run's evaluation; here the horizontal blurs of
 //! the last 11 rows are kept (5 × 11 rows), each output row is blurred vertically from them and
 //! summed at once. Every value is computed in the same order as the whole-image blur, so the
-//! figure is the same to the last bit.
+//! figure is the same to the last bit. The blurs run a whole row at a time, tap by tap over the
+//! columns ([`blur`]), so that they run in vector lanes (per pixel and quantity, a loop that
+//! matched on the quantity did not vectorise: SSIM was 7 % of a render's wall time on the
+//! built-in scene).
 
 use crate::MetricsError;
 
@@ -30,42 +33,54 @@ pub fn ssim(pred: &[[f32; 3]], target: &[[f32; 3]], width: usize, height: usize)
     let (w2, h2) = (width - 2 * R, height - 2 * R);
     // rows[(q · SIDE + r % SIDE) · w2 + c]: the horizontal blur of quantity q on image row r.
     let mut rows = vec![0.0f64; QUANTITIES * SIDE * w2];
+    // One image row's quantities (q · width + column), and an output row's vertical blurs.
+    let mut line = vec![0.0f64; QUANTITIES * width];
+    let mut blurred = vec![0.0f64; QUANTITIES * w2];
     let mut total = 0.0;
     for k in 0..3 {
-        let quantity = |q: usize, i: usize| -> f64 {
-            let (x, y) = (f64::from(pred[i][k]), f64::from(target[i][k]));
-            match q {
-                0 => x,
-                1 => y,
-                2 => x * x,
-                3 => y * y,
-                _ => x * y,
-            }
-        };
         let mut sum = 0.0;
         for r in 0..height {
+            for (c, (p, t)) in pred[r * width..(r + 1) * width].iter().zip(&target[r * width..(r + 1) * width]).enumerate() {
+                let (x, y) = (f64::from(p[k]), f64::from(t[k]));
+                for (q, v) in [x, y, x * x, y * y, x * y].into_iter().enumerate() {
+                    line[q * width + c] = v;
+                }
+            }
             for q in 0..QUANTITIES {
                 let slot = (q * SIDE + r % SIDE) * w2;
-                for c in 0..w2 {
-                    rows[slot + c] = (0..SIDE).map(|i| g[i] * quantity(q, r * width + c + i)).sum();
-                }
+                blur(&g, |i| &line[q * width + i..q * width + i + w2], &mut rows[slot..slot + w2]);
             }
             if r + 1 < SIDE {
                 continue;
             }
             // Output row r − 2R: its window is image rows r − 2R … r.
             let top = r + 1 - SIDE;
-            let vertical = |q: usize, c: usize| -> f64 { (0..SIDE).map(|i| g[i] * rows[(q * SIDE + (top + i) % SIDE) * w2 + c]).sum() };
+            for (q, out) in blurred.chunks_exact_mut(w2).enumerate() {
+                blur(&g, |i| &rows[(q * SIDE + (top + i) % SIDE) * w2..][..w2], out);
+            }
+            let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
             for c in 0..w2 {
-                let [mx, my, sxx, syy, sxy] = [0, 1, 2, 3, 4].map(|q| vertical(q, c));
+                let [mx, my, sxx, syy, sxy] = [0, 1, 2, 3, 4].map(|q| blurred[q * w2 + c]);
                 let (vx, vy, cxy) = (sxx - mx * mx, syy - my * my, sxy - mx * my);
-                let (c1, c2) = (0.01f64.powi(2), 0.03f64.powi(2));
                 sum += ((2.0 * mx * my + c1) * (2.0 * cxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2));
             }
         }
         total += sum / (w2 * h2) as f64;
     }
     Ok(total / 3.0)
+}
+
+/// `out[c] = Σᵢ g[i] · tap(i)[c]` over the window's taps in order, each column's sum the one
+/// `(0..SIDE).map(|i| g[i] * …).sum()` gives (the same additions in the same order), a whole
+/// row at a time so that the loop runs over columns in vector lanes.
+#[inline]
+fn blur<'a>(g: &[f64], tap: impl Fn(usize) -> &'a [f64], out: &mut [f64]) {
+    out.fill(-0.0);
+    for (i, &weight) in g.iter().enumerate() {
+        for (o, &v) in out.iter_mut().zip(tap(i)) {
+            *o += weight * v;
+        }
+    }
 }
 
 #[cfg(test)]

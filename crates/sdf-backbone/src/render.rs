@@ -83,6 +83,11 @@ pub fn weights_into<R: Real>(sdf: &[R], s: R, weights: &mut Vec<R>) {
 /// [`weights_into`] itself. Training (the loss's [`render_ray`], its up-sampling) keeps
 /// [`weights_into`]'s arithmetic: renders change no bit of it.
 pub fn render_weights_into<R: Real>(sdf: &[R], s: R, weights: &mut Vec<R>) {
+    if sdf.len() < 2 {
+        // No interval (a ray that crosses nothing a render evaluates).
+        weights.clear();
+        return;
+    }
     let Some(values) = R::f32s(sdf) else {
         return weights_into(sdf, s, weights);
     };
@@ -313,6 +318,20 @@ mod tests {
         let nan = |w: &[f32]| w.iter().map(|v| v.is_nan()).collect::<Vec<_>>();
         assert_eq!(nan(&fast), [false, true, true, true]);
         assert_eq!(nan(&fast), nan(&exact));
+    }
+
+    /// Guards a render's rays with no interval (one that crosses no occupied cell has no depth):
+    /// no weight, in f32 and f64, where the f32 path once sliced past the end.
+    #[test]
+    fn a_ray_without_an_interval_renders_no_weight() {
+        let mut weights = vec![0.5f32];
+        for sdf in [&[][..], &[0.3f32][..]] {
+            render_weights_into(sdf, 64.0, &mut weights);
+            assert!(weights.is_empty(), "{sdf:?}: {weights:?}");
+        }
+        let mut weights = vec![0.5f64];
+        render_weights_into(&[0.3f64], 64.0, &mut weights);
+        assert!(weights.is_empty());
     }
 
     /// Each value's softplus is computed once for its two intervals: every α must still be its

@@ -447,11 +447,25 @@ impl Estimator {
 /// returns whether the ray crosses occupied space (always true without an occupancy); a ray
 /// that does not gets stratified depths over the whole [near, far].
 pub fn march_through(occupancy: Option<&Occupancy>, origin: DVec3, direction: DVec3, n: usize, jitter: f64, depths: &mut Vec<f32>) -> bool {
+    march_through_with(occupancy, origin, direction, n, jitter, &mut Vec::new(), depths)
+}
+
+/// [`march_through`] with the ray's occupied intervals gathered in `segments` (cleared first):
+/// a caller that marches many rays keeps one buffer for them all, no allocation per ray.
+pub fn march_through_with(
+    occupancy: Option<&Occupancy>,
+    origin: DVec3,
+    direction: DVec3,
+    n: usize,
+    jitter: f64,
+    segments: &mut Vec<[f32; 2]>,
+    depths: &mut Vec<f32>,
+) -> bool {
     depths.clear();
+    segments.clear();
     let (near, far) = near_far(origin, direction);
-    let mut segments: Vec<[f32; 2]> = Vec::new();
     if let Some(occupancy) = occupancy {
-        occupancy.segments(origin.as_vec3(), direction.as_vec3(), near as f32, far as f32, &mut segments);
+        occupancy.segments(origin.as_vec3(), direction.as_vec3(), near as f32, far as f32, segments);
     }
     let total: f64 = segments.iter().map(|s| f64::from(s[1] - s[0])).sum();
     if segments.is_empty() || !(total > 1e-6) {

@@ -46,7 +46,7 @@ pub use distribution::{CameraDistribution, ImageSpaceSample, Interpolation};
 pub use error_map::{ErrorMap, ErrorMapConfig, ErrorMapStateError};
 pub use estimator::{
     CARRIED_LIPSCHITZ_MARGIN, CoarseRay, DrawnRay, Estimator, EstimatorConfig, EstimatorState, INITIAL_LIPSCHITZ, SurfaceDistance, UpdateReport,
-    march_through, near_far,
+    march_through, march_through_with, near_far,
 };
 
 use camera_geom::PinholeCamera;

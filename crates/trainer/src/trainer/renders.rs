@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use sdf_backbone::{RayInput, RayOutput, Trim};
 use std::hash::Hasher;
 use std::sync::Arc;
-use view_sampler::march_through;
+use view_sampler::march_through_with;
 
 /// A render's occupancy ([`Trainer::render_occupancy`]) and the Lipschitz bound of the field it
 /// was made of.
@@ -101,8 +101,9 @@ impl Trainer {
     /// The outputs of the pixels of `rows` (row-major) seen by `camera`: the estimator's coarse
     /// samples without jitter through `occupancy` (else the estimator's), up-sampled and trimmed
     /// where they cross occupied space (not up-sampled where their coarse values and the
-    /// occupancy's Lipschitz bound prove them faint: [`sdf_backbone::proven_faint`]), one
-    /// interval at the far end where they do not.
+    /// occupancy's Lipschitz bound prove them faint: [`sdf_backbone::proven_faint`]); a ray
+    /// that crosses no occupied cell has no interval at all (opacity 0: nothing along it can
+    /// carry weight), only the background, and no SDF is evaluated for it.
     fn render_rows(
         &self,
         camera: &camera_geom::PinholeCamera,
@@ -112,22 +113,23 @@ impl Trainer {
         let occupancy = render_occupancy.map(|o| &o.occupancy);
         let r = &self.config.render;
         let width = camera.width;
+        // The render's own occupancy, else the estimator's (training with skipping).
+        let marched = occupancy.or(self.estimator.occupancy());
         let (mut rays, hits): (Vec<RayInput<f32>>, Vec<bool>) = rows
             .into_par_iter()
             .flat_map_iter(|row| (0..width).map(move |col| (col, row)))
-            .map(|(col, row)| {
-                let ray = camera.ray_through_pixel_index(col, row);
-                let mut depths = Vec::with_capacity(r.coarse + 1);
-                // The render's own occupancy, else the estimator's (training with skipping).
-                let crosses = march_through(occupancy.or(self.estimator.occupancy()), ray.origin, ray.direction, r.coarse, 0.5, &mut depths);
-                let empty = occupancy.is_some() && !crosses;
-                if empty {
-                    // Nothing along it can carry weight: one interval at its far end.
-                    depths.drain(..depths.len() - 2);
-                }
-                let (origin, direction) = (ray.origin.as_vec3().to_array(), ray.direction.as_vec3().to_array());
-                (RayInput { origin, direction, depths, target: [0.0; 3], mask: None, weight: 1.0 }, !empty)
-            })
+            .map_init(
+                || (Vec::new(), Vec::with_capacity(r.coarse + 1)),
+                |(segments, scratch), (col, row)| {
+                    let ray = camera.ray_through_pixel_index(col, row);
+                    let crosses = march_through_with(marched, ray.origin, ray.direction, r.coarse, 0.5, segments, scratch);
+                    let empty = occupancy.is_some() && !crosses;
+                    // An empty ray's depths are not needed: no allocation for it.
+                    let depths = if empty { Vec::new() } else { scratch.clone() };
+                    let (origin, direction) = (ray.origin.as_vec3().to_array(), ray.direction.as_vec3().to_array());
+                    (RayInput { origin, direction, depths, target: [0.0; 3], mask: None, weight: 1.0 }, !empty)
+                },
+            )
             .unzip();
         // Up-sampling and the trim for the rays that cross occupied space, the SDF at every
         // depth kept for the render.
@@ -139,14 +141,10 @@ impl Trainer {
         let resolved = r.resolved_applied().map(|most| most as f32);
         let trim = (r.render_trim > 0.0).then(|| Trim { s: self.s() as f32, negligible: r.render_trim as f32, lipschitz, resolved });
         let values = self.backbone.upsample_for_render(params, &mut crossing, fine, rounds, r.upsample_s, trim);
+        // An empty ray: no depths, no values.
         let mut sdf = vec![Vec::new(); rays.len()];
         for ((ray, values), &i) in crossing.into_iter().zip(values).zip(&index) {
             rays[i] = ray;
-            sdf[i] = values;
-        }
-        let missed: Vec<usize> = (0..rays.len()).filter(|&i| !hits[i]).collect();
-        let missed_rays: Vec<RayInput<f32>> = missed.iter().map(|&i| rays[i].clone()).collect();
-        for (values, &i) in self.backbone.sdf_along(params, &missed_rays).into_iter().zip(&missed) {
             sdf[i] = values;
         }
         self.render_rays(&rays, Some(sdf))
@@ -319,6 +317,49 @@ mod tests {
         let levels = trainer.backbone.levels().expect("the default preset has a hash grid");
         trainer.backbone.set_active_levels(levels - 1);
         assert!(!Arc::ptr_eq(&second, &trainer.render_occupancy().unwrap()), "other active levels make a new occupancy");
+    }
+
+    /// Guards the renders' empty-space skipping: a ray that crosses no cell of the render's
+    /// occupancy has no interval (no SDF evaluated for it) and renders the background alone
+    /// (opacity 0), with masks (a fixed background) and without (the learned one); rendered
+    /// without skipping, those rays carry next to nothing of the object.
+    #[test]
+    fn a_ray_that_crosses_no_occupied_cell_renders_the_background_alone() {
+        for masks in [true, false] {
+            let mut config = TrainConfig { budget: Budget::Steps(300), ..TrainConfig::default() };
+            config.data.builtin.width = 48;
+            config.data.masks = masks;
+            config.render.rays = 64;
+            let data = SceneData::builtin(&config).unwrap();
+            let mut trainer = Trainer::new(config, data).unwrap();
+            for _ in 0..300 {
+                trainer.step().unwrap();
+            }
+            let skipped = trainer.render_view(1, 1).unwrap();
+            let occupancy = trainer.render_occupancy().unwrap();
+            let camera = trainer.downscaled_camera(1, 1).unwrap();
+            let mut depths = Vec::new();
+            let empty: Vec<bool> = (0..camera.height)
+                .flat_map(|row| (0..camera.width).map(move |col| (col, row)))
+                .map(|(col, row)| {
+                    let ray = camera.ray_through_pixel_index(col, row);
+                    !view_sampler::march_through(Some(&occupancy.occupancy), ray.origin, ray.direction, 8, 0.5, &mut depths)
+                })
+                .collect();
+            let n_empty = empty.iter().filter(|&&e| e).count();
+            assert!(n_empty > empty.len() / 4 && n_empty < empty.len(), "masks {masks}: {n_empty} of {} rays cross no occupied cell", empty.len());
+            let background = trainer.config().model.background.map(|c| c as f32);
+            trainer.set_render_sampling(|r| r.render_skip_empty = false).unwrap();
+            let full = trainer.render_view(1, 1).unwrap();
+            for ((out, whole), _) in skipped.outputs.iter().zip(&full.outputs).zip(&empty).filter(|(_, e)| **e) {
+                assert_eq!((out.opacity, out.depth), (0.0, 0.0), "masks {masks}");
+                if masks {
+                    assert_eq!(out.color, background);
+                }
+                let most = (0..3).map(|k| (out.color[k] - whole.color[k]).abs()).fold(whole.opacity, f32::max);
+                assert!(most <= 1e-3, "masks {masks}: a ray that crosses no occupied cell, rendered whole: {whole:?}, skipped: {out:?}");
+            }
+        }
     }
 
     /// Guards the bands that bound a render's memory: a view rendered a few rows at a time (bands

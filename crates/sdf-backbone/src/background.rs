@@ -160,47 +160,33 @@ impl BackgroundModel {
         (inv_r, -od + disc.sqrt())
     }
 
-    /// sin and cos of 2^l v for l < `frequencies` (in pairs, `out` 2 × `frequencies` values) from
-    /// v's own by the double-angle formulas, in f64: off by ≈ 2^l · 10⁻¹⁶ before the one rounding
-    /// to R, as close as `sinf`/`cosf` of each (≈ 3 · 10⁻⁸).
-    fn sines_into<R: Real>(&self, v: R, out: &mut [R]) {
-        let (mut sin, mut cos) = v.to_f64().sin_cos();
-        for pair in out.chunks_exact_mut(2).take(self.frequencies) {
-            pair.copy_from_slice(&[R::of(sin), R::of(cos)]);
-            (sin, cos) = (2.0 * sin * cos, (cos - sin) * (cos + sin));
-        }
-    }
-
-    /// [`Self::sines_into`] of every sample's 1/r (the same on every ray: sample k's is fixed),
-    /// 2 × `frequencies` values per sample, for [`Self::sample_row`].
+    /// [`crate::sines::double_angles`] of every sample's 1/r (the same on every ray: sample k's
+    /// is fixed), 2 × `frequencies` values per sample, for [`Self::sample_row`].
     fn inverse_radius_sines<R: Real>(&self) -> Vec<R> {
         let per = 2 * self.frequencies;
         let mut out = vec![R::ZERO; self.samples * per];
-        for (k, sines) in out.chunks_exact_mut(per.max(1)).enumerate() {
-            self.sines_into(self.inverse_radius::<R>(k), sines);
+        let mut sines = vec![0.0; per];
+        for (k, out) in out.chunks_exact_mut(per.max(1)).enumerate() {
+            crate::sines::double_angles(self.inverse_radius::<R>(k).to_f64(), self.frequencies, &mut sines);
+            for (o, &v) in out.iter_mut().zip(&sines) {
+                *o = R::of(v);
+            }
         }
         out
     }
 
-    /// Writes sample k of the ray (`o`, `d`, `sh` = SH₄(d)) as a row of the network's input (the
-    /// grid's columns left as they are; `inv_r_sines`: sample k's of
-    /// [`Self::inverse_radius_sines`]) and, with a grid, its contracted point (`point`, 3
-    /// values; empty without a grid); returns the sample's depth.
+    /// Writes sample k of the ray (`o`, `d`, `sh` = SH₄(d)) as a row of the network's input,
+    /// but for the sines of its point x/r (the grid's columns and those left as they are;
+    /// `inv_r_sines`: sample k's of [`Self::inverse_radius_sines`]) and, with a grid, its
+    /// contracted point (`point`, 3 values; empty without a grid); returns the sample's depth
+    /// and x/r, whose sines [`Self::write_point_sines`] writes for many rows at once.
     #[allow(clippy::too_many_arguments)]
-    fn sample_row<R: Real>(&self, o: [R; 3], d: [R; 3], sh: &[R; 16], k: usize, inv_r_sines: &[R], row: &mut [R], point: &mut [R]) -> R {
+    fn sample_row<R: Real>(&self, o: [R; 3], d: [R; 3], sh: &[R; 16], k: usize, inv_r_sines: &[R], row: &mut [R], point: &mut [R]) -> (R, [R; 3]) {
         let (inv_r, t) = self.sample_depth(o, d, k);
         let p = [0, 1, 2].map(|j| (o[j] + t * d[j]) * inv_r);
         let q = [p[0], p[1], p[2], inv_r];
         row[..4].copy_from_slice(&q);
         // Column j of frequency l: sin at 4 + 8l + j, cos at 8 + 8l + j.
-        let mut sines = [R::ZERO; 2 * Self::MAX_FREQUENCIES];
-        for (j, &v) in p.iter().enumerate() {
-            self.sines_into(v, &mut sines);
-            for l in 0..self.frequencies {
-                row[4 + 8 * l + j] = sines[2 * l];
-                row[8 + 8 * l + j] = sines[2 * l + 1];
-            }
-        }
         for l in 0..self.frequencies {
             row[4 + 8 * l + 3] = inv_r_sines[2 * l];
             row[8 + 8 * l + 3] = inv_r_sines[2 * l + 1];
@@ -213,7 +199,25 @@ impl BackgroundModel {
             let c = (R::of(2.0) - inv_r) * R::of(0.5);
             point.copy_from_slice(&p.map(|v| v * c));
         }
-        t
+        (t, p)
+    }
+
+    /// The sines of every row's point x/r (`points`: 3 values a row) written into their columns
+    /// of `input` (column j of frequency l: sin at 4 + 8l + j, cos at 8 + 8l + j), all rows'
+    /// at once ([`crate::sines::double_angles_of_all`]: the points lie on the unit sphere).
+    fn write_point_sines<R: Real>(&self, points: &[f64], input: &mut [R]) {
+        let (n, f, n_in) = (points.len(), self.frequencies, Module::<R>::n_inputs(&self.net));
+        let mut sines = vec![0.0f64; 2 * f * n];
+        crate::sines::double_angles_of_all(points, f, &mut sines);
+        for (i, row) in input.chunks_exact_mut(n_in).enumerate() {
+            for l in 0..f {
+                let (sin, cos) = (&sines[2 * l * n + 3 * i..][..3], &sines[(2 * l + 1) * n + 3 * i..][..3]);
+                for j in 0..3 {
+                    row[4 + 8 * l + j] = R::of(sin[j]);
+                    row[8 + 8 * l + j] = R::of(cos[j]);
+                }
+            }
+        }
     }
 
     /// With a grid, its features at `points` (rows × 3) written into their columns of `input`.
@@ -248,13 +252,17 @@ impl BackgroundModel {
         let mut input = Buf::<R>::zeroed(rows * n_in);
         let mut points = Buf::<R>::zeroed(if self.grid.is_some() { rows * 3 } else { 0 });
         let mut depths = vec![R::ZERO; rows];
+        let mut on_sphere = vec![0.0f64; 3 * rows];
         let (inv_r_sines, per) = (self.inverse_radius_sines::<R>(), 2 * self.frequencies);
         for i in 0..rows {
             let (r, k) = which(i);
             let point = points.get_mut(3 * i..3 * i + 3).unwrap_or_default();
             let row = &mut input[i * n_in..(i + 1) * n_in];
-            depths[i] = self.sample_row(origins[r], directions[r], &sh[r], k, &inv_r_sines[k * per..(k + 1) * per], row, point);
+            let (t, p) = self.sample_row(origins[r], directions[r], &sh[r], k, &inv_r_sines[k * per..(k + 1) * per], row, point);
+            depths[i] = t;
+            on_sphere[3 * i..3 * i + 3].copy_from_slice(&p.map(R::to_f64));
         }
+        self.write_point_sines(&on_sphere, &mut input);
         self.add_grid_features(p_grid, &points, &mut input);
         let mut raw = Buf::<R>::to_overwrite(rows * 4);
         let mut ctx = Buf::<R>::to_overwrite(if matches!(pass, Pass::Backward) { rows * Module::<R>::ctx_per_row(&self.net) } else { 0 });
@@ -516,7 +524,8 @@ mod tests {
             let a = i as f64 * 0.731;
             let (o, d) = ([0.3 * a.sin(), -0.2, 0.1 * a.cos()], [a.cos() * 0.6, a.sin() * 0.6, 0.8]);
             for k in 0..16 {
-                model.sample_row(o, d, &[0.0; 16], k, &inv_r_sines[20 * k..20 * k + 20], &mut row, &mut []);
+                let (_, p) = model.sample_row(o, d, &[0.0; 16], k, &inv_r_sines[20 * k..20 * k + 20], &mut row, &mut []);
+                model.write_point_sines(&p, &mut row);
                 for l in 0..10 {
                     for j in 0..4 {
                         let x = f64::from(1u32 << l) * row[j];

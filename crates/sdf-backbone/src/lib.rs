@@ -38,6 +38,7 @@ pub mod profile;
 pub mod real;
 pub mod render;
 pub mod scratch;
+mod sines;
 pub mod upsample;
 
 pub use backbone::{Backbone, BackboneError, BackboneField, InputEncoding, ParamLayout, SdfNet, StepRates, adam_step};

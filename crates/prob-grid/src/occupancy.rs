@@ -22,6 +22,9 @@ pub struct Occupancy {
     cell: f32,
     bits: Vec<u64>,
     occupied: usize,
+    /// The box (world corners) rays are clipped to before the DDA, where
+    /// [`Self::clipped_to_occupied`] set it: the occupied cells' bounding box.
+    clip: Option<[Vec3; 2]>,
 }
 
 impl Occupancy {
@@ -32,7 +35,7 @@ impl Occupancy {
         if !n.is_multiple_of(64) {
             *bits.last_mut().expect("at least one word") = (1u64 << (n % 64)) - 1;
         }
-        Occupancy { resolution: config.resolution, bound_min: config.bound_min, cell: config.cell_size(), bits, occupied: n }
+        Occupancy { resolution: config.resolution, bound_min: config.bound_min, cell: config.cell_size(), bits, occupied: n, clip: None }
     }
 
     /// The cells holding the evaluation's mass (the sub-cells' parents), dilated by `dilation`
@@ -74,7 +77,7 @@ impl Occupancy {
                 occupied += 1;
             }
         }
-        Occupancy { resolution: r, bound_min: config.bound_min, cell, bits, occupied }
+        Occupancy { resolution: r, bound_min: config.bound_min, cell, bits, occupied, clip: None }
     }
 
     /// One value per cell (x fastest): 1 occupied, 0 empty (for checkpoints).
@@ -97,7 +100,31 @@ impl Occupancy {
                 occupied += 1;
             }
         }
-        Some(Occupancy { resolution: config.resolution, bound_min: config.bound_min, cell: config.cell_size(), bits, occupied })
+        Some(Occupancy { resolution: config.resolution, bound_min: config.bound_min, cell: config.cell_size(), bits, occupied, clip: None })
+    }
+
+    /// This occupancy with every ray clipped to the bounding box of its occupied cells before
+    /// [`Self::segments`]' DDA walks its cells (no occupied cell: no interval at all): a ray
+    /// that misses the box takes no step, one that crosses it steps through the box's cells
+    /// alone. The same intervals but for the rounding of their ends (where the DDA enters the
+    /// box its boundary crossings are computed from there, not summed from the grid's side);
+    /// for a render's own occupancy, where most rays miss the object (training's estimator
+    /// keeps the unclipped walk, and its bits).
+    pub fn clipped_to_occupied(mut self) -> Occupancy {
+        let r = self.resolution;
+        let (mut lo, mut hi) = (UVec3::splat(u32::MAX), UVec3::ZERO);
+        for (w, &word) in self.bits.iter().enumerate() {
+            let mut word = word;
+            while word != 0 {
+                let i = 64 * w + word.trailing_zeros() as usize;
+                word &= word - 1;
+                let c = UVec3::new((i % r) as u32, ((i / r) % r) as u32, (i / (r * r)) as u32);
+                (lo, hi) = (lo.min(c), hi.max(c));
+            }
+        }
+        // No occupied cell: `segments` returns at once, clipped or not.
+        self.clip = (self.occupied > 0).then(|| [self.bound_min + lo.as_vec3() * self.cell, self.bound_min + (hi + 1).as_vec3() * self.cell]);
+        self
     }
 
     /// Cells per axis.
@@ -127,13 +154,16 @@ impl Occupancy {
     /// within `[t0, t1]`, in increasing order, adjacent cells merged. Parts of the ray outside the
     /// grid are not occupied. `direction` need not be normalised (t is in its units).
     pub fn segments(&self, origin: Vec3, direction: Vec3, t0: f32, t1: f32, out: &mut Vec<[f32; 2]>) {
+        if self.occupied == 0 {
+            return;
+        }
         let r = self.resolution as i32;
         let size = self.cell * self.resolution as f32;
         let lo = self.bound_min;
-        let hi = lo + Vec3::splat(size);
-        // Clip [t0, t1] to the grid's box (slabs).
+        // Clip [t0, t1] to the grid's box, or the occupied cells' (slabs).
+        let [box_lo, box_hi] = self.clip.unwrap_or([lo, lo + Vec3::splat(size)]);
         let inv = direction.recip();
-        let (ta, tb) = ((lo - origin) * inv, (hi - origin) * inv);
+        let (ta, tb) = ((box_lo - origin) * inv, (box_hi - origin) * inv);
         let (t_enter, t_exit) = (ta.min(tb).max_element().max(t0), ta.max(tb).min_element().min(t1));
         if !(t_enter < t_exit) {
             return;
@@ -242,5 +272,43 @@ mod tests {
         }
         let full = Occupancy::full(&config);
         assert_eq!(full.occupied_fraction(), 1.0);
+    }
+
+    /// Guards a render's clipped walk: rays clipped to the occupied cells' box find the same
+    /// intervals as the walk over the whole grid, their ends within rounding (rays from outside
+    /// and inside the grid, through the object, grazing it, missing its box, along an axis, and
+    /// cut short by [t0, t1]); an occupancy with no occupied cell gives none either way.
+    #[test]
+    fn rays_clipped_to_the_occupied_box_find_the_same_intervals() {
+        let config = SceneGridConfig { resolution: 48, ..Default::default() };
+        let shape = Shape::Sphere { center: DVec3::new(0.2, -0.1, 0.05), radius: 0.35 };
+        let occupancy = Occupancy::from_active(&evaluate(&shape, 300.0, &config).unwrap(), &config, 1);
+        let clipped = occupancy.clone().clipped_to_occupied();
+        let [lo, hi] = clipped.clip.expect("cells are occupied");
+        // The sphere's box, dilated: well inside the grid's [−1, 1]³.
+        assert!(lo.cmpgt(Vec3::splat(-0.6)).all() && hi.cmplt(Vec3::splat(0.7)).all(), "{lo} {hi}");
+        let (mut whole, mut cut) = (Vec::new(), Vec::new());
+        let mut crossing = 0;
+        for i in 0..400 {
+            let a = i as f32 * 0.173;
+            let origin =
+                if i % 5 == 0 { Vec3::new(0.1 * a.sin(), 0.2, -0.1) } else { Vec3::new(3.0 * a.cos(), 3.0 * a.sin(), 0.7 * (1.3 * a).sin()) };
+            let target = Vec3::new(0.2 + 0.6 * (2.1 * a).sin(), -0.1 + 0.6 * (1.7 * a).cos(), 0.6 * (0.9 * a).sin());
+            let direction = if i == 7 { Vec3::X } else { (target - origin).normalize() };
+            let (t0, t1) = if i % 7 == 3 { (0.5, 2.9) } else { (0.0, 8.0) };
+            whole.clear();
+            cut.clear();
+            occupancy.segments(origin, direction, t0, t1, &mut whole);
+            clipped.segments(origin, direction, t0, t1, &mut cut);
+            assert_eq!(whole.len(), cut.len(), "ray {i}: {whole:?} against {cut:?}");
+            for (w, c) in whole.iter().zip(&cut) {
+                assert!((w[0] - c[0]).abs() <= 1e-5 && (w[1] - c[1]).abs() <= 1e-5, "ray {i}: {whole:?} against {cut:?}");
+            }
+            crossing += usize::from(!whole.is_empty());
+        }
+        assert!((100..380).contains(&crossing), "{crossing} of 400 rays cross the occupancy: the rays test too little");
+        let none = Occupancy::from_active(&ActiveCells::default(), &config, 1).clipped_to_occupied();
+        none.segments(Vec3::new(0.0, 0.0, -3.0), Vec3::Z, 0.0, 10.0, &mut cut);
+        assert!(cut.is_empty() && none.occupied_fraction() == 0.0);
     }
 }

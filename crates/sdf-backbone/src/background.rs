@@ -249,8 +249,9 @@ impl BackgroundModel {
     ) -> NetworkRows<R> {
         let n_in = Module::<R>::n_inputs(&self.net);
         let (p_net, p_grid) = params.split_at(self.tables().start);
-        let mut input = Buf::<R>::zeroed(rows * n_in);
-        let mut points = Buf::<R>::zeroed(if self.grid.is_some() { rows * 3 } else { 0 });
+        // Every column of every row is written below (the encoding's, the grid's, SH₄(d)'s).
+        let mut input = Buf::<R>::to_overwrite(rows * n_in);
+        let mut points = Buf::<R>::to_overwrite(if self.grid.is_some() { rows * 3 } else { 0 });
         let mut depths = vec![R::ZERO; rows];
         let mut on_sphere = vec![0.0f64; 3 * rows];
         let (inv_r_sines, per) = (self.inverse_radius_sines::<R>(), 2 * self.frequencies);

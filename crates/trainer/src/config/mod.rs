@@ -294,7 +294,8 @@ pub struct RenderConfig {
     pub render_colour_stride: NonZeroUsize,
     /// Renders skip empty space: an occupancy of the field at the current s is built for each
     /// render, a ray's coarse samples lie in its occupied cells, and a ray that crosses none is
-    /// rendered with one interval (its colour is the background's) instead of every sample.
+    /// rendered with no interval at all (opacity 0: its colour is the background's), no SDF
+    /// evaluated along it.
     pub render_skip_empty: bool,
     /// Rays per work item (gradient chunk). Small enough that a work item's stored activations
     /// (rows × the MLPs' widths) stay in the core's cache between its forward and backward pass:

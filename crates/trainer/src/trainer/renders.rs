@@ -204,7 +204,7 @@ impl Trainer {
         field.lipschitz = self.estimator.lipschitz_bound();
         let scene = &self.config.guide.scene;
         let active = prob_grid::evaluate(&field, self.s() as f32, scene).context("the occupancy of a render")?;
-        let occupancy = Occupancy::from_active(&active, scene, self.config.render.occupancy_dilation.max(1));
+        let occupancy = Occupancy::from_active(&active, scene, self.config.render.occupancy_dilation.max(1)).clipped_to_occupied();
         let occupancy = Arc::new(RenderOccupancy { occupancy, lipschitz: active.lipschitz.used.max(active.lipschitz.measured) });
         *cache = Some((key, Arc::clone(&occupancy)));
         Ok(occupancy)

@@ -40,25 +40,33 @@ fn merge_with_values(a: &[f32], va: &[f32], b: &[f32], vb: &[f32]) -> (Vec<f32>,
     (depths, values)
 }
 
-/// The SDF (first output of `net`, [`Module::forward_first`]) at `depths[i]` along `rays[i]` for
-/// each ray of a chunk, in one forward pass over all their points (rows of the network are
-/// independent: the values are those of evaluating each ray alone).
-fn chunk_sdf<S: Module<f32>>(net: &S, params: &[f32], rays: &[RayInput<f32>], depths: &[&[f32]]) -> Vec<Vec<f32>> {
+/// The SDF at points (rows × 3) into one value a row: [`Backbone::sdf_rows`].
+trait SdfRows: Fn(&[f32], &mut [f32]) + Sync {}
+impl<F: Fn(&[f32], &mut [f32]) + Sync> SdfRows for F {}
+
+/// The SDF (`sdf`) at `depths[i]` along `rays[i]` for each ray of a chunk, in one forward pass
+/// over all their points (rows of the network are independent: the values are those of
+/// evaluating each ray alone).
+fn chunk_sdf(sdf: &impl SdfRows, rays: &[RayInput<f32>], depths: &[&[f32]]) -> Vec<Vec<f32>> {
     let rows: usize = depths.iter().map(|d| d.len()).sum();
     let mut points = Vec::with_capacity(3 * rows);
     for (ray, depths) in rays.iter().zip(depths) {
-        points.extend(depths.iter().flat_map(|&t| [0, 1, 2].map(|j| ray.origin[j] + t * ray.direction[j])));
+        let (o, d) = (ray.origin, ray.direction);
+        for &t in depths.iter() {
+            points.extend_from_slice(&[o[0] + t * d[0], o[1] + t * d[1], o[2] + t * d[2]]);
+        }
     }
-    let mut sdf = Buf::<f32>::to_overwrite(rows);
-    net.forward_first(&params[..net.n_params()], &points, &mut sdf);
-    let mut values = sdf.iter().copied();
+    let mut values = Buf::<f32>::to_overwrite(rows);
+    sdf(&points, &mut values);
+    let mut values = values.iter().copied();
     depths.iter().map(|d| values.by_ref().take(d.len()).collect()).collect()
 }
 
-/// The SDF at `depths` along one ray.
+/// The SDF at `depths` along one ray, by `net`'s own [`Module::forward_first`].
 #[cfg(test)]
-fn ray_sdf<S: Module<f32>>(net: &S, params: &[f32], ray: &RayInput<f32>, depths: &[f32]) -> Vec<f32> {
-    chunk_sdf(net, params, std::slice::from_ref(ray), &[depths]).remove(0)
+fn ray_sdf<S: Module<f32> + Sync>(net: &S, params: &[f32], ray: &RayInput<f32>, depths: &[f32]) -> Vec<f32> {
+    let sdf = |points: &[f32], out: &mut [f32]| net.forward_first(&params[..net.n_params()], points, out);
+    chunk_sdf(&sdf, std::slice::from_ref(ray), &[depths]).remove(0)
 }
 
 /// What an up-sampling is for: training (weights by [`weights_into`], no values kept) or a
@@ -74,22 +82,14 @@ enum Purpose {
 /// returns the SDF at each ray's final depths, no depth added to a ray once its values are
 /// [`proven_faint`] (before any round) or [`resolved`] (before any round after the first), each
 /// ray trimmed by [`trim_to_weight`] when `Purpose::Render` has a [`Trim`].
-fn upsample_chunk<S: Module<f32>>(
-    net: &S,
-    params: &[f32],
-    rays: &mut [RayInput<f32>],
-    n_fine: usize,
-    rounds: usize,
-    base_s: f64,
-    purpose: Purpose,
-) -> Vec<Vec<f32>> {
+fn upsample_chunk(sdf_rows: &impl SdfRows, rays: &mut [RayInput<f32>], n_fine: usize, rounds: usize, base_s: f64, purpose: Purpose) -> Vec<Vec<f32>> {
     let _span = crate::profile::span(crate::profile::Stage::Upsample);
     let rounds = if n_fine == 0 { 0 } else { rounds };
     if rounds == 0 && purpose == Purpose::Training {
         return Vec::new();
     }
     let lists: Vec<&[f32]> = rays.iter().map(|r| r.depths.as_slice()).collect();
-    let mut sdf = chunk_sdf(net, params, rays, &lists);
+    let mut sdf = chunk_sdf(sdf_rows, rays, &lists);
     let mut faint = vec![false; rays.len()];
     let mut placed_before = 0;
     // One buffer for the weights of every ray and round: the resolution rule's, then the placement's.
@@ -125,7 +125,7 @@ fn upsample_chunk<S: Module<f32>>(
             }
         } else {
             let lists: Vec<&[f32]> = new.iter().map(Vec::as_slice).collect();
-            let new_sdf = chunk_sdf(net, params, rays, &lists);
+            let new_sdf = chunk_sdf(sdf_rows, rays, &lists);
             for ((ray, sdf), (new, new_sdf)) in rays.iter_mut().zip(sdf.iter_mut()).zip(new.iter().zip(&new_sdf)) {
                 (ray.depths, *sdf) = merge_with_values(&ray.depths, sdf, new, new_sdf);
             }
@@ -207,15 +207,30 @@ const CHUNK: usize = 64;
 
 /// On the presets' [`Backbone`] alone, so compiled here once ([`crate::compiled`]).
 impl Backbone {
+    /// The SDF network's value at points (rows × 3, one value a row out), as
+    /// [`Module::forward_first`] computes it, to the bit, with its MLP's layers packed once for
+    /// every call ([`crate::Mlp::packed_layers`]): an up-sampling calls it per chunk of rays and
+    /// round, and packing per call was a pass over the weights each time.
+    fn sdf_rows<'a>(&'a self, params: &'a [f32]) -> impl SdfRows + 'a {
+        let (encoding, mlp) = (&self.sdf.a, &self.sdf.b);
+        let (p_encoding, p_mlp) = params[..Module::<f32>::n_params(&self.sdf)].split_at(Module::<f32>::n_params(encoding));
+        let packed = mlp.packed_layers(p_mlp);
+        move |points: &[f32], out: &mut [f32]| {
+            let mut features = Buf::<f32>::to_overwrite(out.len() * Module::<f32>::n_outputs(encoding));
+            encoding.infer(p_encoding, points, &mut features);
+            mlp.infer_packed(&packed, &features, out, 1);
+        }
+    }
+
     /// NeuS's hierarchical up-sampling: `rounds` rounds, each weighting the intervals of the
     /// ray's current depths as rendering would at scale `base_s · 2^round` and inserting
     /// `n_fine / rounds` depths at the weights' quantiles (midpoints, deterministic). Depths stay
     /// sorted. No gradient flows through the placement.
     pub fn upsample(&self, params: &[f32], rays: &mut [RayInput<f32>], n_fine: usize, rounds: usize, base_s: f64) {
         use rayon::prelude::*;
-        let net = &self.sdf;
+        let sdf = self.sdf_rows(params);
         rays.par_chunks_mut(CHUNK).for_each(|rays| {
-            upsample_chunk(net, params, rays, n_fine, rounds, base_s, Purpose::Training);
+            upsample_chunk(&sdf, rays, n_fine, rounds, base_s, Purpose::Training);
         });
     }
 
@@ -233,19 +248,19 @@ impl Backbone {
         trim: Option<Trim>,
     ) -> Vec<Vec<f32>> {
         use rayon::prelude::*;
-        let net = &self.sdf;
-        rays.par_chunks_mut(CHUNK).flat_map_iter(|rays| upsample_chunk(net, params, rays, n_fine, rounds, base_s, Purpose::Render(trim))).collect()
+        let sdf = self.sdf_rows(params);
+        rays.par_chunks_mut(CHUNK).flat_map_iter(|rays| upsample_chunk(&sdf, rays, n_fine, rounds, base_s, Purpose::Render(trim))).collect()
     }
 
     /// The SDF at every depth of every ray (no up-sampling), in parallel chunks.
     pub fn sdf_along(&self, params: &[f32], rays: &[RayInput<f32>]) -> Vec<Vec<f32>> {
         use rayon::prelude::*;
-        let net = &self.sdf;
+        let sdf = self.sdf_rows(params);
         rays.par_chunks(CHUNK)
             .flat_map_iter(|rays| {
                 let _span = crate::profile::span(crate::profile::Stage::Upsample);
                 let lists: Vec<&[f32]> = rays.iter().map(|r| r.depths.as_slice()).collect();
-                chunk_sdf(net, params, rays, &lists)
+                chunk_sdf(&sdf, rays, &lists)
             })
             .collect()
     }
@@ -368,8 +383,10 @@ mod tests {
         let mut new = rays.clone();
         backbone.upsample(&params, &mut new, n_fine, rounds, base_s);
         let mut kept = rays.clone();
+        // The MLP packed once (a render's and training's path) against `forward_first` below.
+        let sdf_rows = backbone.sdf_rows(&params);
         let values: Vec<Vec<f32>> =
-            kept.chunks_mut(CHUNK).flat_map(|c| upsample_chunk(&backbone.sdf, &params, c, n_fine, rounds, base_s, Purpose::Render(None))).collect();
+            kept.chunks_mut(CHUNK).flat_map(|c| upsample_chunk(&sdf_rows, c, n_fine, rounds, base_s, Purpose::Render(None))).collect();
         // Training weighs by `weights_into`, a render by `render_weights_into`.
         let reference = |ray: &RayInput<f32>, weigh: fn(&[f32], f32, &mut Vec<f32>)| {
             let mut depths = ray.depths.clone();

@@ -219,16 +219,23 @@ pub fn render_ray_backward<R: Real>(
 /// of `depths` with masses `weights + 1e-5` (NeuS's padding, so that an empty ray still gets
 /// samples spread along it), each placed linearly inside its interval. Sorted.
 pub fn sample_intervals(depths: &[f32], weights: &[f32], k: usize) -> Vec<f32> {
+    let mut out = Vec::with_capacity(k);
+    sample_intervals_into(depths, weights, k, &mut Vec::new(), &mut out);
+    out
+}
+
+/// [`sample_intervals`]' `k` depths appended to `out`, the cumulative masses in `cdf` (cleared
+/// first): an up-sampling's rays share both, no allocation per ray once they have grown.
+pub fn sample_intervals_into(depths: &[f32], weights: &[f32], k: usize, cdf: &mut Vec<f64>, out: &mut Vec<f32>) {
     let n = weights.len();
     debug_assert_eq!(depths.len(), n + 1);
-    let mut cdf = Vec::with_capacity(n + 1);
+    cdf.clear();
     cdf.push(0.0f64);
     for &w in weights {
         let w = if w.is_finite() { f64::from(w.max(0.0)) } else { 0.0 };
         cdf.push(cdf.last().copied().unwrap_or(0.0) + w + 1e-5);
     }
     let total = cdf[n];
-    let mut out = Vec::with_capacity(k);
     let mut i = 0;
     for j in 0..k {
         let target = (j as f64 + 0.5) / k as f64 * total;
@@ -238,7 +245,6 @@ pub fn sample_intervals(depths: &[f32], weights: &[f32], k: usize) -> Vec<f32> {
         let frac = ((target - cdf[i]) / (cdf[i + 1] - cdf[i])).clamp(0.0, 1.0) as f32;
         out.push(depths[i] + frac * (depths[i + 1] - depths[i]));
     }
-    out
 }
 
 /// The union of two sorted depth lists, sorted.

@@ -18,26 +18,36 @@
 use crate::backbone::Backbone;
 use crate::module::Module;
 use crate::pipeline::RayInput;
-use crate::render::{merge_sorted, render_weights_into, sample_intervals, weights_into};
+use crate::render::{render_weights_into, sample_intervals_into, weights_into};
 use crate::scratch::Buf;
 
-/// `a` and `b` (sorted depths, each with its values) merged as [`merge_sorted`] merges them, the
-/// values following their depths.
-fn merge_with_values(a: &[f32], va: &[f32], b: &[f32], vb: &[f32]) -> (Vec<f32>, Vec<f32>) {
-    let (mut depths, mut values) = (Vec::with_capacity(a.len() + b.len()), Vec::with_capacity(a.len() + b.len()));
-    let (mut i, mut j) = (0, 0);
-    while i < a.len() || j < b.len() {
-        if j >= b.len() || (i < a.len() && a[i] <= b[j]) {
-            depths.push(a[i]);
-            values.push(va[i]);
-            i += 1;
+/// The sorted depths `new` merged into the sorted `depths` in place, as [`crate::merge_sorted`] orders
+/// them (on a tie the old depth first), from the back: no allocation once `depths` has room;
+/// with `values`, each depth's value (`values`, and `new`'s in the pair's slice) follows it.
+fn merge_in_place(depths: &mut Vec<f32>, new: &[f32], mut values: Option<(&mut Vec<f32>, &[f32])>) {
+    let (mut i, mut j) = (depths.len(), new.len());
+    depths.resize(i + j, 0.0);
+    if let Some((values, _)) = values.as_mut() {
+        values.resize(i + j, 0.0);
+    }
+    while j > 0 {
+        let at = i + j - 1;
+        // `merge_sorted` takes the old depth first while it is ≤ the new one: from the back,
+        // the new one goes last unless the old one is greater.
+        if i > 0 && depths[i - 1] > new[j - 1] {
+            depths[at] = depths[i - 1];
+            if let Some((values, _)) = values.as_mut() {
+                values[at] = values[i - 1];
+            }
+            i -= 1;
         } else {
-            depths.push(b[j]);
-            values.push(vb[j]);
-            j += 1;
+            depths[at] = new[j - 1];
+            if let Some((values, new_values)) = values.as_mut() {
+                values[at] = new_values[j - 1];
+            }
+            j -= 1;
         }
     }
-    (depths, values)
 }
 
 /// The SDF at points (rows × 3) into one value a row: [`Backbone::sdf_rows`].
@@ -45,9 +55,9 @@ trait SdfRows: Fn(&[f32], &mut [f32]) + Sync {}
 impl<F: Fn(&[f32], &mut [f32]) + Sync> SdfRows for F {}
 
 /// The SDF (`sdf`) at `depths[i]` along `rays[i]` for each ray of a chunk, in one forward pass
-/// over all their points (rows of the network are independent: the values are those of
-/// evaluating each ray alone).
-fn chunk_sdf(sdf: &impl SdfRows, rays: &[RayInput<f32>], depths: &[&[f32]]) -> Vec<Vec<f32>> {
+/// over all their points, the rays' values one after another (rows of the network are
+/// independent: the values are those of evaluating each ray alone).
+fn chunk_sdf(sdf: &impl SdfRows, rays: &[RayInput<f32>], depths: &[&[f32]]) -> Buf<f32> {
     let rows: usize = depths.iter().map(|d| d.len()).sum();
     let mut points = Vec::with_capacity(3 * rows);
     for (ray, depths) in rays.iter().zip(depths) {
@@ -58,15 +68,14 @@ fn chunk_sdf(sdf: &impl SdfRows, rays: &[RayInput<f32>], depths: &[&[f32]]) -> V
     }
     let mut values = Buf::<f32>::to_overwrite(rows);
     sdf(&points, &mut values);
-    let mut values = values.iter().copied();
-    depths.iter().map(|d| values.by_ref().take(d.len()).collect()).collect()
+    values
 }
 
 /// The SDF at `depths` along one ray, by `net`'s own [`Module::forward_first`].
 #[cfg(test)]
 fn ray_sdf<S: Module<f32> + Sync>(net: &S, params: &[f32], ray: &RayInput<f32>, depths: &[f32]) -> Vec<f32> {
     let sdf = |points: &[f32], out: &mut [f32]| net.forward_first(&params[..net.n_params()], points, out);
-    chunk_sdf(&sdf, std::slice::from_ref(ray), &[depths]).remove(0)
+    chunk_sdf(&sdf, std::slice::from_ref(ray), &[depths]).to_vec()
 }
 
 /// What an up-sampling is for: training (weights by [`weights_into`], no values kept) or a
@@ -89,11 +98,26 @@ fn upsample_chunk(sdf_rows: &impl SdfRows, rays: &mut [RayInput<f32>], n_fine: u
         return Vec::new();
     }
     let lists: Vec<&[f32]> = rays.iter().map(|r| r.depths.as_slice()).collect();
-    let mut sdf = chunk_sdf(sdf_rows, rays, &lists);
+    let values = chunk_sdf(sdf_rows, rays, &lists);
+    // Each ray's values, and its depths, with room for every depth placed.
+    let mut at = 0;
+    let mut sdf: Vec<Vec<f32>> = rays
+        .iter_mut()
+        .map(|ray| {
+            let n = ray.depths.len();
+            ray.depths.reserve_exact(n_fine);
+            let mut own = Vec::with_capacity(n + n_fine);
+            own.extend_from_slice(&values[at..at + n]);
+            at += n;
+            own
+        })
+        .collect();
+    drop(values);
     let mut faint = vec![false; rays.len()];
     let mut placed_before = 0;
-    // One buffer for the weights of every ray and round: the resolution rule's, then the placement's.
-    let mut weights = Vec::new();
+    // Buffers every ray and round shares: the weights (the resolution rule's, then the
+    // placement's), the placement's cumulative masses, and the depths placed (each ray's span).
+    let (mut weights, mut cdf, mut new, mut spans) = (Vec::new(), Vec::new(), Vec::new(), Vec::with_capacity(rays.len()));
     for round in 0..rounds {
         let k = n_fine / rounds + usize::from(round < n_fine % rounds);
         if let Purpose::Render(Some(trim)) = purpose {
@@ -108,26 +132,28 @@ fn upsample_chunk(sdf_rows: &impl SdfRows, rays: &mut [RayInput<f32>], n_fine: u
         }
         placed_before += k;
         let s = (base_s * f64::from(1u32 << round.min(30))) as f32;
-        let mut placed = |depths: &[f32], sdf: &[f32], faint: bool| {
-            if faint {
-                return Vec::new();
+        new.clear();
+        spans.clear();
+        for ((ray, sdf), &faint) in rays.iter().zip(&sdf).zip(&faint) {
+            let start = new.len();
+            if !faint {
+                match purpose {
+                    Purpose::Training => weights_into(sdf, s, &mut weights),
+                    Purpose::Render(_) => render_weights_into(sdf, s, &mut weights),
+                }
+                sample_intervals_into(&ray.depths, &weights, k, &mut cdf, &mut new);
             }
-            match purpose {
-                Purpose::Training => weights_into(sdf, s, &mut weights),
-                Purpose::Render(_) => render_weights_into(sdf, s, &mut weights),
-            }
-            sample_intervals(depths, &weights, k)
-        };
-        let new: Vec<Vec<f32>> = rays.iter().zip(&sdf).zip(&faint).map(|((ray, sdf), &faint)| placed(&ray.depths, sdf, faint)).collect();
+            spans.push(start..new.len());
+        }
         if round + 1 == rounds && purpose == Purpose::Training {
-            for (ray, new) in rays.iter_mut().zip(&new) {
-                ray.depths = merge_sorted(&ray.depths, new);
+            for (ray, span) in rays.iter_mut().zip(&spans) {
+                merge_in_place(&mut ray.depths, &new[span.clone()], None);
             }
         } else {
-            let lists: Vec<&[f32]> = new.iter().map(Vec::as_slice).collect();
+            let lists: Vec<&[f32]> = spans.iter().map(|span| &new[span.clone()]).collect();
             let new_sdf = chunk_sdf(sdf_rows, rays, &lists);
-            for ((ray, sdf), (new, new_sdf)) in rays.iter_mut().zip(sdf.iter_mut()).zip(new.iter().zip(&new_sdf)) {
-                (ray.depths, *sdf) = merge_with_values(&ray.depths, sdf, new, new_sdf);
+            for ((ray, sdf), span) in rays.iter_mut().zip(sdf.iter_mut()).zip(&spans) {
+                merge_in_place(&mut ray.depths, &new[span.clone()], Some((sdf, &new_sdf[span.clone()])));
             }
         }
     }
@@ -135,8 +161,6 @@ fn upsample_chunk(sdf_rows: &impl SdfRows, rays: &mut [RayInput<f32>], n_fine: u
     if let Some(Trim { s, negligible, .. }) = trim {
         for (ray, sdf) in rays.iter_mut().zip(sdf.iter_mut()) {
             trim_to_weight(&mut ray.depths, sdf, s, negligible);
-            ray.depths.shrink_to_fit();
-            sdf.shrink_to_fit();
         }
     }
     sdf
@@ -260,7 +284,16 @@ impl Backbone {
             .flat_map_iter(|rays| {
                 let _span = crate::profile::span(crate::profile::Stage::Upsample);
                 let lists: Vec<&[f32]> = rays.iter().map(|r| r.depths.as_slice()).collect();
-                chunk_sdf(&sdf, rays, &lists)
+                let values = chunk_sdf(&sdf, rays, &lists);
+                let mut rest = &values[..];
+                lists
+                    .iter()
+                    .map(|d| {
+                        let (own, tail) = rest.split_at(d.len());
+                        rest = tail;
+                        own.to_vec()
+                    })
+                    .collect::<Vec<_>>()
             })
             .collect()
     }
@@ -314,14 +347,21 @@ pub fn trim_to_weight(depths: &mut Vec<f32>, sdf: &mut Vec<f32>, s: f32, negligi
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::render_ray;
+    use crate::render::{merge_sorted, render_ray, sample_intervals};
 
     #[test]
-    fn merging_with_values_orders_as_merge_sorted_does() {
+    fn merging_in_place_orders_as_merge_sorted_does() {
         let (a, b) = ([0.0, 1.0, 1.0, 3.0], [1.0, 2.0, 4.0]);
-        let (d, v) = merge_with_values(&a, &[10.0, 11.0, 12.0, 13.0], &b, &[21.0, 22.0, 24.0]);
+        let (mut d, mut v) = (a.to_vec(), vec![10.0, 11.0, 12.0, 13.0]);
+        merge_in_place(&mut d, &b, Some((&mut v, &[21.0, 22.0, 24.0])));
         assert_eq!(d, merge_sorted(&a, &b));
         assert_eq!(v, vec![10.0, 11.0, 12.0, 21.0, 22.0, 13.0, 24.0]);
+        // Without values; new depths all before, all after, none, into none.
+        for (a, b) in [(&[2.0, 3.0][..], &[0.5, 1.0][..]), (&[0.0, 1.0], &[1.0, 5.0]), (&[1.0], &[]), (&[], &[1.0, 2.0])] {
+            let mut d = a.to_vec();
+            merge_in_place(&mut d, b, None);
+            assert_eq!(d, merge_sorted(a, b), "{a:?} {b:?}");
+        }
     }
 
     #[test]

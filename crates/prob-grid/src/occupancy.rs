@@ -164,7 +164,18 @@ impl Occupancy {
         let [box_lo, box_hi] = self.clip.unwrap_or([lo, lo + Vec3::splat(size)]);
         let inv = direction.recip();
         let (ta, tb) = ((box_lo - origin) * inv, (box_hi - origin) * inv);
-        let (t_enter, t_exit) = (ta.min(tb).max_element().max(t0), ta.max(tb).min_element().min(t1));
+        let (mut t_enter, mut t_exit) = (t0, t1);
+        for a in 0..3 {
+            if direction[a] == 0.0 {
+                // Parallel to the slab: within it all along, or never (0 · ∞ would be NaN for an
+                // origin on one of its faces).
+                if !(box_lo[a] <= origin[a] && origin[a] <= box_hi[a]) {
+                    return;
+                }
+            } else {
+                (t_enter, t_exit) = (t_enter.max(ta[a].min(tb[a])), t_exit.min(ta[a].max(tb[a])));
+            }
+        }
         if !(t_enter < t_exit) {
             return;
         }
@@ -294,7 +305,8 @@ mod tests {
             let origin =
                 if i % 5 == 0 { Vec3::new(0.1 * a.sin(), 0.2, -0.1) } else { Vec3::new(3.0 * a.cos(), 3.0 * a.sin(), 0.7 * (1.3 * a).sin()) };
             let target = Vec3::new(0.2 + 0.6 * (2.1 * a).sin(), -0.1 + 0.6 * (1.7 * a).cos(), 0.6 * (0.9 * a).sin());
-            let direction = if i == 7 { Vec3::X } else { (target - origin).normalize() };
+            // Ray 7 along an axis, through the sphere.
+            let (origin, direction) = if i == 7 { (Vec3::new(-3.0, -0.1, 0.05), Vec3::X) } else { (origin, (target - origin).normalize()) };
             let (t0, t1) = if i % 7 == 3 { (0.5, 2.9) } else { (0.0, 8.0) };
             whole.clear();
             cut.clear();
@@ -307,7 +319,20 @@ mod tests {
             crossing += usize::from(!whole.is_empty());
         }
         assert!((100..380).contains(&crossing), "{crossing} of 400 rays cross the occupancy: the rays test too little");
+        // Along an axis from a point on a face of the occupied box (where 0 · ∞ is NaN): the
+        // intervals of the whole walk.
+        let [lo, _] = clipped.clip.expect("cells are occupied");
+        for origin in [Vec3::new(-3.0, lo.y, 0.05), Vec3::new(0.2, lo.y, -3.0)] {
+            let direction = if origin.x < -2.0 { Vec3::X } else { Vec3::Z };
+            whole.clear();
+            cut.clear();
+            occupancy.segments(origin, direction, 0.0, 8.0, &mut whole);
+            clipped.segments(origin, direction, 0.0, 8.0, &mut cut);
+            assert!(!whole.is_empty(), "{origin} along {direction} crosses the sphere's lowest cells");
+            assert_eq!(whole.len(), cut.len(), "{origin} along {direction}: {whole:?} against {cut:?}");
+        }
         let none = Occupancy::from_active(&ActiveCells::default(), &config, 1).clipped_to_occupied();
+        cut.clear();
         none.segments(Vec3::new(0.0, 0.0, -3.0), Vec3::Z, 0.0, 10.0, &mut cut);
         assert!(cut.is_empty() && none.occupied_fraction() == 0.0);
     }

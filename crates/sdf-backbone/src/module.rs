@@ -45,7 +45,8 @@ pub trait Module<R: Real>: Sync {
     /// `output` and `ctx` (callers pass buffers with stale values: [`crate::scratch::Buf::to_overwrite`]).
     fn forward(&self, params: &[R], input: &[R], output: &mut [R], ctx: &mut [R]);
     /// The first output alone (an SDF network's value) of every row, into `first` (one value a
-    /// row): what an up-sampling needs. By default [`Module::forward`]'s first column; an MLP
+    /// row): an SDF network's value alone (an up-sampling's, which the presets' backbone computes
+    /// with its MLP packed once: `Backbone::sdf_rows`). By default [`Module::forward`]'s first column; an MLP
     /// computes it with no context ([`Module::infer`]'s pass, its first column kept), to the bit.
     fn forward_first(&self, params: &[R], input: &[R], first: &mut [R]) {
         let (rows, n_out) = (first.len(), self.n_outputs());

@@ -2,12 +2,14 @@
 //! value's own sine and cosine, then the double-angle formulas, off by ≈ 2^l · 10⁻¹⁶ before the
 //! one rounding to the network's precision (as close as `sinf`/`cosf` of each, ≈ 3 · 10⁻⁸).
 //!
-//! [`double_angles`] takes one value (the standard library's `sin_cos`); [`double_angles_of_all`]
-//! many at once, for the learned background's points on the unit sphere: there the value's own
-//! sine and cosine come from their Taylor series ([`sin_cos_near_zero`], |v| ≤ 1.0625; libm's
+//! [`double_angles`] takes one value (the standard library's `sin_cos`), [`double_angles_of_each`]
+//! many in the layout of [`double_angles_of_all`], which a render's learned background uses for
+//! its points (on the unit sphere, where the ray reaches the sample's radius): there each value's
+//! own sine and cosine come from their Taylor series ([`sin_cos_near_zero`], |v| ≤ 1.0625; libm's
 //! beyond) and every step runs across the values in vector lanes. Per value and frequency, libm's
 //! `sin_cos` and the double angles had been 9 % of a render's CPU time without masks on the
-//! built-in scene (scalar calls, 3 per background sample).
+//! built-in scene (scalar calls, 3 per background sample). Training keeps libm's: the series
+//! differs in the last places of f64, which can move a value's rounding to f32.
 
 /// Beyond this |v|, [`double_angles_of_all`] takes libm's `sin_cos` (the series' error grows as
 /// v¹⁹/19!: 2.6 · 10⁻¹⁷ here).
@@ -95,6 +97,21 @@ pub(crate) fn double_angles_of_all(values: &[f64], frequencies: usize, out: &mut
     );
 }
 
+/// [`double_angles_of_all`]'s layout from [`double_angles`] of each value (libm's `sin_cos`, the
+/// doublings one value at a time): training's background, whose bits the series would change
+/// (in a rare value's last place after the rounding to f32, and from there every later step).
+pub(crate) fn double_angles_of_each(values: &[f64], frequencies: usize, out: &mut [f64]) {
+    let n = values.len();
+    assert_eq!(out.len(), 2 * frequencies * n, "double_angles_of_each: 2 × {frequencies} × {n} values out");
+    let mut pairs = vec![0.0; 2 * frequencies];
+    for (i, &v) in values.iter().enumerate() {
+        double_angles(v, frequencies, &mut pairs);
+        for (m, &p) in pairs.iter().enumerate() {
+            out[m * n + i] = p;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -117,12 +134,15 @@ mod tests {
         let n = values.len();
         let mut all = vec![0.0; 2 * frequencies * n];
         double_angles_of_all(&values, frequencies, &mut all);
+        let mut each = vec![0.0; 2 * frequencies * n];
+        double_angles_of_each(&values, frequencies, &mut each);
         let mut alone = vec![0.0; 2 * frequencies];
         for (i, &v) in values.iter().enumerate() {
             double_angles(v, frequencies, &mut alone);
             for l in 0..frequencies {
                 for m in 0..2 {
                     let (got, want) = (all[(2 * l + m) * n + i], alone[2 * l + m]);
+                    assert_eq!(each[(2 * l + m) * n + i].to_bits(), want.to_bits(), "{v}, frequency {l}: libm's, laid out");
                     if v.abs() > SERIES_BOUND || v.is_nan() {
                         assert_eq!(got.to_bits(), want.to_bits(), "{v}, frequency {l}: libm's off the series' range");
                     } else {

@@ -33,8 +33,8 @@ fn merge_in_place(depths: &mut Vec<f32>, new: &[f32], mut values: Option<(&mut V
     while j > 0 {
         let at = i + j - 1;
         // `merge_sorted` takes the old depth first while it is ≤ the new one: from the back,
-        // the new one goes last unless the old one is greater.
-        if i > 0 && depths[i - 1] > new[j - 1] {
+        // the new one goes last unless the old one is not ≤ it (greater, or NaN as there).
+        if i > 0 && !(depths[i - 1] <= new[j - 1]) {
             depths[at] = depths[i - 1];
             if let Some((values, _)) = values.as_mut() {
                 values[at] = values[i - 1];
@@ -259,8 +259,7 @@ impl Backbone {
     }
 
     /// [`Self::upsample`] for a render, each depth's SDF kept: each ray then trimmed by
-    /// [`trim_to_weight`] when `trim` is given, chunk by chunk (the trimmed depths release their
-    /// memory), no depth placed on a ray that `trim`'s Lipschitz bound proves faint
+    /// [`trim_to_weight`] when `trim` is given, chunk by chunk, no depth placed on a ray that `trim`'s Lipschitz bound proves faint
     /// ([`proven_faint`]). Returns the SDF at every ray's final depths, for [`Self::render`].
     pub fn upsample_for_render(
         &self,
@@ -362,6 +361,10 @@ mod tests {
             merge_in_place(&mut d, b, None);
             assert_eq!(d, merge_sorted(a, b), "{a:?} {b:?}");
         }
+        // A NaN depth goes where `merge_sorted` puts it.
+        let mut d = vec![f32::NAN];
+        merge_in_place(&mut d, &[1.0], None);
+        assert_eq!(d.iter().map(|v| v.is_nan()).collect::<Vec<_>>(), [false, true]);
     }
 
     #[test]

@@ -184,9 +184,7 @@ impl Trainer {
     fn render_occupancy(&self) -> Result<Arc<RenderOccupancy>> {
         let key = {
             let mut h = std::hash::DefaultHasher::new();
-            for p in &self.state.params {
-                h.write_u32(p.to_bits());
-            }
+            h.write_u64(parameters_digest(&self.state.params));
             h.write_u32(self.config.render.occupancy_dilation);
             h.write_u32(self.estimator.lipschitz_bound().to_bits());
             // The finest active hash-grid level (coarse to fine changes the field, not the
@@ -254,6 +252,17 @@ impl Trainer {
     }
 }
 
+/// A digest of the parameters' bits for [`Trainer::render_occupancy`]'s key, one multiply per
+/// pair of values (SipHash over each value was 0.7 % of a render's CPU time on the built-in
+/// scene): each step is a bijection of the digest so far, so that parameters that differ in one
+/// value always differ in their digest; not a defence against crafted collisions.
+fn parameters_digest(params: &[f32]) -> u64 {
+    params.chunks(2).fold(0x243F_6A88_85A3_08D3, |h, pair| {
+        let word = u64::from(pair[0].to_bits()) | u64::from(pair.get(1).map_or(0, |v| v.to_bits())) << 32;
+        (h ^ word).wrapping_mul(0x9E37_79B9_7F4A_7C15).rotate_left(29)
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -300,6 +309,20 @@ mod tests {
         config.render.rays = 64;
         let data = SceneData::builtin(&config).unwrap();
         Trainer::new(config, data).unwrap()
+    }
+
+    /// The renders' occupancy key tells parameters apart that differ in one bit of one value,
+    /// wherever it is (odd and even positions, the last of an odd count).
+    #[test]
+    fn parameters_that_differ_in_one_bit_have_other_digests() {
+        let params: Vec<f32> = (0..1001).map(|i| (i as f32 * 0.37).sin()).collect();
+        let base = parameters_digest(&params);
+        for (i, bit) in [(0, 0), (1, 31), (500, 7), (1000, 22), (999, 0)] {
+            let mut changed = params.clone();
+            changed[i] = f32::from_bits(changed[i].to_bits() ^ (1 << bit));
+            assert_ne!(parameters_digest(&changed), base, "value {i}, bit {bit}");
+        }
+        assert_ne!(parameters_digest(&params[..1000]), base, "one value fewer");
     }
 
     /// The renders' occupancy is made once per field: reused while nothing changed, made again

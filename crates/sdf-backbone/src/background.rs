@@ -322,7 +322,7 @@ impl BackgroundModel {
     /// backdrop carry nothing, so a render need not evaluate them; with budgets 0 nothing is
     /// dropped and the colours are [`Self::forward`]'s (rows of the network are independent) but
     /// for the rounding of the encoding's sines, a render's by their series
-    /// ([`crate::sines::double_angles_of_all`]). The network's layers are packed once for all the
+    /// (`sines::double_angles_of_all`). The network's layers are packed once for all the
     /// blocks. Returns the colours and the samples evaluated.
     pub fn render<R: Real>(&self, params: &[R], origins: &[[R; 3]], directions: &[[R; 3]], sh: &[[R; 16]], budgets: &[R]) -> (Vec<[R; 3]>, usize) {
         let _span = crate::profile::span(crate::profile::Stage::Background);

@@ -247,25 +247,74 @@ pub fn sample_intervals_into(depths: &[f32], weights: &[f32], k: usize, cdf: &mu
     }
 }
 
-/// The union of two sorted depth lists, sorted.
+/// The union of two sorted depth lists, sorted (on a tie `a`'s depth first): [`merge_in_place`]
+/// into a copy of `a`.
 pub fn merge_sorted(a: &[f32], b: &[f32]) -> Vec<f32> {
     let mut out = Vec::with_capacity(a.len() + b.len());
-    let (mut i, mut j) = (0, 0);
-    while i < a.len() || j < b.len() {
-        if j >= b.len() || (i < a.len() && a[i] <= b[j]) {
-            out.push(a[i]);
-            i += 1;
+    out.extend_from_slice(a);
+    merge_in_place(&mut out, b, None);
+    out
+}
+
+/// The sorted depths `new` merged into the sorted `depths` in place, on a tie the old depth first,
+/// from the back: no allocation once `depths` has room (an up-sampling's rounds);
+/// with `values`, each depth's value (`values`, and `new`'s in the pair's slice) follows it.
+pub(crate) fn merge_in_place(depths: &mut Vec<f32>, new: &[f32], mut values: Option<(&mut Vec<f32>, &[f32])>) {
+    let (mut i, mut j) = (depths.len(), new.len());
+    depths.resize(i + j, 0.0);
+    if let Some((values, _)) = values.as_mut() {
+        values.resize(i + j, 0.0);
+    }
+    while j > 0 {
+        let at = i + j - 1;
+        // In order the old depth comes first while it is ≤ the new one: from the back, the new
+        // one goes last unless the old one is not ≤ it (greater, or NaN).
+        if i > 0 && !(depths[i - 1] <= new[j - 1]) {
+            depths[at] = depths[i - 1];
+            if let Some((values, _)) = values.as_mut() {
+                values[at] = values[i - 1];
+            }
+            i -= 1;
         } else {
-            out.push(b[j]);
-            j += 1;
+            depths[at] = new[j - 1];
+            if let Some((values, new_values)) = values.as_mut() {
+                values[at] = new_values[j - 1];
+            }
+            j -= 1;
         }
     }
-    out
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Both lists one after the other, sorted stably: on a tie the first list's depth first.
+    fn stable_merge(a: &[f32], b: &[f32]) -> Vec<f32> {
+        let mut all: Vec<f32> = a.iter().chain(b).copied().collect();
+        all.sort_by(|x, y| x.partial_cmp(y).expect("finite depths"));
+        all
+    }
+
+    #[test]
+    fn merging_in_place_is_the_stable_merge_of_the_two_lists() {
+        let (a, b) = ([0.0, 1.0, 1.0, 3.0], [1.0, 2.0, 4.0]);
+        let (mut d, mut v) = (a.to_vec(), vec![10.0, 11.0, 12.0, 13.0]);
+        merge_in_place(&mut d, &b, Some((&mut v, &[21.0, 22.0, 24.0])));
+        assert_eq!(d, stable_merge(&a, &b));
+        assert_eq!(v, vec![10.0, 11.0, 12.0, 21.0, 22.0, 13.0, 24.0]);
+        // Without values; new depths all before, all after, none, into none.
+        for (a, b) in [(&[2.0, 3.0][..], &[0.5, 1.0][..]), (&[0.0, 1.0], &[1.0, 5.0]), (&[1.0], &[]), (&[], &[1.0, 2.0])] {
+            let mut d = a.to_vec();
+            merge_in_place(&mut d, b, None);
+            assert_eq!(d, stable_merge(a, b), "{a:?} {b:?}");
+            assert_eq!(merge_sorted(a, b), d, "{a:?} {b:?}");
+        }
+        // A NaN depth goes last, as the loop in order (old first while ≤ the new) put it.
+        let mut d = vec![f32::NAN];
+        merge_in_place(&mut d, &[1.0], None);
+        assert_eq!(d.iter().map(|v| v.is_nan()).collect::<Vec<_>>(), [false, true]);
+    }
 
     #[test]
     fn up_sampling_puts_new_depths_where_the_weight_is() {

@@ -18,37 +18,8 @@
 use crate::backbone::Backbone;
 use crate::module::Module;
 use crate::pipeline::RayInput;
-use crate::render::{render_weights_into, sample_intervals_into, weights_into};
+use crate::render::{merge_in_place, render_weights_into, sample_intervals_into, weights_into};
 use crate::scratch::Buf;
-
-/// The sorted depths `new` merged into the sorted `depths` in place, as [`crate::merge_sorted`] orders
-/// them (on a tie the old depth first), from the back: no allocation once `depths` has room;
-/// with `values`, each depth's value (`values`, and `new`'s in the pair's slice) follows it.
-fn merge_in_place(depths: &mut Vec<f32>, new: &[f32], mut values: Option<(&mut Vec<f32>, &[f32])>) {
-    let (mut i, mut j) = (depths.len(), new.len());
-    depths.resize(i + j, 0.0);
-    if let Some((values, _)) = values.as_mut() {
-        values.resize(i + j, 0.0);
-    }
-    while j > 0 {
-        let at = i + j - 1;
-        // `merge_sorted` takes the old depth first while it is ≤ the new one: from the back,
-        // the new one goes last unless the old one is not ≤ it (greater, or NaN as there).
-        if i > 0 && !(depths[i - 1] <= new[j - 1]) {
-            depths[at] = depths[i - 1];
-            if let Some((values, _)) = values.as_mut() {
-                values[at] = values[i - 1];
-            }
-            i -= 1;
-        } else {
-            depths[at] = new[j - 1];
-            if let Some((values, new_values)) = values.as_mut() {
-                values[at] = new_values[j - 1];
-            }
-            j -= 1;
-        }
-    }
-}
 
 /// The SDF at points (rows × 3) into one value a row: [`Backbone::sdf_rows`].
 trait SdfRows: Fn(&[f32], &mut [f32]) + Sync {}
@@ -69,6 +40,22 @@ fn chunk_sdf(sdf: &impl SdfRows, rays: &[RayInput<f32>], depths: &[&[f32]]) -> B
     let mut values = Buf::<f32>::to_overwrite(rows);
     sdf(&points, &mut values);
     values
+}
+
+/// [`chunk_sdf`]'s `values` (the rays' one after another) as one list per ray of `lists`, each
+/// with room for `room` more values.
+fn per_ray(values: &[f32], lists: &[&[f32]], room: usize) -> Vec<Vec<f32>> {
+    let mut rest = values;
+    lists
+        .iter()
+        .map(|depths| {
+            let (own, tail) = rest.split_at(depths.len());
+            rest = tail;
+            let mut list = Vec::with_capacity(own.len() + room);
+            list.extend_from_slice(own);
+            list
+        })
+        .collect()
 }
 
 /// The SDF at `depths` along one ray, by `net`'s own [`Module::forward_first`].
@@ -98,21 +85,11 @@ fn upsample_chunk(sdf_rows: &impl SdfRows, rays: &mut [RayInput<f32>], n_fine: u
         return Vec::new();
     }
     let lists: Vec<&[f32]> = rays.iter().map(|r| r.depths.as_slice()).collect();
-    let values = chunk_sdf(sdf_rows, rays, &lists);
     // Each ray's values, and its depths, with room for every depth placed.
-    let mut at = 0;
-    let mut sdf: Vec<Vec<f32>> = rays
-        .iter_mut()
-        .map(|ray| {
-            let n = ray.depths.len();
-            ray.depths.reserve_exact(n_fine);
-            let mut own = Vec::with_capacity(n + n_fine);
-            own.extend_from_slice(&values[at..at + n]);
-            at += n;
-            own
-        })
-        .collect();
-    drop(values);
+    let mut sdf = per_ray(&chunk_sdf(sdf_rows, rays, &lists), &lists, n_fine);
+    for ray in rays.iter_mut() {
+        ray.depths.reserve_exact(n_fine);
+    }
     let mut faint = vec![false; rays.len()];
     let mut placed_before = 0;
     // Buffers every ray and round shares: the weights (the resolution rule's, then the
@@ -283,16 +260,7 @@ impl Backbone {
             .flat_map_iter(|rays| {
                 let _span = crate::profile::span(crate::profile::Stage::Upsample);
                 let lists: Vec<&[f32]> = rays.iter().map(|r| r.depths.as_slice()).collect();
-                let values = chunk_sdf(&sdf, rays, &lists);
-                let mut rest = &values[..];
-                lists
-                    .iter()
-                    .map(|d| {
-                        let (own, tail) = rest.split_at(d.len());
-                        rest = tail;
-                        own.to_vec()
-                    })
-                    .collect::<Vec<_>>()
+                per_ray(&chunk_sdf(&sdf, rays, &lists), &lists, 0)
             })
             .collect()
     }
@@ -347,25 +315,6 @@ pub fn trim_to_weight(depths: &mut Vec<f32>, sdf: &mut Vec<f32>, s: f32, negligi
 mod tests {
     use super::*;
     use crate::render::{merge_sorted, render_ray, sample_intervals};
-
-    #[test]
-    fn merging_in_place_orders_as_merge_sorted_does() {
-        let (a, b) = ([0.0, 1.0, 1.0, 3.0], [1.0, 2.0, 4.0]);
-        let (mut d, mut v) = (a.to_vec(), vec![10.0, 11.0, 12.0, 13.0]);
-        merge_in_place(&mut d, &b, Some((&mut v, &[21.0, 22.0, 24.0])));
-        assert_eq!(d, merge_sorted(&a, &b));
-        assert_eq!(v, vec![10.0, 11.0, 12.0, 21.0, 22.0, 13.0, 24.0]);
-        // Without values; new depths all before, all after, none, into none.
-        for (a, b) in [(&[2.0, 3.0][..], &[0.5, 1.0][..]), (&[0.0, 1.0], &[1.0, 5.0]), (&[1.0], &[]), (&[], &[1.0, 2.0])] {
-            let mut d = a.to_vec();
-            merge_in_place(&mut d, b, None);
-            assert_eq!(d, merge_sorted(a, b), "{a:?} {b:?}");
-        }
-        // A NaN depth goes where `merge_sorted` puts it.
-        let mut d = vec![f32::NAN];
-        merge_in_place(&mut d, &[1.0], None);
-        assert_eq!(d.iter().map(|v| v.is_nan()).collect::<Vec<_>>(), [false, true]);
-    }
 
     #[test]
     fn trimming_keeps_the_weights_and_colour_of_a_ray_through_a_surface() {

@@ -247,7 +247,7 @@ pub fn sample_intervals_into(depths: &[f32], weights: &[f32], k: usize, cdf: &mu
     }
 }
 
-/// The union of two sorted depth lists, sorted (on a tie `a`'s depth first): [`merge_in_place`]
+/// The union of two sorted depth lists, sorted (on a tie `a`'s depth first): `merge_in_place`
 /// into a copy of `a`.
 pub fn merge_sorted(a: &[f32], b: &[f32]) -> Vec<f32> {
     let mut out = Vec::with_capacity(a.len() + b.len());

@@ -168,7 +168,7 @@ pub fn estimate(
     // Every work item's gradient (without the tables) and table record live until the sum.
     let batch = chunks * F32 * ((n - tables) + rows_per_chunk * record);
     let step = batch + t * work_item_bytes(backbone, config.render.chunk, samples, true) + t * F32 * level + F32 * (n - tables);
-    // Evaluation renders: work items of 64 rays, forward only, one per thread; a band of rows
+    // Evaluation renders: work items of `RENDER_CHUNK` rays, forward only, one per thread; a band of rows
     // (`RENDER_BAND_RAYS` pixels) at a time, each of its rays twice (the crossing ones are
     // copied for the up-sampling) with its depths and SDF values (a heap block each) and its
     // output; and for every pixel of the view its output, target, mask and image.
@@ -185,7 +185,10 @@ pub fn estimate(
     // last: one more a ray), at least as many rows as the up-sampling's first pass (coarse + 1).
     let stride = config.render.render_colour_stride.get();
     let evaluated = ((config.render.coarse + config.render.render_fine).div_ceil(stride) + 1).max(config.render.coarse + 1);
-    let evaluation = t * work_item_bytes(backbone, 64, evaluated, false) + band + render_rays * (output + 2.0 * 3.0 * F32 + 1.0) + after_render;
+    let evaluation = t * work_item_bytes(backbone, crate::trainer::RENDER_CHUNK, evaluated, false)
+        + band
+        + render_rays * (output + 2.0 * 3.0 * F32 + 1.0)
+        + after_render;
     // Meshing: a block of 17³ corners per thread through the SDF network (chunks of 1024
     // rows), and the mesh (~ 12 triangles per surface cell of the resolution's shell).
     let mesh_res = f64::from(mesh_resolution);

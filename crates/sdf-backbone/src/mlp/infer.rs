@@ -7,6 +7,7 @@
 //! Each output is that of the forward pass to the bit: the same packed weights, the same tile
 //! kernel summing each output over its inputs in the same order, the same activation.
 
+use super::folded::FirstLayer;
 use super::{Mlp, PackedLayer};
 use crate::kernels::{dense_forward, pad};
 use crate::real::Real;
@@ -47,10 +48,25 @@ impl Mlp {
     /// render's background, block by block): packing the weights is a pass over all of them,
     /// as long as the products of a few hundred rows.
     pub(crate) fn infer_packed<R: Real>(&self, packed: &[PackedLayer<R>], input: &[R], output: &mut [R], keep: usize) {
-        let _span = crate::profile::span(crate::profile::Stage::MlpForward);
-        let n_x = self.config.n_inputs;
         self.check_inference(input, output, keep);
+        self.infer_rows(None, packed, input, output, keep);
+    }
+
+    /// The forward pass of `input`'s rows in blocks of [`BLOCK`], the first layer's operands
+    /// `first` where given (a folded first layer: its Wᵀ, bias and inputs per row, the rows of
+    /// `input` that many wide) else `packed[0]`'s; the first `keep` outputs of each row into
+    /// `output`.
+    pub(super) fn infer_rows<R: Real>(
+        &self,
+        first: Option<FirstLayer<'_, R>>,
+        packed: &[PackedLayer<R>],
+        input: &[R],
+        output: &mut [R],
+        keep: usize,
+    ) {
+        let _span = crate::profile::span(crate::profile::Stage::MlpForward);
         assert_eq!(packed.len(), self.layers.len(), "one packed layer per layer");
+        let n_x = first.as_ref().map_or(self.config.n_inputs, |f| f.n_in);
         if output.is_empty() {
             return;
         }
@@ -67,7 +83,10 @@ impl Mlp {
                     for l in 0..=last {
                         let (n_in, n_out, _) = self.layers[l];
                         let ys = if l == last { pad(n_out) } else { pad(self.layers[l + 1].0) };
-                        let dense = self.dense(l, &packed[l], &a[..rows * pad(n_in)]);
+                        let dense = match &first {
+                            Some(f) if l == 0 => f.dense(self, &a[..rows * pad(n_x)]),
+                            _ => self.dense(l, &packed[l], &a[..rows * pad(n_in)]),
+                        };
                         dense_forward(&dense, &mut y[..rows * ys], ys, 0, None, rows);
                         if l < last {
                             self.finish_next_input(l, &mut y[..rows * ys], x);

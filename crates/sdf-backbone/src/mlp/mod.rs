@@ -6,6 +6,7 @@ use crate::real::Real;
 use crate::scratch::Buf;
 
 mod backward;
+mod folded;
 mod infer;
 mod init;
 mod tangents;

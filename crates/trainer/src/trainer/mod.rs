@@ -45,6 +45,7 @@ mod schedules;
 pub mod silhouettes;
 mod split;
 pub use renders::RENDER_BAND_RAYS;
+pub(crate) use renders::RENDER_CHUNK;
 pub use silhouettes::{Reach, Silhouette, SphereFit, silhouette_reach, sphere_radius};
 pub use split::{SplitStats, WALLED_OPACITY};
 

@@ -21,8 +21,11 @@ pub(crate) struct RenderOccupancy {
     lipschitz: f32,
 }
 
-/// Rays per work item of a render.
-const RENDER_CHUNK: usize = 64;
+/// Rays per work item of a render. Each work item packs the networks' weights for its passes
+/// (the colour network's, the learned background's with its first layer folded per sample) and
+/// runs each pass on all its rays at once: at 64 rays the packing and the per-pass set-up were
+/// a sixth of a render without masks (DECISIONS §59).
+pub(crate) const RENDER_CHUNK: usize = 256;
 
 /// The most pixels a render takes at once ([`Trainer::render_view`]): a 1600 × 1200 view taken
 /// whole held ≈ 1.2 GB of rays, depths and SDF values (≈ 650 bytes a pixel).

@@ -22,10 +22,16 @@
 //! `∂C/∂c_k = w_k`, `∂C/∂σ_m = δ_m (T_{m+1} c_m − Σ_{k>m} w_k c_k)`.
 
 use crate::hashgrid::{HashGrid, HashGridConfig};
-use crate::mlp::{Mlp, MlpConfig, PackedLayer};
+use crate::mlp::{Mlp, MlpConfig};
 use crate::module::{Activation, Module};
 use crate::real::Real;
 use crate::scratch::Buf;
+use rows::{Layout, SampleRows};
+
+mod render;
+mod rows;
+
+pub use render::RENDER_BLOCK;
 
 /// The background model: its network and how it samples.
 #[derive(Debug, Clone)]
@@ -83,7 +89,7 @@ impl BackgroundModel {
     pub fn with_view(samples: usize, frequencies: usize, width: usize, layers: usize, view_dependent: bool) -> BackgroundModel {
         assert!(frequencies <= Self::MAX_FREQUENCIES, "a background of {frequencies} frequencies: at most {}", Self::MAX_FREQUENCIES);
         let net = Mlp::new(MlpConfig {
-            n_inputs: encoding_width(frequencies) + if view_dependent { 16 } else { 0 },
+            n_inputs: 4 + 8 * frequencies + if view_dependent { 16 } else { 0 },
             width,
             hidden_layers: layers,
             n_outputs: 4,
@@ -120,13 +126,6 @@ impl BackgroundModel {
         Module::<f32>::n_params(&self.net) + self.grid.as_ref().map_or(0, Module::<f32>::n_params)
     }
 
-    /// The network's input columns that hold the grid's features (after the positional
-    /// encoding, before SH₄(d); empty without a grid).
-    fn grid_columns(&self) -> std::ops::Range<usize> {
-        let start = encoding_width(self.frequencies);
-        start..start + self.grid.as_ref().map_or(0, Module::<f32>::n_outputs)
-    }
-
     /// Where the grid's tables lie among the model's parameters (empty without a grid): they
     /// learn at the tables' rate.
     pub fn tables(&self) -> std::ops::Range<usize> {
@@ -160,134 +159,19 @@ impl BackgroundModel {
         (inv_r, -od + disc.sqrt())
     }
 
-    /// [`crate::sines::double_angles`] of every sample's 1/r (the same on every ray: sample k's
-    /// is fixed), 2 × `frequencies` values per sample, for [`Self::sample_row`].
-    fn inverse_radius_sines<R: Real>(&self) -> Vec<R> {
-        let per = 2 * self.frequencies;
-        let mut out = vec![R::ZERO; self.samples * per];
-        let mut sines = vec![0.0; per];
-        for (k, out) in out.chunks_exact_mut(per.max(1)).enumerate() {
-            crate::sines::double_angles(self.inverse_radius::<R>(k).to_f64(), self.frequencies, &mut sines);
-            for (o, &v) in out.iter_mut().zip(&sines) {
-                *o = R::of(v);
-            }
-        }
-        out
-    }
-
-    /// Writes sample k of the ray (`o`, `d`, `sh` = SH₄(d)) as a row of the network's input,
-    /// but for the sines of its point x/r (the grid's columns and those left as they are;
-    /// `inv_r_sines`: sample k's of [`Self::inverse_radius_sines`]) and, with a grid, its
-    /// contracted point (`point`, 3 values; empty without a grid); returns the sample's depth
-    /// and x/r, whose sines [`Self::write_point_sines`] writes for many rows at once.
-    #[allow(clippy::too_many_arguments)]
-    fn sample_row<R: Real>(&self, o: [R; 3], d: [R; 3], sh: &[R; 16], k: usize, inv_r_sines: &[R], row: &mut [R], point: &mut [R]) -> (R, [R; 3]) {
-        let (inv_r, t) = self.sample_depth(o, d, k);
-        let p = [0, 1, 2].map(|j| (o[j] + t * d[j]) * inv_r);
-        let q = [p[0], p[1], p[2], inv_r];
-        row[..4].copy_from_slice(&q);
-        // Column j of frequency l: sin at 4 + 8l + j, cos at 8 + 8l + j.
-        for l in 0..self.frequencies {
-            row[4 + 8 * l + 3] = inv_r_sines[2 * l];
-            row[8 + 8 * l + 3] = inv_r_sines[2 * l + 1];
-        }
-        if self.view_dependent {
-            row[self.grid_columns().end..].copy_from_slice(sh);
-        }
-        if !point.is_empty() {
-            // Contracted: radius (2 − 1/r)/2 ∈ [½, 1) of the grid's cube.
-            let c = (R::of(2.0) - inv_r) * R::of(0.5);
-            point.copy_from_slice(&p.map(|v| v * c));
-        }
-        (t, p)
-    }
-
-    /// The sines of every row's point x/r (`points`: 3 values a row) written into their columns
-    /// of `input` (column j of frequency l: sin at 4 + 8l + j, cos at 8 + 8l + j): with
-    /// `series`, all rows' at once ([`crate::sines::double_angles_of_all`], a render's), else by
-    /// libm's `sin_cos` of each ([`crate::sines::double_angles_of_each`], training's bits).
-    fn write_point_sines<R: Real>(&self, points: &[f64], input: &mut [R], series: bool) {
-        let (n, f, n_in) = (points.len(), self.frequencies, Module::<R>::n_inputs(&self.net));
-        let mut sines = vec![0.0f64; 2 * f * n];
-        if series {
-            crate::sines::double_angles_of_all(points, f, &mut sines);
-        } else {
-            crate::sines::double_angles_of_each(points, f, &mut sines);
-        }
-        for (i, row) in input.chunks_exact_mut(n_in).enumerate() {
-            for l in 0..f {
-                let (sin, cos) = (&sines[2 * l * n + 3 * i..][..3], &sines[(2 * l + 1) * n + 3 * i..][..3]);
-                for j in 0..3 {
-                    row[4 + 8 * l + j] = R::of(sin[j]);
-                    row[8 + 8 * l + j] = R::of(cos[j]);
-                }
-            }
-        }
-    }
-
-    /// With a grid, its features at `points` (rows × 3) written into their columns of `input`.
-    fn add_grid_features<R: Real>(&self, p_grid: &[R], points: &[R], input: &mut [R]) {
-        let Some(grid) = &self.grid else { return };
-        let (columns, n_in) = (self.grid_columns(), Module::<R>::n_inputs(&self.net));
-        let mut features = Buf::<R>::zeroed(points.len() / 3 * columns.len());
-        grid.forward(p_grid, points, &mut features, &mut []);
-        for (row, f) in input.chunks_exact_mut(n_in).zip(features.chunks_exact(columns.len())) {
-            row[columns.clone()].copy_from_slice(f);
-        }
-    }
-
-    /// The network on `rows` samples, row i being sample `which(i) = (ray, k)` of the rays
-    /// (`origins`, `directions`, `sh`): its inputs, the grid's points (empty without a grid),
-    /// the samples' depths, the network's context (for a backward pass, else empty: a render's
-    /// rows through the network's layers packed once per render, [`Mlp::infer_packed`], the
-    /// same outputs to the bit) and raw outputs (rows × 4).
-    #[allow(clippy::too_many_arguments)]
-    fn evaluate<R: Real>(
-        &self,
-        params: &[R],
-        origins: &[[R; 3]],
-        directions: &[[R; 3]],
-        sh: &[[R; 16]],
-        rows: usize,
-        which: impl Fn(usize) -> (usize, usize),
-        pass: Pass<'_, R>,
-    ) -> NetworkRows<R> {
-        let n_in = Module::<R>::n_inputs(&self.net);
-        let (p_net, p_grid) = params.split_at(self.tables().start);
-        // Every column of every row is written below (the encoding's, the grid's, SH₄(d)'s).
-        let mut input = Buf::<R>::to_overwrite(rows * n_in);
-        let mut points = Buf::<R>::to_overwrite(if self.grid.is_some() { rows * 3 } else { 0 });
-        let mut depths = vec![R::ZERO; rows];
-        let mut on_sphere = vec![0.0f64; 3 * rows];
-        let (inv_r_sines, per) = (self.inverse_radius_sines::<R>(), 2 * self.frequencies);
-        for i in 0..rows {
-            let (r, k) = which(i);
-            let point = points.get_mut(3 * i..3 * i + 3).unwrap_or_default();
-            let row = &mut input[i * n_in..(i + 1) * n_in];
-            let (t, p) = self.sample_row(origins[r], directions[r], &sh[r], k, &inv_r_sines[k * per..(k + 1) * per], row, point);
-            depths[i] = t;
-            on_sphere[3 * i..3 * i + 3].copy_from_slice(&p.map(R::to_f64));
-        }
-        // A render's by the series; training's by libm's, as before (its bits).
-        self.write_point_sines(&on_sphere, &mut input, matches!(pass, Pass::Infer(_)));
-        self.add_grid_features(p_grid, &points, &mut input);
-        let mut raw = Buf::<R>::to_overwrite(rows * 4);
-        let mut ctx = Buf::<R>::to_overwrite(if matches!(pass, Pass::Backward) { rows * Module::<R>::ctx_per_row(&self.net) } else { 0 });
-        match pass {
-            Pass::Backward => self.net.forward(p_net, &input, &mut raw, &mut ctx),
-            Pass::Infer(packed) => self.net.infer_packed(packed, &input, &mut raw, 4),
-        }
-        NetworkRows { input, points, depths, ctx, raw }
-    }
-
     /// The background colour of each ray (`origins`, unit `directions`, `sh` = SH₄ of each
     /// direction), with what the backward pass needs.
     pub fn forward<R: Real>(&self, params: &[R], origins: &[[R; 3]], directions: &[[R; 3]], sh: &[[R; 16]]) -> BackgroundPass<R> {
         let _span = crate::profile::span(crate::profile::Stage::Background);
         let (k_n, rays) = (self.samples, origins.len());
         let rows_n = rays * k_n;
-        let NetworkRows { input, points, depths, ctx, raw } =
-            self.evaluate(params, origins, directions, sh, rows_n, |i| (i / k_n, i % k_n), Pass::Backward);
+        let (p_net, p_grid) = params.split_at(self.tables().start);
+        let inv_r_sines = self.inverse_radius_sines::<R>();
+        let of_rays = (origins, directions, sh);
+        let SampleRows { input, points, depths } = self.sample_rows(Layout::Whole, p_grid, of_rays, &inv_r_sines, rows_n, |i| (i / k_n, i % k_n));
+        let mut raw = Buf::<R>::to_overwrite(rows_n * 4);
+        let mut ctx = Buf::<R>::to_overwrite(rows_n * Module::<R>::ctx_per_row(&self.net));
+        self.net.forward(p_net, &input, &mut raw, &mut ctx);
         let mut rows = vec![[R::ZERO; 10]; rows_n];
         let mut colors = vec![[R::ZERO; 3]; rays];
         // Compiled for the CPU's instruction set (the softplus's multiply-adds one instruction
@@ -313,60 +197,6 @@ impl BackgroundModel {
             },
         );
         BackgroundPass { input, ctx, points, raw, rows, colors }
-    }
-
-    /// The background colour of each ray as [`Self::forward`] gives it, forward only (no
-    /// context kept), front to back in blocks of [`RENDER_BLOCK`] samples: a ray is evaluated no
-    /// further once the transmittance past its evaluated samples is at most `budgets[r]`, the
-    /// rest of its colour (at most that, per channel) dropped. A ray's samples behind an opaque
-    /// backdrop carry nothing, so a render need not evaluate them; with budgets 0 nothing is
-    /// dropped and the colours are [`Self::forward`]'s (rows of the network are independent) but
-    /// for the rounding of the encoding's sines, a render's by their series
-    /// (`sines::double_angles_of_all`). The network's layers are packed once for all the
-    /// blocks. Returns the colours and the samples evaluated.
-    pub fn render<R: Real>(&self, params: &[R], origins: &[[R; 3]], directions: &[[R; 3]], sh: &[[R; 16]], budgets: &[R]) -> (Vec<[R; 3]>, usize) {
-        let _span = crate::profile::span(crate::profile::Stage::Background);
-        let k_n = self.samples;
-        let mut colors = vec![[R::ZERO; 3]; origins.len()];
-        let mut transmittance = vec![R::ONE; origins.len()];
-        let mut active: Vec<usize> = (0..origins.len()).collect();
-        let mut evaluated = 0;
-        if origins.is_empty() {
-            return (colors, evaluated);
-        }
-        let packed = self.net.packed_layers(&params[..self.tables().start]);
-        for first in (0..k_n).step_by(RENDER_BLOCK) {
-            let block = first..(first + RENDER_BLOCK).min(k_n);
-            let rows_n = active.len() * block.len();
-            let which = |i: usize| (active[i / block.len()], first + i % block.len());
-            let NetworkRows { depths, raw, .. } = self.evaluate(params, origins, directions, sh, rows_n, which, Pass::Infer(&packed));
-            evaluated += rows_n;
-            // Compiled for the CPU's instruction set, as in `forward`.
-            crate::kernels::dispatch(
-                #[inline(always)]
-                || {
-                    for (a, &r) in active.iter().enumerate() {
-                        for (b, k) in block.clone().enumerate() {
-                            let i = a * block.len() + b;
-                            // The next sample's depth, in this block or the next one's first.
-                            let next = || if b + 1 < block.len() { depths[i + 1] } else { self.sample_depth(origins[r], directions[r], k + 1).1 };
-                            let delta = if k + 1 == k_n { None } else { Some(next() - depths[i]) };
-                            let Sample { c, alpha, .. } = Sample::of(&raw[4 * i..4 * i + 4], delta);
-                            let w = transmittance[r] * alpha;
-                            for j in 0..3 {
-                                colors[r][j] += w * c[j];
-                            }
-                            transmittance[r] *= R::ONE - alpha;
-                        }
-                    }
-                },
-            );
-            active.retain(|&r| transmittance[r] > budgets[r]);
-            if active.is_empty() {
-                break;
-            }
-        }
-        (colors, evaluated)
     }
 
     /// Adds the gradient of the loss into `d_params` from `d_colors` (∂L/∂C_bg per ray).
@@ -412,7 +242,7 @@ impl BackgroundModel {
             self.net.backward(p_net, &pass.input, &pass.ctx, &d_raw, d_net, None);
             return None;
         }
-        let (n_in, columns) = (Module::<R>::n_inputs(&self.net), self.grid_columns());
+        let (n_in, columns) = (Module::<R>::n_inputs(&self.net), self.grid_columns(Layout::Whole));
         let mut d_input = Buf::<R>::zeroed(pass.input.len());
         self.net.backward(p_net, &pass.input, &pass.ctx, &d_raw, d_net, Some(&mut d_input));
         let mut d_features = Buf::<R>::to_overwrite(d_input.len() / n_in * columns.len());
@@ -441,26 +271,6 @@ impl BackgroundModel {
     }
 }
 
-/// How [`BackgroundModel::evaluate`] runs the network: with a context for a backward pass, or
-/// forward only through layers packed once ([`Mlp::packed_layers`]).
-enum Pass<'a, R: Real> {
-    Backward,
-    Infer(&'a [PackedLayer<R>]),
-}
-
-/// What the network's forward pass on a set of samples leaves ([`BackgroundModel::evaluate`]).
-struct NetworkRows<R: Real> {
-    input: Buf<R>,
-    points: Buf<R>,
-    depths: Vec<R>,
-    ctx: Buf<R>,
-    raw: Buf<R>,
-}
-
-/// Samples a render evaluates at once per ray ([`BackgroundModel::render`]): after each block,
-/// the rays whose transmittance has fallen to their budget stop.
-pub const RENDER_BLOCK: usize = 4;
-
 /// A sample's density σ (softplus of the first raw output) with dσ/draw, its colour (sigmoid of
 /// the other three) and its opacity α over the interval `delta` to the next sample (`None`: the
 /// last sample, which takes all the transmittance left).
@@ -479,11 +289,6 @@ impl<R: Real> Sample<R> {
         let alpha = delta.map_or(R::ONE, |delta| R::ONE - (-sigma * delta).exp());
         Sample { sigma, d_sigma, c, alpha }
     }
-}
-
-/// Columns of the positional encoding `PE_L(x/r, 1/r)` with `frequencies` frequencies L.
-fn encoding_width(frequencies: usize) -> usize {
-    4 + 8 * frequencies
 }
 
 #[cfg(test)]
@@ -518,31 +323,6 @@ mod tests {
         let directions = (0..n).map(|_| unit(&mut rng)).collect();
         let sh = (0..n).map(|_| std::array::from_fn(|_| rng.random_range(-1.0..1.0))).collect();
         (model, params, origins, directions, sh)
-    }
-
-    /// The encoding's sines by double angles against each evaluated directly in f64, over the
-    /// range of (x/r, 1/r) and ten frequencies (2⁹ = 512 the highest).
-    #[test]
-    fn the_encodings_sines_by_double_angles_are_those_of_each_frequency() {
-        let model = BackgroundModel::with_view(16, 10, 8, 1, false);
-        let mut row = vec![0.0f64; Module::<f64>::n_inputs(&model.net)];
-        let mut worst = 0.0f64;
-        let inv_r_sines = model.inverse_radius_sines::<f64>();
-        for i in 0..200 {
-            let a = i as f64 * 0.731;
-            let (o, d) = ([0.3 * a.sin(), -0.2, 0.1 * a.cos()], [a.cos() * 0.6, a.sin() * 0.6, 0.8]);
-            for k in 0..16 {
-                let (_, p) = model.sample_row(o, d, &[0.0; 16], k, &inv_r_sines[20 * k..20 * k + 20], &mut row, &mut []);
-                model.write_point_sines(&p, &mut row, k % 2 == 0);
-                for l in 0..10 {
-                    for j in 0..4 {
-                        let x = f64::from(1u32 << l) * row[j];
-                        worst = worst.max((row[4 + 8 * l + j] - x.sin()).abs()).max((row[8 + 8 * l + j] - x.cos()).abs());
-                    }
-                }
-            }
-        }
-        assert!(worst <= 1e-12, "off by {worst:e}");
     }
 
     /// With no budget a render evaluates every sample and gives the forward pass's colours, to

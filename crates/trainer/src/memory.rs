@@ -168,10 +168,10 @@ pub fn estimate(
     // Every work item's gradient (without the tables) and table record live until the sum.
     let batch = chunks * F32 * ((n - tables) + rows_per_chunk * record);
     let step = batch + t * work_item_bytes(backbone, config.render.chunk, samples, true) + t * F32 * level + F32 * (n - tables);
-    // Evaluation renders: work items of `RENDER_CHUNK` rays, forward only, one per thread; a band of rows
-    // (`RENDER_BAND_RAYS` pixels) at a time, each of its rays twice (the crossing ones are
-    // copied for the up-sampling) with its depths and SDF values (a heap block each) and its
-    // output; and for every pixel of the view its output, target, mask and image.
+    // Evaluation renders: work items of `RENDER_CHUNK` rays, forward only, one per thread; a
+    // band of rows (`RENDER_BAND_RAYS` pixels) at a time, each of its rays twice (the crossing
+    // ones are copied for the up-sampling) with its depths and SDF values (a heap block each)
+    // and its output; and for every pixel of the view its output, target, mask and image.
     let render_samples = (config.render.coarse + config.render.render_fine + 1) as f64;
     let rays_at = |downscale: u32| view_pixels as f64 / f64::from(downscale.pow(2));
     let render_rays = rays_at(config.output.eval_downscale.min(config.output.validate_downscale));

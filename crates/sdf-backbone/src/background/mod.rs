@@ -89,7 +89,7 @@ impl BackgroundModel {
     pub fn with_view(samples: usize, frequencies: usize, width: usize, layers: usize, view_dependent: bool) -> BackgroundModel {
         assert!(frequencies <= Self::MAX_FREQUENCIES, "a background of {frequencies} frequencies: at most {}", Self::MAX_FREQUENCIES);
         let net = Mlp::new(MlpConfig {
-            n_inputs: 4 + 8 * frequencies + if view_dependent { 16 } else { 0 },
+            n_inputs: Layout::Whole.encoding_width(frequencies) + if view_dependent { 16 } else { 0 },
             width,
             hidden_layers: layers,
             n_outputs: 4,
@@ -296,17 +296,17 @@ mod tests {
     use super::*;
     use rand::{RngExt, SeedableRng, rngs::StdRng};
 
-    /// A small model (`samples` a ray, a grid or not, the view among the inputs) with its
-    /// parameters, the density output's bias raised by `opaque`, and `n` rays from inside the
-    /// bound with their SH inputs.
+    /// A small model (`samples` a ray, a grid or not, 3 frequencies and the view among the
+    /// inputs, or `plain`: no frequency and no view) with its parameters, the density output's
+    /// bias raised by `opaque`, and `n` rays from inside the bound with their SH inputs.
     #[allow(clippy::type_complexity)]
     fn model_and_rays(
-        samples: usize,
-        grid: bool,
+        (samples, grid, plain): (usize, bool, bool),
         opaque: f32,
         n: usize,
     ) -> (BackgroundModel, Vec<f32>, Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<[f32; 16]>) {
-        let mut model = BackgroundModel::with_view(samples, 3, 16, 2, true);
+        let (frequencies, view) = if plain { (0, false) } else { (3, true) };
+        let mut model = BackgroundModel::with_view(samples, frequencies, 16, 2, view);
         if grid {
             model = model.with_grid(HashGridConfig { levels: 2, features: 2, log2_table: 8, base_resolution: 4, finest_resolution: 16 });
         }
@@ -329,9 +329,10 @@ mod tests {
     /// the rounding of its encoding's sines (the series, against training's libm).
     #[test]
     fn a_background_render_with_no_budget_is_the_forward_pass() {
-        // 18 samples: the last block shorter than `RENDER_BLOCK`.
-        for (samples, grid) in [(16, false), (16, true), (18, true)] {
-            let (model, params, origins, directions, sh) = model_and_rays(samples, grid, 0.0, 37);
+        // 18 samples: the last block shorter than `RENDER_BLOCK`; no frequency and no view: no
+        // column but 1/r folded, and none of SH₄(d).
+        for (samples, grid, plain) in [(16, false, false), (16, true, false), (18, true, false), (16, false, true)] {
+            let (model, params, origins, directions, sh) = model_and_rays((samples, grid, plain), 0.0, 37);
             let expected = model.forward(&params, &origins, &directions, &sh).colors;
             let (colors, evaluated) = model.render(&params, &origins, &directions, &sh, &[0.0; 37]);
             assert_eq!(evaluated, 37 * samples, "{samples} samples, grid {grid}: every sample evaluated");
@@ -345,11 +346,11 @@ mod tests {
 
     /// Each ray stops after the first block past which its transmittance (one minus the forward
     /// pass's weights so far) is within its budget — the samples evaluated counted exactly — and
-    /// drops at most its budget of colour.
+    /// drops at most its budget of colour (f64; f32's render below).
     #[test]
     fn a_background_render_stops_each_ray_after_the_block_where_its_budget_is_reached() {
         for grid in [false, true] {
-            let (model, params, origins, directions, sh) = model_and_rays(16, grid, 4.0, 40);
+            let (model, params, origins, directions, sh) = model_and_rays((16, grid, false), 4.0, 40);
             let to_f64 = |v: &[[f32; 3]]| v.iter().map(|c| c.map(f64::from)).collect::<Vec<_>>();
             let params: Vec<f64> = params.iter().map(|&p| f64::from(p)).collect();
             let (origins, directions) = (to_f64(&origins), to_f64(&directions));
@@ -373,6 +374,23 @@ mod tests {
             }
             assert_eq!(evaluated, expected, "grid {grid}: the samples evaluated");
             assert!(stops.len() >= 3, "grid {grid}: the rays stop after blocks {stops:?}: the budgets do not test stopping");
+        }
+    }
+
+    /// A render in f32 (its compositing by polynomials) with budgets drops at most its budget of
+    /// colour on each ray, to f32's rounding, and stops some rays early.
+    #[test]
+    fn an_f32_background_render_drops_at_most_each_rays_budget() {
+        let (model, params, origins, directions, sh) = model_and_rays((16, false, false), 4.0, 40);
+        let budgets: Vec<f32> = (0..40).map(|r| [1e-4, 1e-3, 1e-2, 0.1, 0.5][r % 5]).collect();
+        let expected = model.forward(&params, &origins, &directions, &sh).colors;
+        let (colors, evaluated) = model.render(&params, &origins, &directions, &sh, &budgets);
+        assert!(evaluated < 40 * 16, "{evaluated} samples evaluated: no ray stopped early");
+        for (r, budget) in budgets.iter().enumerate() {
+            for j in 0..3 {
+                let dropped = expected[r][j] - colors[r][j];
+                assert!((-1e-6..=budget + 1e-6).contains(&dropped), "ray {r}, channel {j}: {dropped:e} dropped, budget {budget}");
+            }
         }
     }
 }

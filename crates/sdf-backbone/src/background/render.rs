@@ -2,7 +2,7 @@
 //! stopped where what lies behind is negligible; the network's layers packed once, and its first
 //! layer folded per sample — sample k's 1/r and that value's sines are the same on every ray
 //! (1 + 2L of the 4 + 8L encoding's columns), so their products are added to the bias once per
-//! sample ([`crate::mlp::FoldedFirst`]) and a row carries the point's columns alone.
+//! sample (`Mlp::fold_first`, `mlp/folded.rs`) and a row carries the point's columns alone.
 
 use super::BackgroundModel;
 use super::rows::{Layout, SampleRows};
@@ -62,27 +62,7 @@ impl BackgroundModel {
             let after: Vec<R> =
                 active.iter().map(|&r| if block.end < k_n { self.sample_depth(origins[r], directions[r], block.end).1 } else { R::ZERO }).collect();
             let mut light: Vec<R> = active.iter().map(|&r| transmittance[r]).collect();
-            let mut painted = vec![[R::ZERO; 3]; n_active];
-            // Compiled for the CPU's instruction set: each sample's rows (one per active ray) in
-            // vector lanes, the softplus, sigmoids and exponential by polynomials in f32.
-            crate::kernels::dispatch(
-                #[inline(always)]
-                || {
-                    for (b, k) in block.clone().enumerate() {
-                        let (rows, last) = (b * n_active..(b + 1) * n_active, k + 1 == k_n);
-                        let next = if b + 1 < block.len() { &depths[rows.end..rows.end + n_active] } else { &after[..] };
-                        let (depths, raw) = (&depths[rows.clone()], &raw[4 * rows.start..4 * rows.end]);
-                        for a in 0..n_active {
-                            let (c, alpha) = shade(&raw[4 * a..4 * a + 4], (!last).then(|| next[a] - depths[a]));
-                            let w = light[a] * alpha;
-                            for j in 0..3 {
-                                painted[a][j] += w * c[j];
-                            }
-                            light[a] *= R::ONE - alpha;
-                        }
-                    }
-                },
-            );
+            let painted = composite_block(&raw, &depths, &after, (block.clone(), k_n), &mut light);
             for (a, &r) in active.iter().enumerate() {
                 transmittance[r] = light[a];
                 for j in 0..3 {
@@ -96,6 +76,36 @@ impl BackgroundModel {
         }
         (colors, evaluated)
     }
+}
+
+/// The colour a block of samples (`block` of `k_n`) adds to each of its rays, front to back,
+/// each ray's transmittance `light` carried through: `raw` and `depths` the block's rows,
+/// sample-major (one per ray of `light`, in its order), `after` each ray's depth of the sample
+/// after the block (unread where the block ends the ray). Compiled for the CPU's instruction
+/// set: a sample's rows in vector lanes, the softplus, sigmoids and exponential by polynomials in
+/// f32 ([`shade`]).
+fn composite_block<R: Real>(raw: &[R], depths: &[R], after: &[R], (block, k_n): (std::ops::Range<usize>, usize), light: &mut [R]) -> Vec<[R; 3]> {
+    let n = light.len();
+    let mut painted = vec![[R::ZERO; 3]; n];
+    crate::kernels::dispatch(
+        #[inline(always)]
+        || {
+            for (b, k) in block.clone().enumerate() {
+                let (rows, last) = (b * n..(b + 1) * n, k + 1 == k_n);
+                let next = if b + 1 < block.len() { &depths[rows.end..rows.end + n] } else { after };
+                let (depths, raw) = (&depths[rows.clone()], &raw[4 * rows.start..4 * rows.end]);
+                for a in 0..n {
+                    let (c, alpha) = shade(&raw[4 * a..4 * a + 4], (!last).then(|| next[a] - depths[a]));
+                    let w = light[a] * alpha;
+                    for j in 0..3 {
+                        painted[a][j] += w * c[j];
+                    }
+                    light[a] *= R::ONE - alpha;
+                }
+            }
+        },
+    );
+    painted
 }
 
 /// A sample's colour (the sigmoid of raw outputs 1–3) and opacity over `delta` to the next sample

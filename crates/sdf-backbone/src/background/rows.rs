@@ -35,7 +35,7 @@ impl Layout {
     }
 
     /// The columns of the positional encoding with `frequencies` frequencies.
-    fn encoding_width(self, frequencies: usize) -> usize {
+    pub(super) fn encoding_width(self, frequencies: usize) -> usize {
         self.per_function() * (1 + 2 * frequencies)
     }
 }

@@ -1,8 +1,8 @@
 //! A network's first layer with some of its input columns held fixed over a batch of rows: their
 //! products are the same on every row, so they fold into the layer's bias once and the rows carry
 //! the other columns alone. A render's learned background is the user: its sample k's inverse
-//! radius and that value's sines (1 + 2L columns of 4 + 8L) are the same on every ray, so each
-//! row's first layer had been a fifth of its products spent on constants.
+//! radius and that value's sines (1 + 2L columns of the encoding's 4 + 8L) are the same on every
+//! ray, so a quarter of each row's first-layer products had been spent on constants.
 //!
 //! The outputs are the forward pass's up to the order of the first layer's sum (the fixed
 //! columns' products added to the bias in f64 before the rows', not in their place among them):
@@ -103,8 +103,7 @@ impl Mlp {
         output: &mut [R],
         keep: usize,
     ) {
-        assert!(keep <= self.config.n_outputs, "{keep} outputs asked of a network of {}", self.config.n_outputs);
-        assert_eq!(input.len() / first.n_kept.max(1) * keep, output.len(), "one row of {keep} outputs per input row");
+        self.check_inference(first.n_kept, input, output, keep);
         assert_eq!(bias.len(), first.bias.len(), "the folded bias: one value per padded output");
         let layer = FirstLayer { wt: &first.kept, bias, n_in: first.n_kept };
         self.infer_rows(Some(layer), packed, input, output, keep);

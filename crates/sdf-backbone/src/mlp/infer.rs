@@ -5,7 +5,8 @@
 //! network: a thousand rows overflow a Zen 3's 512 KB L2), only to drop them.
 //!
 //! Each output is that of the forward pass to the bit: the same packed weights, the same tile
-//! kernel summing each output over its inputs in the same order, the same activation.
+//! kernel summing each output over its inputs in the same order, the same activation — but for
+//! a folded first layer ([`Mlp::infer_folded`], `folded.rs`: to rounding).
 
 use super::folded::FirstLayer;
 use super::{Mlp, PackedLayer};
@@ -31,24 +32,25 @@ impl Mlp {
     /// `keep`), as [`Module::forward`](crate::Module::forward) computes them, to the bit, without
     /// its context.
     pub(crate) fn infer_columns<R: Real>(&self, params: &[R], input: &[R], output: &mut [R], keep: usize) {
-        self.check_inference(input, output, keep);
+        self.check_inference(self.config.n_inputs, input, output, keep);
         if !output.is_empty() {
             self.infer_packed(&self.packed_layers(params), input, output, keep);
         }
     }
 
-    /// Panics where `output` is not one row of `keep` (≤ the network's outputs) per input row.
-    fn check_inference<R: Real>(&self, input: &[R], output: &[R], keep: usize) {
+    /// Panics where `output` is not one row of `keep` (≤ the network's outputs) per input row
+    /// of `n_in` values.
+    pub(super) fn check_inference<R: Real>(&self, n_in: usize, input: &[R], output: &[R], keep: usize) {
         assert!(keep <= self.config.n_outputs, "{keep} outputs asked of a network of {}", self.config.n_outputs);
-        assert_eq!(input.len() / self.config.n_inputs * keep, output.len(), "one row of {keep} outputs per input row");
+        assert_eq!(input.len() / n_in.max(1) * keep, output.len(), "one row of {keep} outputs per input row");
     }
 
     /// [`Self::infer_columns`] with the layers packed once by the caller ([`Self::packed_layers`]
-    /// of the same parameters), for a caller that runs the network on many small batches (a
-    /// render's background, block by block): packing the weights is a pass over all of them,
-    /// as long as the products of a few hundred rows.
+    /// of the same parameters), for a caller that runs the network on many small batches (an
+    /// up-sampling, chunk by chunk and round by round): packing the weights is a pass over all
+    /// of them, as long as the products of a few hundred rows.
     pub(crate) fn infer_packed<R: Real>(&self, packed: &[PackedLayer<R>], input: &[R], output: &mut [R], keep: usize) {
-        self.check_inference(input, output, keep);
+        self.check_inference(self.config.n_inputs, input, output, keep);
         self.infer_rows(None, packed, input, output, keep);
     }
 

@@ -35,14 +35,9 @@ impl BackgroundModel {
         let (p_net, p_grid) = params.split_at(self.tables().start);
         let packed = self.net.packed_layers(p_net);
         let first = self.net.fold_first(&packed, &self.folded_columns());
-        let (inv_r_sines, per) = (self.inverse_radius_sines::<R>(), 2 * self.frequencies);
-        // Sample k's first-layer bias: its 1/r, then the sines of 1/r (the folded columns' order).
-        let biases: Vec<_> = (0..k_n)
-            .map(|k| {
-                let values: Vec<R> = std::iter::once(self.inverse_radius(k)).chain(inv_r_sines[k * per..(k + 1) * per].iter().copied()).collect();
-                first.bias_at(&values)
-            })
-            .collect();
+        let inv_r_sines = self.inverse_radius_sines::<R>();
+        // Sample k's first-layer bias.
+        let biases: Vec<_> = (0..k_n).map(|k| first.bias_at(&self.folded_values(k, &inv_r_sines))).collect();
         for start in (0..k_n).step_by(RENDER_BLOCK) {
             let block = start..(start + RENDER_BLOCK).min(k_n);
             let n_active = active.len();

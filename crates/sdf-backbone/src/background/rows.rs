@@ -79,6 +79,13 @@ impl BackgroundModel {
         std::iter::once(3).chain(sines).collect()
     }
 
+    /// The values of [`Self::folded_columns`] at sample k, in their order: its 1/r, then the sine
+    /// and cosine of each frequency (`inv_r_sines`: [`Self::inverse_radius_sines`]).
+    pub(super) fn folded_values<R: Real>(&self, k: usize, inv_r_sines: &[R]) -> Vec<R> {
+        let per = 2 * self.frequencies;
+        std::iter::once(self.inverse_radius(k)).chain(inv_r_sines[k * per..(k + 1) * per].iter().copied()).collect()
+    }
+
     /// [`crate::sines::double_angles`] of every sample's 1/r (the same on every ray: sample k's
     /// is fixed), 2 × `frequencies` values per sample (sin, cos per frequency).
     pub(super) fn inverse_radius_sines<R: Real>(&self) -> Vec<R> {
@@ -241,8 +248,9 @@ mod tests {
         }
     }
 
-    /// The columns a folded row leaves out are those of 1/r and its sines, and the rest of the
-    /// whole row is the folded row, column for column.
+    /// The columns a folded row leaves out are those of 1/r and its sines (whose values
+    /// `folded_values` gives, in their order), and the rest of the whole row is the folded row,
+    /// column for column.
     #[test]
     fn a_folded_row_is_the_whole_row_without_the_inverse_radius_columns() {
         let model = BackgroundModel::with_view(16, 3, 8, 1, true);
@@ -257,6 +265,7 @@ mod tests {
         let inv_r: f64 = model.inverse_radius(5);
         let expected: Vec<f64> = std::iter::once(inv_r).chain(inv_r_sines[30..36].iter().copied()).collect();
         assert_eq!(left_out.iter().map(|&c| whole[c]).collect::<Vec<_>>(), expected);
+        assert_eq!(model.folded_values(5, &inv_r_sines), expected, "the values folded for sample 5");
         let kept: Vec<f64> = whole.iter().enumerate().filter(|(c, _)| !left_out.contains(c)).map(|(_, &v)| v).collect();
         assert_eq!(kept, folded);
     }

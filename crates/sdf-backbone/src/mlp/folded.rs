@@ -22,8 +22,6 @@ pub(crate) struct FoldedFirst<R: Real> {
     fixed: Buf<R>,
     /// The layer's own bias (`pad(n_out)`).
     bias: Buf<R>,
-    /// How many columns the rows carry.
-    n_kept: usize,
 }
 
 /// The first layer's operands for [`Mlp::infer_rows`]: Wᵀ (`n_in` × `pad(n_out)`), the bias
@@ -47,7 +45,7 @@ impl<R: Real> FirstLayer<'_, R> {
 impl<R: Real> FoldedFirst<R> {
     /// The columns the rows carry.
     pub(crate) fn n_kept(&self) -> usize {
-        self.n_kept
+        self.kept.len() / self.bias.len()
     }
 
     /// The first layer's bias with the fixed columns at `values` (one per fixed column, in their
@@ -88,7 +86,7 @@ impl Mlp {
         let fixed_rows = rows_of(&mut fixed.iter().copied());
         let mut bias = Buf::<R>::to_overwrite(width);
         bias.copy_from_slice(&packed[0].bias);
-        FoldedFirst { kept, fixed: fixed_rows, bias, n_kept: n_in - fixed.len() }
+        FoldedFirst { kept, fixed: fixed_rows, bias }
     }
 
     /// The first `keep` outputs of every row of `input` (rows of the columns `first` keeps, in
@@ -103,9 +101,9 @@ impl Mlp {
         output: &mut [R],
         keep: usize,
     ) {
-        self.check_inference(first.n_kept, input, output, keep);
+        self.check_inference(first.n_kept(), input, output, keep);
         assert_eq!(bias.len(), first.bias.len(), "the folded bias: one value per padded output");
-        let layer = FirstLayer { wt: &first.kept, bias, n_in: first.n_kept };
+        let layer = FirstLayer { wt: &first.kept, bias, n_in: first.n_kept() };
         self.infer_rows(Some(layer), packed, input, output, keep);
     }
 }

@@ -25,6 +25,15 @@ fn positive(text: &str) -> Result<f64> {
     Ok(v)
 }
 
+/// A mesh resolution: cells per side, or `model` (the model's finest cell).
+fn mesh_resolution(text: &str) -> Result<trainer::config::MeshResolution> {
+    if text.trim() == "model" {
+        return Ok(trainer::config::MeshResolution::Model);
+    }
+    let n: u32 = text.trim().parse().with_context(|| format!("{text:?}: expected a number of cells per side or \"model\""))?;
+    Ok(trainer::config::MeshResolution::Cells(n))
+}
+
 /// Options of `cargo xtask eval`.
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
@@ -111,6 +120,12 @@ pub struct EvalArgs {
     /// every interval).
     #[arg(long, requires = "run")]
     pub render_colour_stride: Option<NonZeroUsize>,
+    /// With --run: mesh the run's model again at this resolution (cells per side of the bound's
+    /// cube, 8 … 2048, or `model`: its finest cell) instead of rendering its views — `mesh-N.*`
+    /// and `mesh-N.json` in the run folder, the geometry against the run's truth by its protocol
+    /// with the truth's own mesh at N (the floor); the run's own mesh is left as it is.
+    #[arg(long, requires = "run", value_parser = mesh_resolution, conflicts_with_all = ["downscale", "render_fine", "render_rounds", "render_trim", "render_resolved", "render_skip_empty", "render_colour_stride", "profile"])]
+    pub mesh_resolution: Option<trainer::config::MeshResolution>,
     /// With --run: where the renders' CPU time goes, by stage (up-sampling, the forward pass,
     /// the modules inside them).
     #[arg(long, requires = "run")]
@@ -149,6 +164,9 @@ fn camera_alignment(from: &Path, to: &Path) -> Result<(eval_metrics::align::Simi
 
 /// Runs `cargo xtask eval`.
 pub fn run(args: &EvalArgs) -> Result<()> {
+    if let (Some(dir), Some(resolution)) = (&args.run, args.mesh_resolution) {
+        return remesh_run(dir, resolution, args.json);
+    }
     if let Some(dir) = &args.run {
         return eval_run(dir, args);
     }
@@ -349,6 +367,50 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
             dir.join("eval.json").display()
         );
     }
+    Ok(())
+}
+
+/// `eval --run DIR --mesh-resolution N`: the run's model meshed at N and measured.
+fn remesh_run(dir: &Path, resolution: trainer::config::MeshResolution, json: bool) -> Result<()> {
+    let folder = trainer::run::RunFolder::open(dir, std::sync::Arc::new(trainer::run::AtomicFiles))?;
+    let progress = |done: usize, total: usize| {
+        if !json && (done == total || done.is_multiple_of(256)) {
+            eprintln!("mesh {done}/{total} blocks");
+        }
+    };
+    let remeshed = trainer::run::remesh(&folder, None, resolution, &progress)?;
+    // A time figure: it names the machine.
+    let result = crate::machine::tag(serde_json::to_value(&remeshed)?);
+    let name = format!("mesh-{}.json", remeshed.mesh_resolution);
+    folder.write(&name, serde_json::to_string_pretty(&result)?.as_bytes())?;
+    if json {
+        println!("{result}");
+        return Ok(());
+    }
+    let (found, kept) = remeshed.components;
+    println!(
+        "step {}: meshed at {}³ in {:.1} s on {} ({} triangles, {kept} of {found} components): {}",
+        remeshed.step,
+        remeshed.mesh_resolution,
+        remeshed.seconds,
+        crate::machine::Machine::this().line(),
+        remeshed.mesh_triangles,
+        remeshed.files.join(", ")
+    );
+    match &remeshed.geometry {
+        None => println!("the run's data has no ground truth: nothing measured"),
+        Some(g) => {
+            let floor = g.mesh_floor.map_or(String::new(), |f| format!(" (the truth's own {}³ mesh: {f:.4})", remeshed.mesh_resolution));
+            println!(
+                "Chamfer {:.4} (accuracy {:.4}, completeness {:.4}), F-score {:.3} at τ = {}{floor}",
+                g.chamfer, g.accuracy, g.completeness, g.f_score, g.f_score_tau
+            );
+            if let Some(o) = &g.observed {
+                println!("{}", trainer::run::observed_line(o));
+            }
+        }
+    }
+    println!("written to {}", dir.join(name).display());
     Ok(())
 }
 

@@ -1,6 +1,7 @@
 //! Run folders under faults: resume with a changed configuration or a damaged checkpoint, failed
 //! runs that must leave no stray folder, write failures of each kind (through an injectable sink)
-//! that must keep the previous checkpoint, and `eval --run` values against the run's own.
+//! that must keep the previous checkpoint, and `eval --run` values (renders and meshes made again)
+//! against the run's own.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -160,4 +161,50 @@ fn eval_of_a_run_reproduces_the_runs_own_psnr() {
     assert_eq!((coarse["render_fine"].as_u64(), coarse["render_upsample_rounds"].as_u64()), (Some(4), Some(1)), "{coarse}");
     assert_eq!((eval["render_colour_stride"].as_u64(), coarse["render_colour_stride"].as_u64()), (Some(4), Some(2)), "the default, then the flag's");
     assert!(coarse["psnr"].as_f64().is_some_and(f64::is_finite), "{coarse}");
+}
+
+#[test]
+fn remeshing_a_run_at_its_own_resolution_measures_what_the_run_measured() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let Outcome::Finished(summary) = train_with(&tiny_args(&out), &AtomicBool::new(false), Arc::new(AtomicFiles)).unwrap() else {
+        panic!("the run was stopped")
+    };
+    let own_mesh = std::fs::read(out.join("mesh.ply")).unwrap();
+    let remesh = |resolution: &str| {
+        let o = xtask(&["eval", "--run", out.to_str().unwrap(), "--mesh-resolution", resolution, "--json"]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice::<serde_json::Value>(&o.stdout).unwrap()
+    };
+    // The run's own resolution (`output.mesh_resolution=24`): the run's mesh, byte for byte
+    // (vertex colours included), and its figures.
+    let same = remesh("24");
+    assert_eq!(same["mesh_resolution"].as_u64(), Some(24), "{same}");
+    assert_eq!(std::fs::read(out.join("mesh-24.ply")).unwrap(), own_mesh);
+    let g = &same["geometry"];
+    assert_eq!(g["chamfer"].as_f64(), summary.metrics.chamfer, "{same}");
+    assert_eq!(g["mesh_floor"].as_f64(), summary.metrics.mesh_floor, "{same}");
+    assert_eq!(same["mesh_triangles"].as_u64(), Some(summary.metrics.mesh_triangles as u64));
+    assert_eq!(g["observed"]["chamfer"].as_f64(), summary.metrics.observed.as_ref().and_then(|o| o.chamfer), "{same}");
+    let written: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("mesh-24.json")).unwrap()).unwrap();
+    assert_eq!(written["geometry"], same["geometry"]);
+    assert!(written["cpu"].is_string(), "a time figure names the machine: {written}");
+    // Twice as fine: more triangles, a lower floor; the run's own mesh is left as it was.
+    let fine = remesh("48");
+    assert!(fine["mesh_triangles"].as_u64() > same["mesh_triangles"].as_u64(), "{fine}");
+    assert!(fine["geometry"]["mesh_floor"].as_f64().unwrap() < g["mesh_floor"].as_f64().unwrap(), "{fine}");
+    assert!(out.join("mesh-48.ply").is_file());
+    assert_eq!(std::fs::read(out.join("mesh.ply")).unwrap(), own_mesh);
+    // What cannot work is refused, naming what is expected.
+    for (args, says) in [
+        (vec!["--mesh-resolution", "4"], "8 … 2048"),
+        (vec!["--mesh-resolution", "fine"], "\"model\""),
+        (vec!["--mesh-resolution", "24", "--render-fine", "4"], "cannot be used with"),
+    ] {
+        let mut all = vec!["eval", "--run", out.to_str().unwrap()];
+        all.extend(args);
+        let o = xtask(&all);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && stderr.contains(says), "{all:?}: {stderr}");
+    }
 }

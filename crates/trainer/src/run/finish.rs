@@ -88,6 +88,20 @@ pub(super) fn finish(
     Ok(Some(RunSummary { out: folder.dir().display().to_string(), meshes: mesh.files, metrics, history: Vec::new() }))
 }
 
+/// Writes `mesh` (normalised frame) in the run's world as `{stem}.{extension}` for each of
+/// `output.mesh_formats`, with vertex colours when `output.vertex_colors` asks; the paths written.
+pub(super) fn write_meshes(trainer: &Trainer, folder: &RunFolder, mesh: &IsoMesh, stem: &str) -> Result<Vec<String>> {
+    let output = &trainer.config().output;
+    let colors = output.vertex_colors.then(|| trainer.vertex_colors(mesh));
+    let mut files = Vec::new();
+    for (format, bytes) in mesh_files(mesh, &trainer.data().scene.world_from_normalized, colors.as_deref(), &output.mesh_formats) {
+        let name = format!("{stem}.{}", format.extension());
+        folder.write(&name, &bytes)?;
+        files.push(folder.dir().join(name).display().to_string());
+    }
+    Ok(files)
+}
+
 /// Image metrics on the evaluation views (the held-out ones, all views when none are held out)
 /// and on `output.eval_train_views` training views; `None` when stopped on the way.
 fn final_images(trainer: &Trainer, progress: &Progress, stopped: &dyn Fn() -> bool) -> Result<Option<Images>> {
@@ -116,19 +130,13 @@ fn final_images(trainer: &Trainer, progress: &Progress, stopped: &dyn Fn() -> bo
 /// The mesh, its files (`output.mesh_formats`) and its picture from `picture_view` and a
 /// training view; `None` when stopped during meshing.
 fn final_mesh(trainer: &Trainer, folder: &RunFolder, progress: &Progress, picture_view: usize, stopped: &dyn Fn() -> bool) -> Result<Option<Mesh>> {
-    let (config, scene, split) = (trainer.config(), &trainer.data().scene, trainer.split());
+    let (scene, split) = (&trainer.data().scene, trainer.split());
     let t = Instant::now();
     let (mesh, components, kept) = trainer.extract_mesh_with_stats(&|done, total| progress.phase("mesh", done, total))?;
     if stopped() {
         return Ok(None);
     }
-    let colors = config.output.vertex_colors.then(|| trainer.vertex_colors(&mesh));
-    let mut files = Vec::new();
-    for (format, bytes) in mesh_files(&mesh, &scene.world_from_normalized, colors.as_deref(), &config.output.mesh_formats) {
-        let name = format!("mesh.{}", format.extension());
-        folder.write(&name, &bytes)?;
-        files.push(folder.dir().join(name).display().to_string());
-    }
+    let files = write_meshes(trainer, folder, &mesh, "mesh")?;
     if !mesh.triangles.is_empty() {
         let views = [picture_view, split.train[split.train.len() / 2]];
         let cams =

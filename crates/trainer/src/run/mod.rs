@@ -28,7 +28,9 @@ use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::time::Instant;
 
 mod finish;
+mod remesh;
 use finish::{FinishTiming, final_eval_views, finish};
+pub use remesh::{Remeshed, RemeshedGeometry, remesh};
 
 /// What to run.
 #[derive(Debug, Clone)]

@@ -1,0 +1,87 @@
+//! A run's model meshed again at another resolution (`cargo xtask eval --run RUN
+//! --mesh-resolution N`): the mesh files beside the run's own, named by their resolution, and
+//! their geometry against the truth by the run's protocol — so that a finished run shows what a
+//! finer (or coarser) mesh of the same model gains, without training it again.
+
+use super::{RunFolder, finish::write_meshes, open_run};
+use crate::config::MeshResolution;
+use crate::error::Result;
+use crate::metrics::{ObservedMetrics, PartMetrics};
+use crate::outputs::run_geometry;
+use serde::Serialize;
+use std::path::Path;
+use std::time::Instant;
+
+/// What [`remesh`] made and measured.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Remeshed {
+    /// The checkpoint's step.
+    pub step: u64,
+    /// Marching-cubes cells per side of the bound's cube.
+    pub mesh_resolution: u32,
+    /// The files written (the run's `output.mesh_formats`, named `mesh-{resolution}`).
+    pub files: Vec<String>,
+    /// Triangles of the mesh kept.
+    pub mesh_triangles: usize,
+    /// Connected components found, and kept by `output.mesh_filter`.
+    pub components: (usize, usize),
+    /// Wall seconds of the marching cubes and the files (vertex colours included).
+    pub seconds: f64,
+    /// Against the data's ground truth by the run's protocol, when it has one.
+    pub geometry: Option<RemeshedGeometry>,
+}
+
+/// The geometry of a [`Remeshed`] mesh ([`crate::outputs::RunGeometry`] flattened).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RemeshedGeometry {
+    /// Chamfer: (accuracy + completeness) / 2.
+    pub chamfer: f64,
+    /// Mesh → truth.
+    pub accuracy: f64,
+    /// Truth → mesh.
+    pub completeness: f64,
+    /// F-score at [`Self::f_score_tau`].
+    pub f_score: f64,
+    /// The F-score's threshold (`output.fscore_tau`).
+    pub f_score_tau: f64,
+    /// The truth's own mesh at the same resolution by the same protocol (an analytic truth).
+    pub mesh_floor: Option<f64>,
+    /// Over what the training views observe (an analytic truth), with its floor.
+    pub observed: Option<ObservedMetrics>,
+    /// Per part of an analytic truth.
+    pub parts: Vec<PartMetrics>,
+}
+
+/// Meshes the model of the run in `folder` (its checkpoint, its data or the same data at
+/// `data`) at `resolution` (`"model"`: its finest cell), writes `mesh-{n}.{extension}` there
+/// (vertex colours and formats as the run's configuration says; an earlier remesh at the same
+/// resolution is replaced, the run's own `mesh.*` never) and measures it against the data's
+/// truth with the floor at that resolution. `progress(blocks done, blocks)`.
+pub fn remesh(folder: &RunFolder, data: Option<&Path>, resolution: MeshResolution, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<Remeshed> {
+    let mut trainer = open_run(folder.dir(), data)?;
+    let n = trainer.set_mesh_resolution(resolution)?;
+    let started = Instant::now();
+    let (mesh, found, kept) = trainer.extract_mesh_with_stats(progress)?;
+    let files = write_meshes(&trainer, folder, &mesh, &format!("mesh-{n}"))?;
+    let seconds = started.elapsed().as_secs_f64();
+    let measured = run_geometry(trainer.data(), &trainer.config().output, &mesh, Some(n), &trainer.train_cameras())?;
+    let geometry = measured.map(|g| RemeshedGeometry {
+        chamfer: g.metrics.chamfer,
+        accuracy: g.metrics.accuracy,
+        completeness: g.metrics.completeness,
+        f_score: g.metrics.f_score,
+        f_score_tau: g.metrics.tau,
+        mesh_floor: g.floor,
+        observed: g.observed,
+        parts: g.parts,
+    });
+    Ok(Remeshed {
+        step: trainer.state().step,
+        mesh_resolution: n,
+        files,
+        mesh_triangles: mesh.triangles.len(),
+        components: (found, kept),
+        seconds,
+        geometry,
+    })
+}

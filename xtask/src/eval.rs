@@ -293,7 +293,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
             println!("the shape's own {resolution}³ marching-cubes mesh by the same protocol: Chamfer {floor:.5}");
         }
         if let Some(o) = &observed {
-            println!("{}", trainer::run::observed_line(o));
+            println!("{}", trainer::run::observed_line(o, None));
         }
         for p in &parts {
             let d = |x: Option<f64>| x.map_or("-".to_string(), |c| format!("{c:.5}"));
@@ -402,11 +402,16 @@ fn remesh_run(dir: &Path, resolution: trainer::config::MeshResolution, json: boo
         Some(g) => {
             let floor = g.mesh_floor.map_or(String::new(), |f| format!(" (the truth's own {}³ mesh: {f:.4})", remeshed.mesh_resolution));
             println!(
-                "Chamfer {:.4} (accuracy {:.4}, completeness {:.4}), F-score {:.3} at τ = {}{floor}",
-                g.chamfer, g.accuracy, g.completeness, g.f_score, g.f_score_tau
+                "Chamfer {:.4}{} (accuracy {:.4}, completeness {:.4}), F-score {:.3} at τ = {}{floor}",
+                g.chamfer,
+                trainer::run::in_pixels(g.chamfer, remeshed.pixel_footprint),
+                g.accuracy,
+                g.completeness,
+                g.f_score,
+                g.f_score_tau
             );
             if let Some(o) = &g.observed {
-                println!("{}", trainer::run::observed_line(o));
+                println!("{}", trainer::run::observed_line(o, remeshed.pixel_footprint));
             }
         }
     }

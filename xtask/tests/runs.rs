@@ -189,6 +189,9 @@ fn remeshing_a_run_at_its_own_resolution_measures_what_the_run_measured() {
     let written: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("mesh-24.json")).unwrap()).unwrap();
     assert_eq!(written["geometry"], same["geometry"]);
     assert!(written["cpu"].is_string(), "a time figure names the machine: {written}");
+    // The photos' pixel at the region of interest, as the run's metrics give it: the Chamfer in pixels.
+    assert!(summary.metrics.pixel_footprint.is_some_and(|f| f > 0.0), "{:?}", summary.metrics.pixel_footprint);
+    assert_eq!(same["pixel_footprint"].as_f64(), summary.metrics.pixel_footprint);
     // Twice as fine: more triangles, a lower floor; the run's own mesh is left as it was.
     let fine = remesh("48");
     assert!(fine["mesh_triangles"].as_u64() > same["mesh_triangles"].as_u64(), "{fine}");

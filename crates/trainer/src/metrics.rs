@@ -115,6 +115,11 @@ pub struct RunMetrics {
     pub parts: Vec<PartMetrics>,
     /// Length of one normalised unit in the dataset's units.
     pub world_scale: f64,
+    /// The side of one pixel at the region of interest (the median over the views, normalised
+    /// units; `crate::sizing::median_footprint`): a Chamfer divided by it is in the photos'
+    /// pixels, comparable across scenes and resolutions (`None`: no view has the region's
+    /// centre in front of it).
+    pub pixel_footprint: Option<f64>,
     /// The mesh's marching-cubes resolution (cells per side of the bound's cube).
     pub mesh_resolution: u32,
     /// The Chamfer of the truth's own mesh at `mesh_resolution` by the same protocol: what no

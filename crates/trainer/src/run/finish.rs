@@ -183,6 +183,7 @@ fn run_metrics(
         f_score_tau: config.output.fscore_tau,
         parts: geometry.as_ref().map(|g| g.parts.clone()).unwrap_or_default(),
         world_scale,
+        pixel_footprint: trainer.pixel_footprint(),
         mesh_resolution: trainer.mesh_resolution(),
         mesh_floor: geometry.as_ref().and_then(|g| g.floor),
         observed: geometry.as_ref().and_then(|g| g.observed.clone()),
@@ -222,8 +223,9 @@ fn print_summary(m: &RunMetrics, images: &Images, mesh: &Mesh) {
     );
     let geometry = match (m.chamfer, m.f_score) {
         (Some(chamfer), Some(f_score)) => format!(
-            "Chamfer {chamfer:.4} ({:.4} in world units{}), F-score {f_score:.3} at τ = {}",
+            "Chamfer {chamfer:.4} ({:.4} in world units{}{}), F-score {f_score:.3} at τ = {}",
             chamfer * m.world_scale,
+            crate::run::in_pixels(chamfer, m.pixel_footprint),
             m.mesh_floor.map_or(String::new(), |f| format!("; the truth's own {}³ mesh: {f:.4}", m.mesh_resolution)),
             m.f_score_tau
         ),
@@ -242,7 +244,7 @@ fn print_summary(m: &RunMetrics, images: &Images, mesh: &Mesh) {
         m.psnr_train.map_or(String::new(), |p| format!(", {p:.2} dB on {} training view(s)", images.fit_views.len())),
     );
     if let Some(o) = &m.observed {
-        eprintln!("{}", crate::run::observed_line(o));
+        eprintln!("{}", crate::run::observed_line(o, m.pixel_footprint));
     }
     if !m.parts.is_empty() {
         let parts: Vec<String> = m.parts.iter().map(|p| format!("{} {:.2}", p.part, p.recall)).collect();

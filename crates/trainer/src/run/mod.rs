@@ -182,11 +182,22 @@ pub fn open_run(dir: &Path, data: Option<&Path>) -> Result<Trainer> {
     restore_run(dir, config, data)
 }
 
-/// One line for the figures over what the training views observe.
-pub fn observed_line(o: &crate::metrics::ObservedMetrics) -> String {
+/// `", 0.65 pixel"`: a distance in pixels of the photos at the region of interest (`footprint`,
+/// [`crate::trainer::Trainer::pixel_footprint`]); empty without a footprint or a finite distance.
+pub fn in_pixels(distance: f64, footprint: Option<f64>) -> String {
+    match footprint.filter(|f| *f > 0.0) {
+        Some(f) if distance.is_finite() => format!(", {:.2} pixel", distance / f),
+        _ => String::new(),
+    }
+}
+
+/// One line for the figures over what the training views observe; with the views' pixel
+/// footprint, the Chamfer in pixels too.
+pub fn observed_line(o: &crate::metrics::ObservedMetrics, footprint: Option<f64>) -> String {
     let d = |x: Option<f64>| x.map_or("∞".to_string(), |v| format!("{v:.4}"));
+    let pixels = o.chamfer.map_or(String::new(), |c| in_pixels(c, footprint));
     format!(
-        "over what the training views observe ({:.1} % of the truth): Chamfer {} (accuracy {}, completeness {}), F-score {:.3}{}",
+        "over what the training views observe ({:.1} % of the truth): Chamfer {}{pixels} (accuracy {}, completeness {}), F-score {:.3}{}",
         100.0 * o.truth_observed,
         d(o.chamfer),
         d(o.accuracy),
@@ -490,4 +501,19 @@ fn interim_metrics(trainer: &Trainer) -> Result<serde_json::Value> {
     Ok(json!({"eval": true, "step": trainer.state().step, "psnr": psnr, "psnr_masked": masked,
         "chamfer": geometry.as_ref().map(|g| g.metrics.chamfer), "f_score": geometry.as_ref().map(|g| g.metrics.f_score),
         "parts": geometry.map(|g| g.parts).unwrap_or_default(), "time_s": t.step_seconds + t.grid_seconds}))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::in_pixels;
+
+    #[test]
+    fn a_distance_reads_in_the_photos_pixels_only_where_a_footprint_exists() {
+        assert_eq!(in_pixels(0.0034, Some(0.00525)), ", 0.65 pixel");
+        assert_eq!(in_pixels(0.0105, Some(0.00525)), ", 2.00 pixel");
+        for footprint in [None, Some(0.0), Some(-1.0)] {
+            assert_eq!(in_pixels(0.0034, footprint), "");
+        }
+        assert_eq!(in_pixels(f64::INFINITY, Some(0.00525)), "");
+    }
 }

@@ -27,6 +27,8 @@ pub struct Remeshed {
     pub components: (usize, usize),
     /// Wall seconds of the marching cubes and the files (vertex colours included).
     pub seconds: f64,
+    /// The side of one pixel at the region of interest (normalised units; as `metrics.json`'s).
+    pub pixel_footprint: Option<f64>,
     /// Against the data's ground truth by the run's protocol, when it has one.
     pub geometry: Option<RemeshedGeometry>,
 }
@@ -82,6 +84,7 @@ pub fn remesh(folder: &RunFolder, data: Option<&Path>, resolution: MeshResolutio
         mesh_triangles: mesh.triangles.len(),
         components: (found, kept),
         seconds,
+        pixel_footprint: trainer.pixel_footprint(),
         geometry,
     })
 }

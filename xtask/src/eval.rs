@@ -25,15 +25,6 @@ fn positive(text: &str) -> Result<f64> {
     Ok(v)
 }
 
-/// A mesh resolution: cells per side, or `model` (the model's finest cell).
-fn mesh_resolution(text: &str) -> Result<trainer::config::MeshResolution> {
-    if text.trim() == "model" {
-        return Ok(trainer::config::MeshResolution::Model);
-    }
-    let n: u32 = text.trim().parse().with_context(|| format!("{text:?}: expected a number of cells per side or \"model\""))?;
-    Ok(trainer::config::MeshResolution::Cells(n))
-}
-
 /// Options of `cargo xtask eval`.
 #[derive(clap::Args, Debug)]
 pub struct EvalArgs {
@@ -61,35 +52,36 @@ pub struct EvalArgs {
     #[arg(long, conflicts_with = "run")]
     pub gt_mesh: Option<PathBuf>,
     /// A data folder with gt_mesh.ply or gt_points.ply (golden scenes); with --cull its masks.
-    #[arg(long, conflicts_with = "run")]
+    /// With --run: the run's data at a new place (checked against the run's fingerprint of it).
+    #[arg(long)]
     pub data: Option<PathBuf>,
     /// A run folder: PSNR/SSIM of its model on its held-out views.
     #[arg(long)]
     pub run: Option<PathBuf>,
     /// Sampling spacing on meshes (world units; DTU: 0.2 mm). Default: GT diagonal / 1000.
-    #[arg(long, value_parser = positive)]
+    #[arg(long, value_parser = positive, conflicts_with = "run")]
     pub spacing: Option<f64>,
     /// Outlier distance (DTU: 20 mm). Default: GT diagonal / 20.
-    #[arg(long, value_parser = positive)]
+    #[arg(long, value_parser = positive, conflicts_with = "run")]
     pub max_dist: Option<f64>,
     /// F-score threshold τ. Default: GT diagonal / 200.
-    #[arg(long, value_parser = positive)]
+    #[arg(long, value_parser = positive, conflicts_with = "run")]
     pub tau: Option<f64>,
     /// NeuralWarp-style culling: keep predicted points inside the masks (dilated by
     /// `--dilate` pixels) of at least two views of --data.
-    #[arg(long, requires = "data")]
+    #[arg(long, requires = "data", conflicts_with = "run")]
     pub cull: bool,
     /// The mesh was made in the world of this dataset folder (e.g. imported from COLMAP): it is
     /// carried into --data's world by the similarity that best maps this folder's camera
     /// centres onto --data's (views matched in order).
-    #[arg(long, requires = "data")]
+    #[arg(long, requires = "data", conflicts_with = "run")]
     pub mesh_cameras: Option<PathBuf>,
     /// Refine the mesh's placement by similarity ICP of its surface samples onto the ground
     /// truth before measuring (thresholds max distance → √(max distance · τ) → 2τ), as the
     /// Tanks and Temples evaluation does after its trajectory alignment: for meshes made with
     /// estimated cameras (--mesh-cameras), whose alignment by camera centres carries the camera
     /// solver's error. The unrefined figures are reported too.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "run")]
     pub icp: bool,
     /// Mask dilation in pixels for --cull.
     #[arg(long, default_value_t = 12)]
@@ -124,7 +116,7 @@ pub struct EvalArgs {
     /// cube, 8 … 2048, or `model`: its finest cell) instead of rendering its views — `mesh-N.*`
     /// and `mesh-N.json` in the run folder, the geometry against the run's truth by its protocol
     /// with the truth's own mesh at N (the floor); the run's own mesh is left as it is.
-    #[arg(long, requires = "run", value_parser = mesh_resolution, conflicts_with_all = ["downscale", "render_fine", "render_rounds", "render_trim", "render_resolved", "render_skip_empty", "render_colour_stride", "profile"])]
+    #[arg(long, requires = "run", value_parser = str::parse::<trainer::config::MeshResolution>, conflicts_with_all = ["downscale", "render_fine", "render_rounds", "render_trim", "render_resolved", "render_skip_empty", "render_colour_stride", "profile"])]
     pub mesh_resolution: Option<trainer::config::MeshResolution>,
     /// With --run: where the renders' CPU time goes, by stage (up-sampling, the forward pass,
     /// the modules inside them).
@@ -165,7 +157,7 @@ fn camera_alignment(from: &Path, to: &Path) -> Result<(eval_metrics::align::Simi
 /// Runs `cargo xtask eval`.
 pub fn run(args: &EvalArgs) -> Result<()> {
     if let (Some(dir), Some(resolution)) = (&args.run, args.mesh_resolution) {
-        return remesh_run(dir, resolution, args.json);
+        return remesh_run(dir, args.data.as_deref(), resolution, args.json);
     }
     if let Some(dir) = &args.run {
         return eval_run(dir, args);
@@ -306,7 +298,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
 fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
     // It writes eval.json into the run folder: not while another process trains there.
     let _lock = trainer::folder::is_run_folder(dir).then(|| trainer::folder::FolderLock::acquire(dir)).transpose()?;
-    let mut trainer = open_run(dir, None)?;
+    let mut trainer = open_run(dir, args.data.as_deref())?;
     trainer.set_render_sampling(|r| {
         r.render_fine = args.render_fine.unwrap_or(r.render_fine);
         r.render_upsample_rounds = args.render_rounds.unwrap_or(r.render_upsample_rounds);
@@ -371,14 +363,14 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
 }
 
 /// `eval --run DIR --mesh-resolution N`: the run's model meshed at N and measured.
-fn remesh_run(dir: &Path, resolution: trainer::config::MeshResolution, json: bool) -> Result<()> {
+fn remesh_run(dir: &Path, data: Option<&Path>, resolution: trainer::config::MeshResolution, json: bool) -> Result<()> {
     let folder = trainer::run::RunFolder::open(dir, std::sync::Arc::new(trainer::run::AtomicFiles))?;
     let progress = |done: usize, total: usize| {
         if !json && (done == total || done.is_multiple_of(256)) {
             eprintln!("mesh {done}/{total} blocks");
         }
     };
-    let remeshed = trainer::run::remesh(&folder, None, resolution, &progress)?;
+    let remeshed = trainer::run::remesh(&folder, data, resolution, &progress)?;
     // A time figure: it names the machine.
     let result = crate::machine::tag(serde_json::to_value(&remeshed)?);
     let name = format!("mesh-{}.json", remeshed.mesh_resolution);
@@ -387,26 +379,29 @@ fn remesh_run(dir: &Path, resolution: trainer::config::MeshResolution, json: boo
         println!("{result}");
         return Ok(());
     }
-    let (found, kept) = remeshed.components;
     println!(
-        "step {}: meshed at {}³ in {:.1} s on {} ({} triangles, {kept} of {found} components): {}",
+        "step {}: meshed at {}³ in {:.1} s on {} ({} triangles, {} of {} components): {}",
         remeshed.step,
         remeshed.mesh_resolution,
         remeshed.seconds,
         crate::machine::Machine::this().line(),
         remeshed.mesh_triangles,
+        remeshed.mesh_components_kept,
+        remeshed.mesh_components,
         remeshed.files.join(", ")
     );
     match &remeshed.geometry {
+        None if remeshed.mesh_triangles == 0 => println!("the mesh is empty (no triangle): nothing measured"),
         None => println!("the run's data has no ground truth: nothing measured"),
         Some(g) => {
+            let d = |x: Option<f64>| x.map_or("∞".to_string(), |v| format!("{v:.4}"));
             let floor = g.mesh_floor.map_or(String::new(), |f| format!(" (the truth's own {}³ mesh: {f:.4})", remeshed.mesh_resolution));
             println!(
-                "Chamfer {:.4}{} (accuracy {:.4}, completeness {:.4}), F-score {:.3} at τ = {}{floor}",
-                g.chamfer,
-                trainer::run::in_pixels(g.chamfer, remeshed.pixel_footprint),
-                g.accuracy,
-                g.completeness,
+                "Chamfer {}{} (accuracy {}, completeness {}), F-score {:.3} at τ = {}{floor}",
+                d(g.chamfer),
+                g.chamfer.map_or(String::new(), |c| trainer::run::in_pixels(c, remeshed.pixel_footprint)),
+                d(g.accuracy),
+                d(g.completeness),
                 g.f_score,
                 g.f_score_tau
             );

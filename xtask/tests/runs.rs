@@ -198,11 +198,16 @@ fn remeshing_a_run_at_its_own_resolution_measures_what_the_run_measured() {
     assert!(fine["geometry"]["mesh_floor"].as_f64().unwrap() < g["mesh_floor"].as_f64().unwrap(), "{fine}");
     assert!(out.join("mesh-48.ply").is_file());
     assert_eq!(std::fs::read(out.join("mesh.ply")).unwrap(), own_mesh);
-    // What cannot work is refused, naming what is expected.
+    // `model`: the preset's finest hash-grid level (256 cells per side).
+    assert_eq!(remesh("model")["mesh_resolution"].as_u64(), Some(256));
+    assert_eq!(same["mesh_components"].as_u64(), Some(summary.metrics.mesh_components as u64));
+    // What cannot work is refused, naming what is expected; the run's protocol is not changed
+    // by a flag that would be ignored.
     for (args, says) in [
         (vec!["--mesh-resolution", "4"], "8 … 2048"),
         (vec!["--mesh-resolution", "fine"], "\"model\""),
         (vec!["--mesh-resolution", "24", "--render-fine", "4"], "cannot be used with"),
+        (vec!["--mesh-resolution", "24", "--tau", "0.005"], "cannot be used with"),
     ] {
         let mut all = vec!["eval", "--run", out.to_str().unwrap()];
         all.extend(args);

@@ -281,6 +281,34 @@ impl From<MeshResolution> for MeshResolutionText {
     }
 }
 
+impl MeshResolution {
+    /// The cell counts a mesh may have per side.
+    pub const CELLS: std::ops::RangeInclusive<u32> = 8..=crate::sizing::MAX_MESH_RESOLUTION;
+
+    /// `self`, or what is wrong with it (a number of cells outside [`Self::CELLS`]).
+    pub fn checked(self) -> std::result::Result<MeshResolution, String> {
+        match self {
+            MeshResolution::Cells(n) if !Self::CELLS.contains(&n) => {
+                Err(format!("a mesh resolution of {n} cells per side: expected {} … {} or \"model\"", Self::CELLS.start(), Self::CELLS.end()))
+            }
+            _ => Ok(self),
+        }
+    }
+}
+
+/// A command line's mesh resolution: a number of cells per side or `model`, checked.
+impl std::str::FromStr for MeshResolution {
+    type Err = String;
+    fn from_str(text: &str) -> std::result::Result<Self, String> {
+        let text = text.trim();
+        let resolution = match text.parse::<u32>() {
+            Ok(n) => MeshResolution::Cells(n),
+            Err(_) => MeshResolutionText::Name(text.to_string()).try_into()?,
+        };
+        resolution.checked()
+    }
+}
+
 impl std::fmt::Display for MeshResolution {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {

@@ -221,6 +221,14 @@ fn mesh_resolution_reads_a_number_or_model_and_round_trips() {
         let err = resolution(bad).unwrap_err().chain();
         assert!(err.contains(says), "{bad}: {err}");
     }
+    // On a command line (`eval --mesh-resolution`): the same values, the same range.
+    assert_eq!(" 384 ".parse::<MeshResolution>(), Ok(MeshResolution::Cells(384)));
+    assert_eq!("model".parse::<MeshResolution>(), Ok(MeshResolution::Model));
+    assert_eq!("2048".parse::<MeshResolution>(), Ok(MeshResolution::Cells(2048)));
+    for (bad, says) in [("7", "8 … 2048"), ("2049", "8 … 2048"), ("fine", "\"model\""), ("-3", "\"model\"")] {
+        let err = bad.parse::<MeshResolution>().unwrap_err();
+        assert!(err.contains(says), "{bad}: {err}");
+    }
 }
 
 #[test]

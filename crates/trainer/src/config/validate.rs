@@ -202,7 +202,7 @@ impl TrainConfig {
         need(self.output.eval_downscale >= 1, "output.eval_downscale", self.output.eval_downscale, "≥ 1")?;
         need(self.output.log_every >= 1, "output.log_every", self.output.log_every, "≥ 1")?;
         if let MeshResolution::Cells(n) = self.output.mesh_resolution {
-            need((8..=crate::sizing::MAX_MESH_RESOLUTION).contains(&n), "output.mesh_resolution", n, "in 8..=2048 or \"model\"")?;
+            need(MeshResolution::CELLS.contains(&n), "output.mesh_resolution", n, "in 8..=2048 or \"model\"")?;
         }
         need((0.0..1.0).contains(&self.output.min_component_area), "output.min_component_area", self.output.min_component_area, "in [0, 1)")?;
         need(finite_pos(self.output.chamfer_spacing), "output.chamfer_spacing", self.output.chamfer_spacing, "> 0")?;

@@ -182,11 +182,11 @@ pub fn open_run(dir: &Path, data: Option<&Path>) -> Result<Trainer> {
     restore_run(dir, config, data)
 }
 
-/// `", 0.65 pixel"`: a distance in pixels of the photos at the region of interest (`footprint`,
+/// `", 0.65 px"`: a distance in pixels of the photos at the region of interest (`footprint`,
 /// [`crate::trainer::Trainer::pixel_footprint`]); empty without a footprint or a finite distance.
 pub fn in_pixels(distance: f64, footprint: Option<f64>) -> String {
     match footprint.filter(|f| *f > 0.0) {
-        Some(f) if distance.is_finite() => format!(", {:.2} pixel", distance / f),
+        Some(f) if distance.is_finite() => format!(", {:.2} px", distance / f),
         _ => String::new(),
     }
 }
@@ -509,8 +509,8 @@ mod tests {
 
     #[test]
     fn a_distance_reads_in_the_photos_pixels_only_where_a_footprint_exists() {
-        assert_eq!(in_pixels(0.0034, Some(0.00525)), ", 0.65 pixel");
-        assert_eq!(in_pixels(0.0105, Some(0.00525)), ", 2.00 pixel");
+        assert_eq!(in_pixels(0.0034, Some(0.00525)), ", 0.65 px");
+        assert_eq!(in_pixels(0.0105, Some(0.00525)), ", 2.00 px");
         for footprint in [None, Some(0.0), Some(-1.0)] {
             assert_eq!(in_pixels(0.0034, footprint), "");
         }

@@ -23,25 +23,29 @@ pub struct Remeshed {
     pub files: Vec<String>,
     /// Triangles of the mesh kept.
     pub mesh_triangles: usize,
-    /// Connected components found, and kept by `output.mesh_filter`.
-    pub components: (usize, usize),
+    /// Connected components of the extracted mesh.
+    pub mesh_components: usize,
+    /// Components kept by `output.mesh_filter`.
+    pub mesh_components_kept: usize,
     /// Wall seconds of the marching cubes and the files (vertex colours included).
     pub seconds: f64,
     /// The side of one pixel at the region of interest (normalised units; as `metrics.json`'s).
     pub pixel_footprint: Option<f64>,
-    /// Against the data's ground truth by the run's protocol, when it has one.
+    /// Against the data's ground truth by the run's protocol (`None`: the data has no truth, or
+    /// the mesh no triangle).
     pub geometry: Option<RemeshedGeometry>,
 }
 
 /// The geometry of a [`Remeshed`] mesh ([`crate::outputs::RunGeometry`] flattened).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RemeshedGeometry {
-    /// Chamfer: (accuracy + completeness) / 2.
-    pub chamfer: f64,
+    /// Chamfer: (accuracy + completeness) / 2 (`None`: not finite — no point within the
+    /// protocol's maximum distance).
+    pub chamfer: Option<f64>,
     /// Mesh → truth.
-    pub accuracy: f64,
+    pub accuracy: Option<f64>,
     /// Truth → mesh.
-    pub completeness: f64,
+    pub completeness: Option<f64>,
     /// F-score at [`Self::f_score_tau`].
     pub f_score: f64,
     /// The F-score's threshold (`output.fscore_tau`).
@@ -67,10 +71,11 @@ pub fn remesh(folder: &RunFolder, data: Option<&Path>, resolution: MeshResolutio
     let files = write_meshes(&trainer, folder, &mesh, &format!("mesh-{n}"))?;
     let seconds = started.elapsed().as_secs_f64();
     let measured = run_geometry(trainer.data(), &trainer.config().output, &mesh, Some(n), &trainer.train_cameras())?;
+    let finite = |x: f64| x.is_finite().then_some(x);
     let geometry = measured.map(|g| RemeshedGeometry {
-        chamfer: g.metrics.chamfer,
-        accuracy: g.metrics.accuracy,
-        completeness: g.metrics.completeness,
+        chamfer: finite(g.metrics.chamfer),
+        accuracy: finite(g.metrics.accuracy),
+        completeness: finite(g.metrics.completeness),
         f_score: g.metrics.f_score,
         f_score_tau: g.metrics.tau,
         mesh_floor: g.floor,
@@ -82,7 +87,8 @@ pub fn remesh(folder: &RunFolder, data: Option<&Path>, resolution: MeshResolutio
         mesh_resolution: n,
         files,
         mesh_triangles: mesh.triangles.len(),
-        components: (found, kept),
+        mesh_components: found,
+        mesh_components_kept: kept,
         seconds,
         pixel_footprint: trainer.pixel_footprint(),
         geometry,

@@ -344,20 +344,6 @@ impl Trainer {
         self.mesh_resolution
     }
 
-    /// Meshes this trainer's model at `resolution` from now on (`"model"` resolved as
-    /// `output.mesh_resolution` is: the model's finest cell), without changing the run's
-    /// configuration — a finished run meshed again at another resolution
-    /// ([`crate::run::remesh`]). Returns the cells per side.
-    pub fn set_mesh_resolution(&mut self, resolution: crate::config::MeshResolution) -> Result<u32> {
-        if let crate::config::MeshResolution::Cells(n) = resolution
-            && !(8..=crate::sizing::MAX_MESH_RESOLUTION).contains(&n)
-        {
-            bail!(Config, "a mesh resolution of {n} cells per side: expected 8 … {}", crate::sizing::MAX_MESH_RESOLUTION);
-        }
-        self.mesh_resolution = crate::sizing::mesh_resolution(resolution, &self.config.model, self.footprint)?;
-        Ok(self.mesh_resolution)
-    }
-
     /// The data.
     pub fn data(&self) -> &SceneData {
         &self.data

@@ -218,6 +218,16 @@ impl Trainer {
         Ok((whole, masked, render.ssim()))
     }
 
+    /// Meshes this trainer's model at `resolution` from now on (`"model"` resolved as
+    /// `output.mesh_resolution` is: the model's finest cell), without changing the run's
+    /// configuration — a finished run meshed again at another resolution
+    /// ([`crate::run::remesh`]). Returns the cells per side.
+    pub fn set_mesh_resolution(&mut self, resolution: crate::config::MeshResolution) -> Result<u32> {
+        let resolution = resolution.checked().map_err(crate::Error::Config)?;
+        self.mesh_resolution = crate::sizing::mesh_resolution(resolution, &self.config.model, self.footprint)?;
+        Ok(self.mesh_resolution)
+    }
+
     /// [`Self::extract_mesh`] with (components found, components kept).
     pub fn extract_mesh_with_stats(&self, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<(IsoMesh, usize, usize)> {
         let mc = MarchingCubesConfig { resolution: self.mesh_resolution, block: 16, ..Default::default() };

@@ -9,7 +9,7 @@ use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
 use trainer::evaluation::{Distances, GroundTruth, PRED_SAMPLING_SEED, Protocol, read_mesh};
 use trainer::outputs::dilate;
-use trainer::run::open_run;
+use trainer::run::{RunModel, open_run_model};
 
 /// A built-in analytic shape by name.
 fn shape_by_name(name: &str) -> std::result::Result<prob_grid::Shape, String> {
@@ -118,6 +118,11 @@ pub struct EvalArgs {
     /// with the truth's own mesh at N (the floor); the run's own mesh is left as it is.
     #[arg(long, requires = "run", value_parser = str::parse::<trainer::config::MeshResolution>, conflicts_with_all = ["downscale", "render_fine", "render_rounds", "render_trim", "render_resolved", "render_skip_empty", "render_colour_stride", "profile"])]
     pub mesh_resolution: Option<trainer::config::MeshResolution>,
+    /// With --run: the model the snapshot at this training time kept (`snapshots/<seconds>s/`,
+    /// e.g. 6m or 360) instead of the run's last one; what is made from it (eval.json, mesh-N.*)
+    /// goes into the snapshot's folder.
+    #[arg(long, requires = "run", value_parser = trainer::config::parse_duration)]
+    pub snapshot: Option<std::time::Duration>,
     /// With --run: where the renders' CPU time goes, by stage (up-sampling, the forward pass,
     /// the modules inside them).
     #[arg(long, requires = "run")]
@@ -156,11 +161,12 @@ fn camera_alignment(from: &Path, to: &Path) -> Result<(eval_metrics::align::Simi
 
 /// Runs `cargo xtask eval`.
 pub fn run(args: &EvalArgs) -> Result<()> {
-    if let (Some(dir), Some(resolution)) = (&args.run, args.mesh_resolution) {
-        return remesh_run(dir, args.data.as_deref(), resolution, args.json);
-    }
     if let Some(dir) = &args.run {
-        return eval_run(dir, args);
+        let model = args.snapshot.map_or(RunModel::Last, |at| RunModel::snapshot_near(dir, at.as_secs_f64()));
+        return match args.mesh_resolution {
+            Some(resolution) => remesh_run(dir, args.data.as_deref(), model, resolution, args.json),
+            None => eval_run(dir, model, args),
+        };
     }
     let mesh_path = args.mesh.as_ref().context("--mesh is required")?;
     let (mut vertices, triangles) = read_mesh(mesh_path).with_context(|| format!("reading the mesh {}", mesh_path.display()))?;
@@ -253,13 +259,13 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     }
     let nearest = eval_metrics::Nearest::new(&pred, &gt)?;
     let m = nearest.chamfer(max_dist, tau);
-    let observed = match (&args.gt_shape, &args.observed_by) {
+    let (observed, pixel_footprint) = match (&args.gt_shape, &args.observed_by) {
         (Some(shape), Some(run)) => {
-            let cameras = trainer::run::run_train_cameras(run)?;
-            let measured = trainer::outputs::observed_metrics(shape, &cameras, &gt, &nearest, (max_dist, tau), floor.as_ref());
-            Some(measured.with_context(|| format!("over what the training views of {} observe", run.display()))?)
+            let observers = trainer::run::run_observers(run)?;
+            let measured = trainer::outputs::observed_metrics(shape, &observers.train_cameras, &gt, &nearest, (max_dist, tau), floor.as_ref());
+            (Some(measured.with_context(|| format!("over what the training views of {} observe", run.display()))?), observers.pixel_footprint)
         }
-        _ => None,
+        _ => (None, None),
     };
     let parts = match &args.gt_shape {
         Some(shape) => trainer::outputs::part_metrics(shape, &pred, &gt, &nearest, max_dist, tau),
@@ -272,7 +278,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         "precision": m.precision, "recall": m.recall, "f_score": m.f_score, "tau": tau,
         "spacing": spacing, "max_dist": max_dist, "pred_points": m.n_pred, "culled": before - pred.len(), "gt_points": m.n_gt,
         "alignment": alignment, "icp": icp, "floor": floor, "floor_resolution": args.floor_resolution,
-        "parts": parts, "observed": observed,
+        "parts": parts, "observed": observed, "pixel_footprint": pixel_footprint,
     });
     if args.json {
         println!("{result}");
@@ -285,7 +291,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
             println!("the shape's own {resolution}³ marching-cubes mesh by the same protocol: Chamfer {floor:.5}");
         }
         if let Some(o) = &observed {
-            println!("{}", trainer::run::observed_line(o, None));
+            println!("{}", trainer::run::observed_line(o, pixel_footprint));
         }
         for p in &parts {
             let d = |x: Option<f64>| x.map_or("-".to_string(), |c| format!("{c:.5}"));
@@ -295,10 +301,10 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     Ok(())
 }
 
-fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
+fn eval_run(dir: &Path, model: RunModel, args: &EvalArgs) -> Result<()> {
     // It writes eval.json into the run folder: not while another process trains there.
     let _lock = trainer::folder::is_run_folder(dir).then(|| trainer::folder::FolderLock::acquire(dir)).transpose()?;
-    let mut trainer = open_run(dir, args.data.as_deref())?;
+    let mut trainer = open_run_model(dir, args.data.as_deref(), model)?;
     trainer.set_render_sampling(|r| {
         r.render_fine = args.render_fine.unwrap_or(r.render_fine);
         r.render_upsample_rounds = args.render_rounds.unwrap_or(r.render_upsample_rounds);
@@ -337,13 +343,14 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
         (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
     };
     let r = &trainer.config().render;
-    let result = json!({"run": dir.display().to_string(), "step": trainer.state().step, "views": views, "psnr": mean("psnr"),
+    let result = json!({"run": dir.display().to_string(), "snapshot": model.snapshot(), "step": trainer.state().step, "views": views, "psnr": mean("psnr"),
         "psnr_masked": mean("psnr_masked"), "ssim": mean("ssim"), "per_view": per_view, "downscale": downscale,
         "render_fine": r.render_fine, "render_upsample_rounds": r.render_upsample_rounds, "render_trim": r.render_trim, "render_resolved": r.resolved_applied().unwrap_or(0.0),
         "render_skip_empty": r.render_skip_empty, "render_colour_stride": r.render_colour_stride, "seconds": seconds, "pixels_per_s": pixels as f64 / seconds});
     // A speed figure: it names the machine.
     let result = crate::machine::tag(result);
-    write_atomic(&dir.join("eval.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;
+    let written = model.dir(dir).join("eval.json");
+    write_atomic(&written, serde_json::to_string_pretty(&result)?.as_bytes())?;
     if args.json {
         println!("{result}");
     } else {
@@ -356,31 +363,34 @@ fn eval_run(dir: &Path, args: &EvalArgs) -> Result<()> {
             mean("ssim"),
             pixels as f64 / seconds,
             crate::machine::Machine::this().line(),
-            dir.join("eval.json").display()
+            written.display()
         );
     }
     Ok(())
 }
 
-/// `eval --run DIR --mesh-resolution N`: the run's model meshed at N and measured.
-fn remesh_run(dir: &Path, data: Option<&Path>, resolution: trainer::config::MeshResolution, json: bool) -> Result<()> {
+/// `eval --run DIR --mesh-resolution N [--snapshot T]`: the run's model (or a snapshot's) meshed
+/// at N and measured.
+fn remesh_run(dir: &Path, data: Option<&Path>, model: RunModel, resolution: trainer::config::MeshResolution, json: bool) -> Result<()> {
     let folder = trainer::run::RunFolder::open(dir, std::sync::Arc::new(trainer::run::AtomicFiles))?;
     let progress = |done: usize, total: usize| {
         if !json && (done == total || done.is_multiple_of(256)) {
             eprintln!("mesh {done}/{total} blocks");
         }
     };
-    let remeshed = trainer::run::remesh(&folder, data, resolution, &progress)?;
+    let remeshed = trainer::run::remesh(&folder, data, model, resolution, &progress)?;
     // A time figure: it names the machine.
     let result = crate::machine::tag(serde_json::to_value(&remeshed)?);
     let name = format!("mesh-{}.json", remeshed.mesh_resolution);
+    let name = model.sub_dir().map_or(name.clone(), |sub| format!("{sub}/{name}"));
     folder.write(&name, serde_json::to_string_pretty(&result)?.as_bytes())?;
     if json {
         println!("{result}");
         return Ok(());
     }
     println!(
-        "step {}: meshed at {}³ in {:.1} s on {} ({} triangles, {} of {} components): {}",
+        "{}step {}: meshed at {}³ in {:.1} s on {} ({} triangles, {} of {} components): {}",
+        remeshed.snapshot.map_or(String::new(), |at| format!("the snapshot at {at} s, ")),
         remeshed.step,
         remeshed.mesh_resolution,
         remeshed.seconds,

@@ -118,7 +118,7 @@ enum Command {
     Train(train::TrainArgs),
     /// Evaluate a mesh against ground truth (DTU-protocol Chamfer, F-score), or a run's model on
     /// its held-out views (PSNR, SSIM).
-    Eval(eval::EvalArgs),
+    Eval(Box<eval::EvalArgs>),
     /// What each minute of CPU buys: variants (uniform, guided, ablations) trained to the same
     /// wall-time budgets over seeds and scenes; table (mean ± std) and plots.
     Trade(trade::TradeArgs),

@@ -216,3 +216,48 @@ fn remeshing_a_run_at_its_own_resolution_measures_what_the_run_measured() {
         assert!(!o.status.success() && stderr.contains(says), "{all:?}: {stderr}");
     }
 }
+
+#[test]
+fn a_snapshots_model_is_meshed_and_rendered_again_from_the_checkpoint_it_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let mut args = tiny_args(&out);
+    args.overrides.push("output.snapshots=[0.001]".into());
+    let Outcome::Finished(summary) = train_with(&args, &AtomicBool::new(false), Arc::new(AtomicFiles)).unwrap() else {
+        panic!("the run was stopped")
+    };
+    let snapshot = out.join("snapshots/0.001s");
+    let taken: serde_json::Value = serde_json::from_slice(&std::fs::read(snapshot.join("metrics.json")).unwrap()).unwrap();
+    assert!(taken["step"].as_u64() < Some(summary.metrics.steps), "the snapshot comes before the end: {taken}");
+    assert!(snapshot.join("checkpoint.safetensors").is_file(), "a snapshot keeps its model");
+    let eval = |extra: &[&str]| {
+        let mut all = vec!["eval", "--run", out.to_str().unwrap(), "--json"];
+        all.extend(extra);
+        let o = xtask(&all);
+        assert!(o.status.success(), "{all:?}: {}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice::<serde_json::Value>(&o.stdout).unwrap()
+    };
+    // Meshed again at the run's resolution: the snapshot's own mesh and Chamfer, from the
+    // snapshot's step (not the run's last), written into the snapshot's folder.
+    let remeshed = eval(&["--snapshot", "0.001", "--mesh-resolution", "24"]);
+    assert_eq!((remeshed["snapshot"].as_f64(), remeshed["step"].as_u64()), (Some(0.001), taken["step"].as_u64()), "{remeshed}");
+    assert_eq!(std::fs::read(snapshot.join("mesh-24.ply")).unwrap(), std::fs::read(snapshot.join("mesh.ply")).unwrap());
+    assert_eq!(remeshed["geometry"]["chamfer"], taken["chamfer"], "{remeshed}");
+    assert!(snapshot.join("mesh-24.json").is_file() && !out.join("mesh-24.ply").exists() && !out.join("mesh-24.json").exists());
+    // Rendered again (every held-out view): the snapshot's PSNR on the view it rendered,
+    // eval.json in the snapshot's folder.
+    let rendered = eval(&["--snapshot", "0.001"]);
+    assert_eq!((rendered["step"].as_u64(), &rendered["views"][0]), (taken["step"].as_u64(), &taken["psnr_views"][0]), "{rendered}");
+    assert_eq!(taken["psnr_views"].as_array().map(Vec::len), Some(1), "{taken}");
+    let (again, then) = (rendered["per_view"][0]["psnr"].as_f64().unwrap(), taken["psnr"].as_f64().unwrap());
+    assert!((again - then).abs() < 1e-6, "PSNR {again} rendered again, {then} when taken");
+    assert!(snapshot.join("eval.json").is_file() && !out.join("eval.json").exists());
+    // A time the run took no snapshot at names the ones it took; a snapshot without a
+    // checkpoint (output.snapshot_checkpoints=false, or an earlier build) says so.
+    std::fs::remove_file(snapshot.join("checkpoint.safetensors")).unwrap();
+    for (at, says) in [("5s", "has no snapshot at 5 s (its snapshots: 0.001 s)"), ("0.001", "kept no checkpoint")] {
+        let o = xtask(&["eval", "--run", out.to_str().unwrap(), "--snapshot", at, "--mesh-resolution", "24"]);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && stderr.contains(says), "--snapshot {at}: {stderr}");
+    }
+}

@@ -69,6 +69,12 @@ fn a_mesh_as_fine_as_the_model_is_measured_against_the_truths_own_mesh() {
     let (run, measured) = (observed["chamfer"].as_f64().unwrap(), again["observed"]["chamfer"].as_f64().unwrap());
     assert!((measured / run - 1.0).abs() < 0.1, "the run's observed Chamfer {run}, eval's {measured} (truth points drawn apart)");
     assert!((again["observed"]["truth_observed"].as_f64().unwrap() - share).abs() < 0.02, "{again}");
+    // The run's pixel footprint too, so that the distances read in the photos' pixels.
+    assert!(m["pixel_footprint"].as_f64().is_some_and(|f| f > 0.0), "{m}");
+    assert_eq!(again["pixel_footprint"], m["pixel_footprint"], "{again}");
+    eval.retain(|a| *a != "--json");
+    let printed = xtask(&eval);
+    assert!(String::from_utf8_lossy(&printed.stdout).contains(" px (accuracy"), "{}", String::from_utf8_lossy(&printed.stdout));
 }
 
 #[test]

@@ -232,7 +232,13 @@ impl RunFolder {
 
     /// Writes the trainer's checkpoint (streamed).
     pub fn write_checkpoint(&self, trainer: &Trainer) -> Result<()> {
-        self.write_with("checkpoint.safetensors", &mut |w| trainer.write_checkpoint(w))
+        self.write_with(CHECKPOINT_FILE, &mut |w| trainer.write_checkpoint(w))
+    }
+
+    /// Writes the trainer's checkpoint (streamed) into `sub`, a folder of the run (a
+    /// snapshot's, [`crate::snapshot::snapshot_dir`]).
+    pub fn write_checkpoint_in(&self, sub: &str, trainer: &Trainer) -> Result<()> {
+        self.write_with(&format!("{sub}/{CHECKPOINT_FILE}"), &mut |w| trainer.write_checkpoint(w))
     }
 
     /// Writes a PNG.
@@ -265,9 +271,12 @@ impl RunFolder {
     }
 }
 
-/// The checkpoint file of a run folder.
+/// The name of a checkpoint file (the run's, and a snapshot's in its folder).
+const CHECKPOINT_FILE: &str = "checkpoint.safetensors";
+
+/// The checkpoint file of a run folder (or of a snapshot's folder).
 pub fn checkpoint_path(dir: &Path) -> PathBuf {
-    dir.join("checkpoint.safetensors")
+    dir.join(CHECKPOINT_FILE)
 }
 
 /// What a run trained on (`data.json`): the dataset folder as an absolute path (none: the

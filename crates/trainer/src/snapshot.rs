@@ -1,17 +1,19 @@
 //! Snapshots along one run (`output.snapshots`): at given training times the mesh and its
-//! metrics are written to `snapshots/<seconds>s/` (`mesh.*`, `metrics.json`) and logged
+//! metrics are written to `snapshots/<seconds>s/` (`mesh.*`, `metrics.json`, and the model's
+//! `checkpoint.safetensors` to mesh or render it again later) and logged
 //! (`"snapshot"` records in `log.jsonl`), outside the training time, so that one run per seed
 //! draws quality against time; budgeted runs remain for the headline figures (their schedules
 //! follow the fraction of *their* budget, so a snapshot at 60 s of a 10-minute run is not a
 //! 1-minute run).
 
+use crate::bail;
 use crate::error::{Context, Result};
 use crate::folder::RunFolder;
 use crate::metrics::RunMetrics;
 use crate::outputs::{mesh_files, run_geometry};
 use crate::trainer::Trainer;
 use serde::{Deserialize, Serialize};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The snapshot times still to take.
 #[derive(Debug, Clone, Default)]
@@ -38,6 +40,77 @@ impl Snapshots {
 /// The folder of the snapshot at `at` seconds, relative to the run folder.
 pub fn snapshot_dir(at: f64) -> String {
     format!("snapshots/{at}s")
+}
+
+/// The times of the snapshots the run in `run_dir` took (its `snapshots/<seconds>s/` folders),
+/// in order.
+pub fn snapshot_times(run_dir: &Path) -> Vec<f64> {
+    let Ok(entries) = std::fs::read_dir(run_dir.join("snapshots")) else { return Vec::new() };
+    let mut times: Vec<f64> =
+        entries.filter_map(|e| e.ok()?.file_name().to_str()?.strip_suffix('s')?.parse::<f64>().ok()).filter(|t| t.is_finite()).collect();
+    times.sort_by(f64::total_cmp);
+    times
+}
+
+/// Which model of a run folder: the last one (its checkpoint) or the one a snapshot kept.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum RunModel {
+    /// The run's checkpoint: the last model (or where a stopped run stopped).
+    #[default]
+    Last,
+    /// The checkpoint the snapshot at these training seconds kept (`output.snapshot_checkpoints`).
+    Snapshot(f64),
+}
+
+impl RunModel {
+    /// The snapshot at `seconds` of the run in `run_dir`, at the time its folder names when one
+    /// lies within a microsecond (a time typed as `6m` or `360` finds `snapshots/360s`).
+    pub fn snapshot_near(run_dir: &Path, seconds: f64) -> RunModel {
+        let taken = snapshot_times(run_dir).into_iter().find(|t| (t - seconds).abs() <= 1e-6);
+        RunModel::Snapshot(taken.unwrap_or(seconds))
+    }
+
+    /// The snapshot's training seconds (`None`: the last model).
+    pub fn snapshot(self) -> Option<f64> {
+        match self {
+            RunModel::Last => None,
+            RunModel::Snapshot(at) => Some(at),
+        }
+    }
+
+    /// The model's folder relative to the run folder (`None`: the run folder itself).
+    pub fn sub_dir(self) -> Option<String> {
+        self.snapshot().map(snapshot_dir)
+    }
+
+    /// The model's folder, where its checkpoint is and what is made from it goes.
+    pub fn dir(self, run_dir: &Path) -> PathBuf {
+        self.sub_dir().map_or_else(|| run_dir.to_path_buf(), |sub| run_dir.join(sub))
+    }
+
+    /// The model's checkpoint, checked to exist: the error names the snapshots the run took
+    /// and says when a snapshot kept none.
+    pub fn checkpoint(self, run_dir: &Path) -> Result<PathBuf> {
+        let path = crate::folder::checkpoint_path(&self.dir(run_dir));
+        match self {
+            _ if path.is_file() => Ok(path),
+            RunModel::Last => bail!(Input, "no checkpoint in {}", run_dir.display()),
+            RunModel::Snapshot(at) if self.dir(run_dir).is_dir() => bail!(
+                Input,
+                "the snapshot at {at} s of {} kept no checkpoint (output.snapshot_checkpoints was false, or a build before snapshots kept one took it): only its mesh and metrics",
+                run_dir.display()
+            ),
+            RunModel::Snapshot(at) => {
+                let taken = snapshot_times(run_dir);
+                let list = if taken.is_empty() {
+                    "it took none".to_string()
+                } else {
+                    format!("its snapshots: {}", taken.iter().map(|t| format!("{t} s")).collect::<Vec<_>>().join(", "))
+                };
+                bail!(Input, "{} has no snapshot at {at} s ({list})", run_dir.display())
+            }
+        }
+    }
 }
 
 /// What a snapshot measured (`snapshots/<seconds>s/metrics.json`), typed like the run's
@@ -115,8 +188,9 @@ impl SnapshotMetrics {
 }
 
 /// Writes the snapshot at `at` seconds of `trainer` into `folder`: the mesh (the run's mesh
-/// formats, world units) and `metrics.json` ([`SnapshotMetrics`]: Chamfer, accuracy,
-/// completeness, F-score when the data has ground truth; PSNR whole and masked over `views`).
+/// formats, world units), the checkpoint (`output.snapshot_checkpoints`, [`RunModel::Snapshot`])
+/// and, last, `metrics.json` ([`SnapshotMetrics`]: Chamfer, accuracy, completeness, F-score when
+/// the data has ground truth; PSNR whole and masked over `views`).
 /// Returns the record it logged.
 pub fn write_snapshot(trainer: &Trainer, folder: &RunFolder, at: f64, views: &[usize]) -> Result<serde_json::Value> {
     let config = trainer.config();
@@ -149,6 +223,9 @@ pub fn write_snapshot(trainer: &Trainer, folder: &RunFolder, at: f64, views: &[u
         observed: measured.as_ref().and_then(|g| g.observed.clone()),
         parts: measured.map(|g| g.parts).unwrap_or_default(),
     };
+    if o.snapshot_checkpoints {
+        folder.write_checkpoint_in(&dir, trainer)?;
+    }
     folder.write(&format!("{dir}/metrics.json"), serde_json::to_string_pretty(&metrics)?.as_bytes())?;
     Ok(serde_json::to_value(&metrics)?)
 }

@@ -155,6 +155,7 @@ impl Default for OutputConfig {
             eval_train_views: 2,
             metrics_every: None,
             snapshots: Vec::new(),
+            snapshot_checkpoints: true,
             checkpoint_every: Some(1000),
             log_every: 10,
             mesh_resolution: MeshResolution::Cells(192),

@@ -407,6 +407,10 @@ pub struct OutputConfig {
     /// F-score, PSNR of the evaluation views) in `snapshots/<seconds>s/` and the log, not counted
     /// in the training time — quality against time from one run. Empty: none.
     pub snapshots: Vec<f64>,
+    /// Each snapshot keeps the model's checkpoint too (`snapshots/<seconds>s/checkpoint.safetensors`,
+    /// the size of the run's own: 20 MB for the default model), so that `cargo xtask eval --run
+    /// RUN --snapshot T` renders or meshes that model again; false: the mesh and metrics only.
+    pub snapshot_checkpoints: bool,
     /// Checkpoint every n iterations (0: only at the end; a stop signal writes one too). 1000 by
     /// default: the default model's checkpoint is 22 MB, and one every 100 iterations wrote
     /// 1.4 GB and added 2.5 s to the 2-minute run.

@@ -29,6 +29,7 @@ use std::time::Instant;
 
 mod finish;
 mod remesh;
+pub use crate::snapshot::RunModel;
 use finish::{FinishTiming, final_eval_views, finish};
 pub use remesh::{Remeshed, RemeshedGeometry, remesh};
 
@@ -177,9 +178,16 @@ pub fn check_memory(config: &TrainConfig, size: &SceneSize, max_memory: Option<f
 /// A run folder's trainer at its checkpoint, on the run's own data (checked against its
 /// fingerprint; `data`: the same data at a new place), for `eval --run`, the benches, `--resume`.
 pub fn open_run(dir: &Path, data: Option<&Path>) -> Result<Trainer> {
+    open_run_model(dir, data, RunModel::Last)
+}
+
+/// [`open_run`] at `model`: the run's last checkpoint or one a snapshot kept (checked to exist
+/// before the data is loaded).
+pub fn open_run_model(dir: &Path, data: Option<&Path>, model: RunModel) -> Result<Trainer> {
     let (config, record) = read_run_config(dir)?;
+    let checkpoint = model.checkpoint(dir)?;
     let data = load_run_data(dir, &config, &record, data)?;
-    restore_run(dir, config, data)
+    restore_checkpoint(&checkpoint, config, data)
 }
 
 /// `", 0.65 px"`: a distance in pixels of the photos at the region of interest (`footprint`,
@@ -207,12 +215,25 @@ pub fn observed_line(o: &crate::metrics::ObservedMetrics, footprint: Option<f64>
     )
 }
 
-/// The cameras of the training views of the run in `dir` (normalised frame): what observed its
-/// scene ([`crate::observation`]). Loads the data; needs no checkpoint.
-pub fn run_train_cameras(dir: &Path) -> Result<Vec<camera_geom::PinholeCamera>> {
+/// What observed the scene of a run ([`run_observers`]).
+#[derive(Debug, Clone)]
+pub struct RunObservers {
+    /// The cameras of the training views (normalised frame, [`crate::observation`]).
+    pub train_cameras: Vec<camera_geom::PinholeCamera>,
+    /// The side of one pixel at the region of interest, the median over all views (normalised
+    /// units; as the run's `metrics.json` gives it, [`crate::trainer::Trainer::pixel_footprint`]).
+    pub pixel_footprint: Option<f64>,
+}
+
+/// The training cameras and the photos' pixel footprint of the run in `dir`. Loads the data;
+/// needs no checkpoint.
+pub fn run_observers(dir: &Path) -> Result<RunObservers> {
     let (config, record) = read_run_config(dir)?;
     let data = load_run_data(dir, &config, &record, None)?;
-    Ok(crate::data::ViewSplit::new(&config, &data.scene).train_cameras(&data.scene))
+    Ok(RunObservers {
+        train_cameras: crate::data::ViewSplit::new(&config, &data.scene).train_cameras(&data.scene),
+        pixel_footprint: crate::sizing::median_footprint(data.scene.views.iter().map(|v| &v.camera)),
+    })
 }
 
 /// The data of the run in `dir`: from `repointed` or the recorded path, verified.
@@ -228,8 +249,12 @@ fn load_run_data(dir: &Path, config: &TrainConfig, record: &DataRecord, repointe
 
 /// The trainer of `config` on `data` at the checkpoint of run folder `dir`.
 fn restore_run(dir: &Path, config: TrainConfig, data: SceneData) -> Result<Trainer> {
-    let ckpt_path = checkpoint_path(dir);
-    let file = std::fs::File::open(&ckpt_path).with_context(|| format!("no checkpoint in {}", dir.display()))?;
+    restore_checkpoint(&RunModel::Last.checkpoint(dir)?, config, data)
+}
+
+/// The trainer of `config` on `data` at the checkpoint `ckpt_path`.
+fn restore_checkpoint(ckpt_path: &Path, config: TrainConfig, data: SceneData) -> Result<Trainer> {
+    let file = std::fs::File::open(ckpt_path).with_context(|| format!("cannot open {}", ckpt_path.display()))?;
     let len = file.metadata().with_context(|| format!("{}", ckpt_path.display()))?.len();
     let mut input = std::io::BufReader::new(file);
     let reader = CheckpointReader::open(&mut input, len).with_context(|| format!("{} is truncated or corrupt", ckpt_path.display()))?;

@@ -1,13 +1,15 @@
 //! A run's model meshed again at another resolution (`cargo xtask eval --run RUN
-//! --mesh-resolution N`): the mesh files beside the run's own, named by their resolution, and
-//! their geometry against the truth by the run's protocol — so that a finished run shows what a
-//! finer (or coarser) mesh of the same model gains, without training it again.
+//! --mesh-resolution N [--snapshot T]`): the mesh files beside the run's own (or the
+//! snapshot's), named by their resolution, and their geometry against the truth by the run's
+//! protocol — so that a finished run shows what a finer (or coarser) mesh of the same model
+//! gains, without training it again.
 
-use super::{RunFolder, finish::write_meshes, open_run};
+use super::{RunFolder, finish::write_meshes, open_run_model};
 use crate::config::MeshResolution;
 use crate::error::Result;
 use crate::metrics::{ObservedMetrics, PartMetrics};
 use crate::outputs::run_geometry;
+use crate::snapshot::RunModel;
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
@@ -15,6 +17,8 @@ use std::time::Instant;
 /// What [`remesh`] made and measured.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Remeshed {
+    /// The snapshot whose model it is (training seconds; `None`: the run's last model).
+    pub snapshot: Option<f64>,
     /// The checkpoint's step.
     pub step: u64,
     /// Marching-cubes cells per side of the bound's cube.
@@ -58,17 +62,25 @@ pub struct RemeshedGeometry {
     pub parts: Vec<PartMetrics>,
 }
 
-/// Meshes the model of the run in `folder` (its checkpoint, its data or the same data at
-/// `data`) at `resolution` (`"model"`: its finest cell), writes `mesh-{n}.{extension}` there
-/// (vertex colours and formats as the run's configuration says; an earlier remesh at the same
-/// resolution is replaced, the run's own `mesh.*` never) and measures it against the data's
-/// truth with the floor at that resolution. `progress(blocks done, blocks)`.
-pub fn remesh(folder: &RunFolder, data: Option<&Path>, resolution: MeshResolution, progress: &(dyn Fn(usize, usize) + Sync)) -> Result<Remeshed> {
-    let mut trainer = open_run(folder.dir(), data)?;
+/// Meshes `model` of the run in `folder` (its checkpoint or a snapshot's, on its data or the
+/// same data at `data`) at `resolution` (`"model"`: its finest cell), writes
+/// `mesh-{n}.{extension}` into the model's folder (the run's, or the snapshot's; vertex colours
+/// and formats as the run's configuration says; an earlier remesh at the same resolution is
+/// replaced, the run's own `mesh.*` never) and measures it against the data's truth with the
+/// floor at that resolution. `progress(blocks done, blocks)`.
+pub fn remesh(
+    folder: &RunFolder,
+    data: Option<&Path>,
+    model: RunModel,
+    resolution: MeshResolution,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Remeshed> {
+    let mut trainer = open_run_model(folder.dir(), data, model)?;
     let n = trainer.set_mesh_resolution(resolution)?;
     let started = Instant::now();
     let (mesh, found, kept) = trainer.extract_mesh_with_stats(progress)?;
-    let files = write_meshes(&trainer, folder, &mesh, &format!("mesh-{n}"))?;
+    let stem = model.sub_dir().map_or(format!("mesh-{n}"), |sub| format!("{sub}/mesh-{n}"));
+    let files = write_meshes(&trainer, folder, &mesh, &stem)?;
     let seconds = started.elapsed().as_secs_f64();
     let measured = run_geometry(trainer.data(), &trainer.config().output, &mesh, Some(n), &trainer.train_cameras())?;
     let finite = |x: f64| x.is_finite().then_some(x);
@@ -83,6 +95,7 @@ pub fn remesh(folder: &RunFolder, data: Option<&Path>, resolution: MeshResolutio
         parts: g.parts,
     });
     Ok(Remeshed {
+        snapshot: model.snapshot(),
         step: trainer.state().step,
         mesh_resolution: n,
         files,

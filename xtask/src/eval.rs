@@ -206,14 +206,15 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     };
     let protocol = Protocol { spacing: args.spacing, max_dist: args.max_dist, tau: args.tau };
     let Distances { spacing, max_dist, tau } = gt.distances(protocol, &gt_name)?;
-    let gt = gt.into_points(spacing)?;
+    let truth = gt.into_truth(spacing)?;
+    let gt = truth.points;
     let floor = match (&args.gt_shape, args.floor_resolution) {
         (Some(shape), Some(resolution)) => Some(trainer::outputs::shape_floor(shape, &gt, resolution, spacing)?),
         _ => None,
     };
-    let mut pred = eval_metrics::sample_mesh(&vertices, &triangles, spacing, PRED_SAMPLING_SEED)
+    let mut oriented = eval_metrics::sample_mesh_oriented(&vertices, &triangles, spacing, PRED_SAMPLING_SEED)
         .with_context(|| format!("the mesh {}", args.mesh.as_ref().map_or(String::new(), |m| m.display().to_string())))?;
-    let before = pred.len();
+    let before = oriented.points.len();
     if args.cull {
         let dir = args.data.as_ref().expect("clap: --cull requires --data");
         let scene = load_scene(dir, &LoadOptions::default()).with_context(|| format!("loading {} for culling", dir.display()))?;
@@ -222,7 +223,7 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         if masks.len() < 2 {
             bail!("--cull needs masks for at least two views in {}", dir.display());
         }
-        pred = eval_metrics::cull(&pred, |p| {
+        oriented = oriented.culled(|p| {
             let x = normalized_from_world.transform_point3(glam::DVec3::from_array(p.map(f64::from)));
             masks
                 .iter()
@@ -236,12 +237,13 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     }
     let mut icp = serde_json::Value::Null;
     if args.icp {
-        let unrefined = eval_metrics::chamfer(&pred, &gt, max_dist, tau)?;
+        let pred = &oriented.points;
+        let unrefined = eval_metrics::chamfer(pred, &gt, max_dist, tau)?;
         let gt_cloud = eval_metrics::PointCloud::new(&gt)?;
         let thresholds = [max_dist, (max_dist * tau).sqrt(), 2.0 * tau];
-        let r = eval_metrics::align::refine_icp(&pred, &gt_cloud, &gt, eval_metrics::align::Similarity::IDENTITY, &thresholds, 200_000)
+        let r = eval_metrics::align::refine_icp(pred, &gt_cloud, &gt, eval_metrics::align::Similarity::IDENTITY, &thresholds, 200_000)
             .with_context(|| format!("ICP found too few matches between {} and the ground truth (within {max_dist:.4})", mesh_path.display()))?;
-        pred = pred.iter().map(|p| r.similarity.apply(p.map(f64::from)).map(|c| c as f32)).collect();
+        oriented = oriented.moved(&r.similarity);
         let rot = &r.similarity.rotation;
         let degrees = ((rot[0][0] + rot[1][1] + rot[2][2] - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees();
         let shift = r.similarity.translation.iter().map(|t| t * t).sum::<f64>().sqrt();
@@ -257,25 +259,29 @@ pub fn run(args: &EvalArgs) -> Result<()> {
             );
         }
     }
-    let nearest = eval_metrics::Nearest::new(&pred, &gt)?;
+    let pred = &oriented.points;
+    let nearest = eval_metrics::Nearest::new(pred, &gt)?;
     let m = nearest.chamfer(max_dist, tau);
+    let normals = truth.normals.as_deref().map(|gt_normals| (oriented.normals.as_slice(), gt_normals));
+    let normal_consistency = normals.map(|(p, g)| nearest.normal_consistency(p, g, max_dist, None)).transpose()?.flatten();
     let (observed, pixel_footprint) = match (&args.gt_shape, &args.observed_by) {
         (Some(shape), Some(run)) => {
             let observers = trainer::run::run_observers(run)?;
-            let measured = trainer::outputs::observed_metrics(shape, &observers.train_cameras, &gt, &nearest, (max_dist, tau), floor.as_ref());
+            let measured =
+                trainer::outputs::observed_metrics(shape, &observers.train_cameras, &gt, &nearest, (max_dist, tau), floor.as_ref(), normals);
             (Some(measured.with_context(|| format!("over what the training views of {} observe", run.display()))?), observers.pixel_footprint)
         }
         _ => (None, None),
     };
     let parts = match &args.gt_shape {
-        Some(shape) => trainer::outputs::part_metrics(shape, &pred, &gt, &nearest, max_dist, tau),
+        Some(shape) => trainer::outputs::part_metrics(shape, pred, &gt, &nearest, max_dist, tau),
         None => Vec::new(),
     };
     let floor = floor.map(|f| f.chamfer(max_dist, tau).chamfer);
     let result = json!({
         "mesh": mesh_path.display().to_string(),
         "chamfer": m.chamfer, "accuracy": m.accuracy, "completeness": m.completeness,
-        "precision": m.precision, "recall": m.recall, "f_score": m.f_score, "tau": tau,
+        "precision": m.precision, "recall": m.recall, "f_score": m.f_score, "tau": tau, "normal_consistency": normal_consistency,
         "spacing": spacing, "max_dist": max_dist, "pred_points": m.n_pred, "culled": before - pred.len(), "gt_points": m.n_gt,
         "alignment": alignment, "icp": icp, "floor": floor, "floor_resolution": args.floor_resolution,
         "parts": parts, "observed": observed, "pixel_footprint": pixel_footprint,
@@ -284,8 +290,16 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         println!("{result}");
     } else {
         println!(
-            "Chamfer {:.5} (accuracy {:.5}, completeness {:.5}), F-score {:.4} at τ = {tau:.4} (P {:.3}, R {:.3}); {} / {} points, spacing {spacing:.4}, max distance {max_dist:.4}",
-            m.chamfer, m.accuracy, m.completeness, m.f_score, m.precision, m.recall, m.n_pred, m.n_gt
+            "Chamfer {:.5} (accuracy {:.5}, completeness {:.5}), F-score {:.4} at τ = {tau:.4} (P {:.3}, R {:.3}){}; {} / {} points, spacing {spacing:.4}, max distance {max_dist:.4}",
+            m.chamfer,
+            m.accuracy,
+            m.completeness,
+            m.f_score,
+            m.precision,
+            m.recall,
+            trainer::run::normals_part(normal_consistency),
+            m.n_pred,
+            m.n_gt
         );
         if let (Some(floor), Some(resolution)) = (floor, args.floor_resolution) {
             println!("the shape's own {resolution}³ marching-cubes mesh by the same protocol: Chamfer {floor:.5}");
@@ -407,13 +421,14 @@ fn remesh_run(dir: &Path, data: Option<&Path>, model: RunModel, resolution: trai
             let d = |x: Option<f64>| x.map_or("∞".to_string(), |v| format!("{v:.4}"));
             let floor = g.mesh_floor.map_or(String::new(), |f| format!(" (the truth's own {}³ mesh: {f:.4})", remeshed.mesh_resolution));
             println!(
-                "Chamfer {}{} (accuracy {}, completeness {}), F-score {:.3} at τ = {}{floor}",
+                "Chamfer {}{} (accuracy {}, completeness {}), F-score {:.3} at τ = {}{}{floor}",
                 d(g.chamfer),
                 g.chamfer.map_or(String::new(), |c| trainer::run::in_pixels(c, remeshed.pixel_footprint)),
                 d(g.accuracy),
                 d(g.completeness),
                 g.f_score,
-                g.f_score_tau
+                g.f_score_tau,
+                trainer::run::normals_part(g.normal_consistency)
             );
             if let Some(o) = &g.observed {
                 println!("{}", trainer::run::observed_line(o, remeshed.pixel_footprint));

@@ -69,6 +69,13 @@ fn a_mesh_as_fine_as_the_model_is_measured_against_the_truths_own_mesh() {
     let (run, measured) = (observed["chamfer"].as_f64().unwrap(), again["observed"]["chamfer"].as_f64().unwrap());
     assert!((measured / run - 1.0).abs() < 0.1, "the run's observed Chamfer {run}, eval's {measured} (truth points drawn apart)");
     assert!((again["observed"]["truth_observed"].as_f64().unwrap() - share).abs() < 0.02, "{again}");
+    // The normals against the analytic truth's, whole and over what the views observe, alike
+    // in the run and in `eval` (a tiny run's mesh: far from 1, but its normals are not random).
+    let nc = |v: &serde_json::Value| v["normal_consistency"].as_f64().unwrap_or_else(|| panic!("no normal consistency in {v}"));
+    for (run, eval) in [(&m, &again), (observed, &again["observed"])] {
+        assert!((0.6..1.0).contains(&nc(run)), "{run}");
+        assert!((nc(eval) - nc(run)).abs() < 0.03, "the run's {}, eval's {}", nc(run), nc(eval));
+    }
     // The run's pixel footprint too, so that the distances read in the photos' pixels.
     assert!(m["pixel_footprint"].as_f64().is_some_and(|f| f > 0.0), "{m}");
     assert_eq!(again["pixel_footprint"], m["pixel_footprint"], "{again}");

@@ -30,8 +30,14 @@ impl Similarity {
 
     /// Applies the similarity to a point.
     pub fn apply(&self, p: [f64; 3]) -> [f64; 3] {
+        let r = self.rotate(p);
+        std::array::from_fn(|i| self.scale * r[i] + self.translation[i])
+    }
+
+    /// Applies its rotation alone (a direction: a normal keeps its length).
+    pub fn rotate(&self, v: [f64; 3]) -> [f64; 3] {
         let r = &self.rotation;
-        std::array::from_fn(|i| self.scale * (r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2]) + self.translation[i])
+        std::array::from_fn(|i| r[i][0] * v[0] + r[i][1] * v[1] + r[i][2] * v[2])
     }
 }
 

@@ -106,6 +106,53 @@ pub fn psnr(pred: &[[f32; 3]], target: &[[f32; 3]], mask: Option<&[bool]>) -> Re
 /// Errors: a spacing that is not positive and finite, a vertex index out of range, non-finite
 /// coordinates, or more than [`MAX_MESH_SAMPLES`] points (the count is known before any is made).
 pub fn sample_mesh(vertices: &[[f32; 3]], triangles: &[[u32; 3]], spacing: f64, seed: u64) -> Result<Vec<[f32; 3]>, MetricsError> {
+    sample_mesh_into(vertices, triangles, spacing, seed, None)
+}
+
+/// Points on a triangle mesh with the unit normals of their triangles ([`sample_mesh`]'s points,
+/// the same for the same seed), for [`Nearest::normal_consistency`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct OrientedPoints {
+    /// The points.
+    pub points: Vec<[f32; 3]>,
+    /// The unit normal of the triangle each point lies on (by the triangle's winding; zero for a
+    /// triangle without area).
+    pub normals: Vec<[f32; 3]>,
+}
+
+impl OrientedPoints {
+    /// The points (each with its normal) for which `keep` is true ([`cull`]).
+    pub fn culled(self, keep: impl Fn([f32; 3]) -> bool + Sync) -> OrientedPoints {
+        let flags: Vec<bool> = self.points.par_iter().map(|&p| keep(p)).collect();
+        let (points, normals) = self.points.into_iter().zip(self.normals).zip(flags).filter(|(_, kept)| *kept).map(|(pair, _)| pair).unzip();
+        OrientedPoints { points, normals }
+    }
+
+    /// The points carried by `similarity`, their normals turned by its rotation.
+    pub fn moved(self, similarity: &align::Similarity) -> OrientedPoints {
+        let carry = |p: [f32; 3], f: &dyn Fn([f64; 3]) -> [f64; 3]| f(p.map(f64::from)).map(|c| c as f32);
+        OrientedPoints {
+            points: self.points.into_iter().map(|p| carry(p, &|p| similarity.apply(p))).collect(),
+            normals: self.normals.into_iter().map(|n| carry(n, &|n| similarity.rotate(n))).collect(),
+        }
+    }
+}
+
+/// [`sample_mesh`] with each point's triangle normal.
+pub fn sample_mesh_oriented(vertices: &[[f32; 3]], triangles: &[[u32; 3]], spacing: f64, seed: u64) -> Result<OrientedPoints, MetricsError> {
+    let mut normals = Vec::new();
+    let points = sample_mesh_into(vertices, triangles, spacing, seed, Some(&mut normals))?;
+    Ok(OrientedPoints { points, normals })
+}
+
+/// [`sample_mesh`]; with `normals`, each point's triangle normal pushed there.
+fn sample_mesh_into(
+    vertices: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    spacing: f64,
+    seed: u64,
+    mut normals: Option<&mut Vec<[f32; 3]>>,
+) -> Result<Vec<[f32; 3]>, MetricsError> {
     if !(spacing.is_finite() && spacing > 0.0) {
         return Err(MetricsError::OutOfRange { what: "mesh sampling spacing", value: spacing, expected: "positive and finite" });
     }
@@ -125,7 +172,9 @@ pub fn sample_mesh(vertices: &[[f32; 3]], triangles: &[[u32; 3]], spacing: f64, 
         let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
         let e2 = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
         let cross = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
-        (e1, e2, 0.5 * (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]).sqrt())
+        let twice = (cross[0] * cross[0] + cross[1] * cross[1] + cross[2] * cross[2]).sqrt();
+        let normal = if twice > 0.0 { cross.map(|c| (c / twice) as f32) } else { [0.0; 3] };
+        (e1, e2, 0.5 * twice, normal)
     };
     let per_area = 1.0 / (spacing * spacing);
     let mut total = 0.0f64;
@@ -145,7 +194,7 @@ pub fn sample_mesh(vertices: &[[f32; 3]], triangles: &[[u32; 3]], spacing: f64, 
     for t in triangles {
         let corners = corners(t)?;
         let a = corners[0];
-        let (e1, e2, area) = area_of(corners);
+        let (e1, e2, area, normal) = area_of(corners);
         carry += area * per_area;
         while carry >= 1.0 {
             carry -= 1.0;
@@ -154,6 +203,9 @@ pub fn sample_mesh(vertices: &[[f32; 3]], triangles: &[[u32; 3]], spacing: f64, 
                 (u, v) = (1.0 - u, 1.0 - v);
             }
             out.push([0, 1, 2].map(|k| (a[k] + u * e1[k] + v * e2[k]) as f32));
+            if let Some(normals) = normals.as_deref_mut() {
+                normals.push(normal);
+            }
         }
     }
     Ok(out)
@@ -338,6 +390,43 @@ impl Nearest {
         let n_pred = measured.len();
         Ok(geometry(coverage_of(measured.into_iter(), max_dist, tau), coverage_of(seen.iter().copied(), max_dist, tau), tau, n_pred, seen.len()))
     }
+
+    /// Normal consistency over the pairs the Chamfer distance counts: the mean of |n · n'| over
+    /// each predicted point and its nearest truth point closer than `max_dist`, the same over
+    /// each truth point and its nearest predicted one, and the mean of the two (1: every normal
+    /// parallel to its neighbour's; bumps on a smooth surface lower it where the Chamfer
+    /// distance hardly moves). With `observed` (one flag per truth point), over what the views
+    /// observed as [`Self::chamfer_observed`] counts it. `None`: a direction has no pair.
+    pub fn normal_consistency(
+        &self,
+        pred_normals: &[[f32; 3]],
+        gt_normals: &[[f32; 3]],
+        max_dist: f64,
+        observed: Option<&[bool]>,
+    ) -> Result<Option<f64>, MetricsError> {
+        let (n_pred, n_gt) = (self.pred_to_gt.len(), self.gt_to_pred.len());
+        if pred_normals.len() != n_pred || gt_normals.len() != n_gt || observed.is_some_and(|o| o.len() != n_gt) {
+            return Err(MetricsError::SizeMismatch {
+                what: "normals (or observation flags) against points",
+                a: pred_normals.len() + gt_normals.len(),
+                b: n_pred + n_gt,
+            });
+        }
+        let seen = |i: usize| observed.is_none_or(|o| o[i]);
+        // One direction: each point of `from` and its nearest of `to`, counted within the
+        // outlier distance where the truth point of the pair (`truth(i, j)`) was seen.
+        let one_way = |pairs: &[(f32, usize)], from: &[[f32; 3]], to: &[[f32; 3]], truth: &dyn Fn(usize, usize) -> usize| {
+            let (sum, count) = pairs
+                .iter()
+                .enumerate()
+                .filter(|&(i, &(d, j))| f64::from(d) < max_dist && seen(truth(i, j)))
+                .fold((0.0, 0usize), |(sum, count), (i, &(_, j))| (sum + unsigned_cosine(from[i], to[j]), count + 1));
+            (count > 0).then(|| sum / count as f64)
+        };
+        let accuracy = one_way(&self.pred_to_gt, pred_normals, gt_normals, &|_, j| j);
+        let completeness = one_way(&self.gt_to_pred, gt_normals, pred_normals, &|i, _| i);
+        Ok(accuracy.zip(completeness).map(|(a, c)| 0.5 * (a + c)))
+    }
 }
 
 /// [`chamfer`] over what the views observed, as the DTU evaluation's observation mask restricts
@@ -353,21 +442,17 @@ pub fn chamfer_observed(pred: &[[f32; 3]], gt: &[[f32; 3]], observed: &[bool], m
 }
 
 /// Normal consistency: mean over both directions of |n_a · n_b| between each point's normal and
-/// its nearest neighbour's in the other set (1 = identical orientation up to sign).
+/// its nearest neighbour's in the other set (1 = identical orientation up to sign), every pair
+/// counted ([`Nearest::normal_consistency`] with no outlier distance).
 pub fn normal_consistency(a: &[[f32; 3]], na: &[[f32; 3]], b: &[[f32; 3]], nb: &[[f32; 3]]) -> Result<f64, MetricsError> {
-    if a.len() != na.len() || b.len() != nb.len() {
-        return Err(MetricsError::SizeMismatch { what: "normal consistency points/normals", a: a.len() + b.len(), b: na.len() + nb.len() });
-    }
-    let one_way = |p: &[[f32; 3]], np: &[[f32; 3]], q: &[[f32; 3]], nq: &[[f32; 3]]| -> Result<f64, MetricsError> {
-        let cloud = PointCloud::new(q)?;
-        let nn = cloud.nearest(p);
-        let dot = |x: [f32; 3], y: [f32; 3]| {
-            let (lx, ly) = ((x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt(), (y[0] * y[0] + y[1] * y[1] + y[2] * y[2]).sqrt());
-            if lx > 0.0 && ly > 0.0 { f64::from((x[0] * y[0] + x[1] * y[1] + x[2] * y[2]).abs() / (lx * ly)) } else { 0.0 }
-        };
-        Ok(nn.iter().enumerate().map(|(i, &(_, j))| dot(np[i], nq[j])).sum::<f64>() / p.len() as f64)
-    };
-    Ok(0.5 * (one_way(a, na, b, nb)? + one_way(b, nb, a, na)?))
+    Nearest::new(a, b)?.normal_consistency(na, nb, f64::INFINITY, None)?.ok_or(MetricsError::Empty("normal consistency pairs"))
+}
+
+/// |x · y| / (|x| |y|); 0 when either is zero.
+fn unsigned_cosine(x: [f32; 3], y: [f32; 3]) -> f64 {
+    let (x, y) = (x.map(f64::from), y.map(f64::from));
+    let (lx, ly) = ((x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt(), (y[0] * y[0] + y[1] * y[1] + y[2] * y[2]).sqrt());
+    if lx > 0.0 && ly > 0.0 { (x[0] * y[0] + x[1] * y[1] + x[2] * y[2]).abs() / (lx * ly) } else { 0.0 }
 }
 
 #[cfg(test)]
@@ -497,5 +582,60 @@ mod tests {
         let random = sphere_points(1.0, 5000, 6);
         let nc = normal_consistency(&a, &random, &b, &b).unwrap();
         assert!((nc - 0.5).abs() < 0.05, "{nc}");
+    }
+
+    /// Bumps: the same sphere 0.002 out, its normals radial, has a normal consistency of 1; with
+    /// every normal tilted by 20° (the same points: the same Chamfer) cos 20°; a far outlier with a wrong normal is left out
+    /// as the Chamfer leaves it out; over what the views observed, the unseen half's wrong
+    /// normals do not count.
+    #[test]
+    fn normal_consistency_sees_tilted_normals_the_chamfer_does_not_and_counts_its_pairs() {
+        let truth = sphere_points(1.0, 20_000, 1);
+        let radial: Vec<[f32; 3]> = truth.clone();
+        let tilt = 20f32.to_radians();
+        let tilted = |p: [f32; 3]| {
+            // Rotate the radial normal towards a tangent by `tilt`.
+            let t = [-p[1], p[0], 0.0];
+            let l = (t[0] * t[0] + t[1] * t[1]).sqrt().max(1e-6);
+            [0, 1, 2].map(|k| p[k] * tilt.cos() + t[k] / l * tilt.sin())
+        };
+        let pred: Vec<[f32; 3]> = sphere_points(1.002, 20_000, 2);
+        let pred_normals: Vec<[f32; 3]> = pred.iter().map(|&p| tilted(p.map(|c| c / 1.002))).collect();
+        let nearest = Nearest::new(&pred, &truth).unwrap();
+        let straight: Vec<[f32; 3]> = pred.iter().map(|p| p.map(|c| c / 1.002)).collect();
+        assert!(nearest.normal_consistency(&straight, &radial, 1.0, None).unwrap() > Some(0.995));
+        let nc = nearest.normal_consistency(&pred_normals, &radial, 1.0, None).unwrap().unwrap();
+        assert!((nc - f64::from(tilt.cos())).abs() < 0.01, "{nc}");
+        // A far outlier with a perpendicular normal: counted with no outlier distance only.
+        let (mut far, mut far_normals) = (pred.clone(), pred_normals.clone());
+        far.extend(std::iter::repeat_n([0.0, 0.0, 3.0], 2000));
+        far_normals.extend(std::iter::repeat_n([1.0, 0.0, 0.0], 2000));
+        let outlying = Nearest::new(&far, &truth).unwrap();
+        assert_eq!(outlying.normal_consistency(&far_normals, &radial, 1.0, None).unwrap(), Some(nc));
+        assert!(outlying.normal_consistency(&far_normals, &radial, f64::INFINITY, None).unwrap() < Some(nc - 0.02));
+        // The lower half's normals perpendicular to the truth's; only the upper half observed.
+        let half: Vec<[f32; 3]> = pred.iter().zip(&pred_normals).map(|(p, n)| if p[2] > 0.0 { *n } else { [-p[1], p[0], 0.0] }).collect();
+        let observed: Vec<bool> = truth.iter().map(|p| p[2] > 0.0).collect();
+        let seen = nearest.normal_consistency(&half, &radial, 1.0, Some(&observed)).unwrap().unwrap();
+        assert!((seen - nc).abs() < 0.01, "{seen} against {nc}");
+        assert!(nearest.normal_consistency(&half, &radial, 1.0, None).unwrap() < Some(nc - 0.2));
+        // Nothing within the outlier distance: none; a wrong count of normals: an error.
+        assert_eq!(nearest.normal_consistency(&pred_normals, &radial, 1e-9, None).unwrap(), None);
+        assert!(nearest.normal_consistency(&pred_normals[1..], &radial, 1.0, None).is_err());
+    }
+
+    /// An oriented sample is the plain sample's points, each with its triangle's unit normal.
+    #[test]
+    fn an_oriented_mesh_sample_has_the_plain_samples_points_and_its_triangles_normals() {
+        // A unit square in z = 0 (normal +z) and one in x = 0 (normal +x by its winding).
+        let v = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 1.0]];
+        let t = [[0, 1, 2], [0, 2, 3], [0, 3, 5], [0, 5, 4]];
+        let oriented = sample_mesh_oriented(&v, &t, 0.02, 3).unwrap();
+        assert_eq!(oriented.points, sample_mesh(&v, &t, 0.02, 3).unwrap());
+        assert_eq!(oriented.normals.len(), oriented.points.len());
+        for (p, n) in oriented.points.iter().zip(&oriented.normals) {
+            let expected = if p[2] == 0.0 { [0.0, 0.0, 1.0] } else { [1.0, 0.0, 0.0] };
+            assert!((0..3).all(|k| (n[k] - expected[k]).abs() < 1e-6), "{p:?}: {n:?}");
+        }
     }
 }

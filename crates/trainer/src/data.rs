@@ -30,10 +30,26 @@ fn builtin_spec(config: &TrainConfig) -> GoldenSpec {
     spec
 }
 
+/// Ground-truth points (normalised frame) and, where the truth has them, their unit normals
+/// ([`SceneData::oriented_ground_truth`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Truth {
+    /// The points.
+    pub points: Vec<[f32; 3]>,
+    /// One unit normal per point (`None`: a point cloud, such as DTU's, has none).
+    pub normals: Option<Vec<[f32; 3]>>,
+}
+
 /// An analytic surface's truth points at a protocol's `spacing`: `1 / spacing²` points per unit
 /// of area, as a truth mesh is sampled (`eval_metrics::sample_mesh`); deterministic.
 pub fn analytic_truth(shape: &prob_grid::Shape, spacing: f64) -> Vec<[f32; 3]> {
     shape.sample_surface(1.0 / (spacing * spacing), 7).iter().map(|p| p.as_vec3().to_array()).collect()
+}
+
+/// The unit normals of an analytic surface at its `points` (the SDF's gradient; zero where it
+/// vanishes).
+pub fn analytic_normals(shape: &prob_grid::Shape, points: &[[f32; 3]]) -> Vec<[f32; 3]> {
+    points.iter().map(|p| shape.gradient(Vec3::from_array(*p).as_dvec3()).normalize_or_zero().as_vec3().to_array()).collect()
 }
 
 /// What the memory model needs of a scene.
@@ -156,13 +172,22 @@ impl SceneData {
     /// surface samples, or `gt_mesh.ply` (sampled every `spacing`) / `gt_points.ply` (input world
     /// units) in the data folder.
     pub fn ground_truth(&self, spacing: f64) -> Result<Option<Vec<[f32; 3]>>> {
+        Ok(self.oriented_ground_truth(spacing)?.map(|t| t.points))
+    }
+
+    /// [`Self::ground_truth`] with the truth's unit normals where it has them: the analytic
+    /// shape's gradient, or the triangle of `gt_mesh.ply` each point lies on (none for
+    /// `gt_points.ply`).
+    pub fn oriented_ground_truth(&self, spacing: f64) -> Result<Option<Truth>> {
         if let Some(points) = &self.builtin_truth {
             // A protocol finer than the default samples the analytic surface at its own density,
             // as a truth mesh is sampled; the default keeps the stored points (every table so far).
-            return Ok(Some(match &self.builtin_shape {
+            let points = match &self.builtin_shape {
                 Some(shape) if spacing < crate::config::DEFAULT_CHAMFER_SPACING => analytic_truth(shape, spacing),
                 _ => points.iter().map(|p| p.as_vec3().to_array()).collect(),
-            }));
+            };
+            let normals = self.builtin_shape.as_ref().map(|shape| analytic_normals(shape, &points));
+            return Ok(Some(Truth { points, normals }));
         }
         let Some(dir) = &self.path else { return Ok(None) };
         let normalized_from_world = self.scene.world_from_normalized.inverse();
@@ -171,14 +196,14 @@ impl SceneData {
         if mesh_path.exists() {
             let ply = PlyData::read(&mesh_path).with_context(|| format!("ground-truth mesh {}", mesh_path.display()))?;
             let v: Vec<[f32; 3]> = ply.positions.iter().map(to_normalized).collect();
-            return Ok(Some(
-                eval_metrics::sample_mesh(&v, &ply.faces, spacing, 7).with_context(|| format!("ground-truth mesh {}", mesh_path.display()))?,
-            ));
+            let sampled = eval_metrics::sample_mesh_oriented(&v, &ply.faces, spacing, 7)
+                .with_context(|| format!("ground-truth mesh {}", mesh_path.display()))?;
+            return Ok(Some(Truth { points: sampled.points, normals: Some(sampled.normals) }));
         }
         let points_path = dir.join("gt_points.ply");
         if points_path.exists() {
             let ply = PlyData::read(&points_path).with_context(|| format!("ground-truth points {}", points_path.display()))?;
-            return Ok(Some(ply.positions.iter().map(to_normalized).collect()));
+            return Ok(Some(Truth { points: ply.positions.iter().map(to_normalized).collect(), normals: None }));
         }
         Ok(None)
     }
@@ -232,6 +257,33 @@ pub fn uses_masks(config: &TrainConfig, scene: &Scene) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The analytic truth's normals are its surface's: radial on a sphere, the faces' on a box,
+    /// unit length on the composite; a truth mesh's are its triangles' (`eval_metrics`' test).
+    #[test]
+    fn the_built_in_truth_is_oriented_by_its_shapes_gradient() {
+        use prob_grid::ShapeName;
+        let config = TrainConfig::load(None, &["data.builtin.width=40".into(), "data.builtin.views=4".into()]).unwrap();
+        let truth = SceneData::builtin(&config).unwrap().oriented_ground_truth(crate::config::DEFAULT_CHAMFER_SPACING).unwrap().unwrap();
+        let normals = truth.normals.expect("an analytic truth has normals");
+        assert_eq!(normals.len(), truth.points.len());
+        assert!(normals.iter().all(|n| (Vec3::from_array(*n).length() - 1.0).abs() < 1e-3));
+        let sphere = ShapeName::Sphere.shape();
+        let points = analytic_truth(&sphere, 0.05);
+        for (p, n) in points.iter().zip(analytic_normals(&sphere, &points)) {
+            assert!(Vec3::from_array(*p).normalize().dot(Vec3::from_array(n)) > 0.9999, "{p:?}: {n:?}");
+        }
+        let cube = ShapeName::Box.shape();
+        let points = analytic_truth(&cube, 0.05);
+        for (p, n) in points.iter().zip(analytic_normals(&cube, &points)) {
+            // The face a point lies on: its largest coordinate; corners and edges aside.
+            let q = Vec3::from_array(*p);
+            let axis = q.abs().max_position();
+            if q.abs().to_array().iter().filter(|c| **c > 0.34).count() == 1 {
+                assert!((n[axis].abs() - 1.0).abs() < 1e-4 && n[axis].signum() == q[axis].signum(), "{p:?}: {n:?}");
+            }
+        }
+    }
 
     /// The built-in truth keeps its stored points at the default protocol (every table so far)
     /// and follows a finer protocol's density, as a truth mesh would: about four times the points

@@ -4,6 +4,7 @@
 //! ([`read_mesh`]). `cargo xtask eval --mesh`, the runs' metrics and the Python binding use it.
 
 use crate::bail;
+use crate::data::Truth;
 use crate::error::{Context, Result};
 use datasets::io::PlyData;
 use glam::Vec3;
@@ -82,11 +83,23 @@ impl GroundTruth {
 
     /// The ground-truth points: the points, or the mesh sampled every `spacing`.
     pub fn into_points(self, spacing: f64) -> Result<Vec<[f32; 3]>> {
-        match self {
-            GroundTruth::Points(p) => Ok(p),
-            GroundTruth::Mesh((v, f)) => Ok(eval_metrics::sample_mesh(&v, &f, spacing, GT_SAMPLING_SEED).context("the ground-truth mesh")?),
-            GroundTruth::Shape(shape) => Ok(crate::data::analytic_truth(&shape, spacing)),
-        }
+        Ok(self.into_truth(spacing)?.points)
+    }
+
+    /// [`Self::into_points`] with the truth's unit normals where it has them (a mesh's
+    /// triangles, a shape's gradient; points have none).
+    pub fn into_truth(self, spacing: f64) -> Result<Truth> {
+        Ok(match self {
+            GroundTruth::Points(points) => Truth { points, normals: None },
+            GroundTruth::Mesh((v, f)) => {
+                let sampled = eval_metrics::sample_mesh_oriented(&v, &f, spacing, GT_SAMPLING_SEED).context("the ground-truth mesh")?;
+                Truth { points: sampled.points, normals: Some(sampled.normals) }
+            }
+            GroundTruth::Shape(shape) => {
+                let points = crate::data::analytic_truth(&shape, spacing);
+                Truth { normals: Some(crate::data::analytic_normals(&shape, &points)), points }
+            }
+        })
     }
 }
 

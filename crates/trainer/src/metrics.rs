@@ -49,6 +49,8 @@ pub struct ObservedMetrics {
     pub truth_observed: f64,
     /// The truth's own mesh at the run's resolution, measured the same way.
     pub mesh_floor: Option<f64>,
+    /// Normal consistency over the same pairs ([`RunMetrics::normal_consistency`]).
+    pub normal_consistency: Option<f64>,
 }
 
 impl ObservedMetrics {
@@ -62,6 +64,7 @@ impl ObservedMetrics {
             f_score: m.f_score,
             truth_observed,
             mesh_floor,
+            normal_consistency: None,
         }
     }
 }
@@ -110,6 +113,11 @@ pub struct RunMetrics {
     pub f_score: Option<f64>,
     /// The F-score threshold τ (normalised units).
     pub f_score_tau: f64,
+    /// Normal consistency (`eval_metrics::Nearest::normal_consistency`): the mean |n · n'|
+    /// between the mesh's and the truth's normals over the pairs the Chamfer distance counts —
+    /// bumps on a smooth surface lower it where the Chamfer hardly moves (`None`: the truth has
+    /// no normals, e.g. DTU's point cloud).
+    pub normal_consistency: Option<f64>,
     /// Completeness and recall per part of an analytic truth (built-in scenes whose shape is a
     /// union: the composite's body, thin ring and foot); empty otherwise.
     pub parts: Vec<PartMetrics>,

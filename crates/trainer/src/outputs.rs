@@ -190,6 +190,12 @@ fn mesh_points(mesh: &IsoMesh, spacing: f64) -> Result<Vec<[f32; 3]>> {
     Ok(eval_metrics::sample_mesh(&v, &mesh.triangles, spacing, crate::evaluation::PRED_SAMPLING_SEED)?)
 }
 
+/// [`mesh_points`] with their triangles' normals (the same points).
+fn oriented_mesh_points(mesh: &IsoMesh, spacing: f64) -> Result<eval_metrics::OrientedPoints> {
+    let v: Vec<[f32; 3]> = mesh.vertices.iter().map(|p| p.to_array()).collect();
+    Ok(eval_metrics::sample_mesh_oriented(&v, &mesh.triangles, spacing, crate::evaluation::PRED_SAMPLING_SEED)?)
+}
+
 /// Completeness and recall of a mesh (`pred`: its surface points) on each part of `shape` (one
 /// entry per part of a union; none for a single primitive): `gt` (the shape's surface points)
 /// grouped by the part nearest, at the protocol's `max_dist` and `tau`; and the accuracy of the
@@ -228,11 +234,18 @@ pub fn part_metrics(
         .collect()
 }
 
+/// The unit normals of a mesh's sampled points and of the truth's points, one per point, in the
+/// order of a [`eval_metrics::Nearest`]'s two sets.
+pub type NormalPairs<'a> = (&'a [[f32; 3]], &'a [[f32; 3]]);
+
 /// What a mesh measured against a run's ground truth ([`run_geometry`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct RunGeometry {
     /// Chamfer and F-score.
     pub metrics: eval_metrics::GeometryMetrics,
+    /// [`eval_metrics::Nearest::normal_consistency`] over the whole truth (`None`: the truth has
+    /// no normals).
+    pub normal_consistency: Option<f64>,
     /// The truth's own mesh at the resolution asked for ([`shape_floor`]), for an analytic truth.
     pub floor: Option<f64>,
     /// [`part_metrics`] of an analytic truth (empty otherwise).
@@ -256,13 +269,16 @@ pub fn run_geometry(
     floor_at: Option<u32>,
     observers: &[camera_geom::PinholeCamera],
 ) -> Result<Option<RunGeometry>> {
-    let Some(gt) = data.ground_truth(output.chamfer_spacing)? else { return Ok(None) };
+    let Some(truth) = data.oriented_ground_truth(output.chamfer_spacing)? else { return Ok(None) };
     if mesh.triangles.is_empty() {
         return Ok(None);
     }
     let (spacing, max_dist, tau) = (output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau);
-    let pred = mesh_points(mesh, spacing)?;
+    let (oriented, gt) = (oriented_mesh_points(mesh, spacing)?, truth.points);
+    let pred = oriented.points;
     let nearest = eval_metrics::Nearest::new(&pred, &gt)?;
+    let normals = truth.normals.as_deref().map(|gt_normals| (oriented.normals.as_slice(), gt_normals));
+    let normal_consistency = normals.map(|(p, g)| nearest.normal_consistency(p, g, max_dist, None)).transpose()?.flatten();
     let shape = data.builtin_shape.as_ref();
     let floor = match (shape, floor_at) {
         (Some(shape), Some(resolution)) => Some(shape_floor(shape, &gt, resolution, spacing)?),
@@ -273,11 +289,11 @@ pub fn run_geometry(
         None => Vec::new(),
     };
     let observed = match shape {
-        Some(shape) if !observers.is_empty() => Some(observed_metrics(shape, observers, &gt, &nearest, (max_dist, tau), floor.as_ref())?),
+        Some(shape) if !observers.is_empty() => Some(observed_metrics(shape, observers, &gt, &nearest, (max_dist, tau), floor.as_ref(), normals)?),
         _ => None,
     };
     let floor = floor.map(|f| f.chamfer(max_dist, tau).chamfer);
-    Ok(Some(RunGeometry { metrics: nearest.chamfer(max_dist, tau), floor, parts, observed }))
+    Ok(Some(RunGeometry { metrics: nearest.chamfer(max_dist, tau), normal_consistency, floor, parts, observed }))
 }
 
 /// The truth's own marching-cubes mesh: `shape` at `resolution` cells per side of the bound's
@@ -297,7 +313,8 @@ pub fn shape_floor(shape: &prob_grid::Shape, gt: &[[f32; 3]], resolution: u32, s
 /// The figures over what `observers` see of `shape` ([`crate::observation`]): a mesh's nearest
 /// neighbours against the truth points `gt` ([`eval_metrics::Nearest`]) by the protocol's (max
 /// distance, τ), and with `floor` (the truth's own mesh against `gt`, [`shape_floor`]) its floor
-/// measured the same way.
+/// measured the same way; with `normals` (the mesh's points', the truth's) the normal
+/// consistency over the same pairs.
 pub fn observed_metrics(
     shape: &prob_grid::Shape,
     observers: &[camera_geom::PinholeCamera],
@@ -305,11 +322,13 @@ pub fn observed_metrics(
     nearest: &eval_metrics::Nearest,
     (max_dist, tau): (f64, f64),
     floor: Option<&eval_metrics::Nearest>,
+    normals: Option<NormalPairs>,
 ) -> Result<ObservedMetrics> {
     let flags = crate::observation::observed(shape, observers, gt);
     let m = nearest.chamfer_observed(&flags, max_dist, tau)?;
     let floor = floor.map(|f| f.chamfer_observed(&flags, max_dist, tau).map(|m| m.chamfer)).transpose()?;
-    Ok(ObservedMetrics::new(&m, flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64, floor))
+    let normal_consistency = normals.map(|(p, g)| nearest.normal_consistency(p, g, max_dist, Some(&flags))).transpose()?.flatten();
+    Ok(ObservedMetrics { normal_consistency, ..ObservedMetrics::new(&m, flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64, floor) })
 }
 
 /// The widest view of the mesh's picture, in pixels: a picture for people (a DTU view at full

@@ -134,6 +134,8 @@ pub struct SnapshotMetrics {
     pub f_score: Option<f64>,
     /// The F-score threshold τ.
     pub f_score_tau: f64,
+    /// Normal consistency ([`RunMetrics::normal_consistency`]).
+    pub normal_consistency: Option<f64>,
     /// Mean whole-image PSNR of `psnr_views` (dB).
     pub psnr: Option<f64>,
     /// Mean PSNR inside their masks (dB).
@@ -177,6 +179,7 @@ impl SnapshotMetrics {
             completeness: self.completeness,
             f_score: self.f_score,
             f_score_tau: self.f_score_tau,
+            normal_consistency: self.normal_consistency,
             mesh_resolution: self.mesh_resolution,
             mesh_floor: self.mesh_floor,
             observed: self.observed.clone(),
@@ -214,6 +217,7 @@ pub fn write_snapshot(trainer: &Trainer, folder: &RunFolder, at: f64, views: &[u
         completeness: geometry.map(|g| g.completeness),
         f_score: geometry.map(|g| g.f_score),
         f_score_tau: o.fscore_tau,
+        normal_consistency: measured.as_ref().and_then(|g| g.normal_consistency),
         psnr: mean(psnr.iter().map(|p| p.0).collect()),
         psnr_masked: mean(psnr.iter().filter_map(|p| p.1).collect()),
         psnr_views: views.to_vec(),

@@ -181,6 +181,7 @@ fn run_metrics(
         completeness: g.map(|g| g.completeness),
         f_score: g.map(|g| g.f_score),
         f_score_tau: config.output.fscore_tau,
+        normal_consistency: geometry.as_ref().and_then(|g| g.normal_consistency),
         parts: geometry.as_ref().map(|g| g.parts.clone()).unwrap_or_default(),
         world_scale,
         pixel_footprint: trainer.pixel_footprint(),
@@ -223,11 +224,12 @@ fn print_summary(m: &RunMetrics, images: &Images, mesh: &Mesh) {
     );
     let geometry = match (m.chamfer, m.f_score) {
         (Some(chamfer), Some(f_score)) => format!(
-            "Chamfer {chamfer:.4} ({:.4} in world units{}{}), F-score {f_score:.3} at τ = {}",
+            "Chamfer {chamfer:.4} ({:.4} in world units{}{}), F-score {f_score:.3} at τ = {}{}",
             chamfer * m.world_scale,
             crate::run::in_pixels(chamfer, m.pixel_footprint),
             m.mesh_floor.map_or(String::new(), |f| format!("; the truth's own {}³ mesh: {f:.4}", m.mesh_resolution)),
-            m.f_score_tau
+            m.f_score_tau,
+            crate::run::normals_part(m.normal_consistency)
         ),
         _ if mesh.mesh.triangles.is_empty() => "the mesh is empty: no Chamfer".into(),
         _ => "no ground truth for Chamfer".into(),

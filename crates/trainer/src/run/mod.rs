@@ -199,18 +199,25 @@ pub fn in_pixels(distance: f64, footprint: Option<f64>) -> String {
     }
 }
 
+/// `", normal consistency 0.985"`: the mesh's normals against the truth's
+/// ([`crate::metrics::RunMetrics::normal_consistency`]); empty without.
+pub fn normals_part(normal_consistency: Option<f64>) -> String {
+    normal_consistency.map_or(String::new(), |nc| format!(", normal consistency {nc:.4}"))
+}
+
 /// One line for the figures over what the training views observe; with the views' pixel
 /// footprint, the Chamfer in pixels too.
 pub fn observed_line(o: &crate::metrics::ObservedMetrics, footprint: Option<f64>) -> String {
     let d = |x: Option<f64>| x.map_or("∞".to_string(), |v| format!("{v:.4}"));
     let pixels = o.chamfer.map_or(String::new(), |c| in_pixels(c, footprint));
     format!(
-        "over what the training views observe ({:.1} % of the truth): Chamfer {}{pixels} (accuracy {}, completeness {}), F-score {:.3}{}",
+        "over what the training views observe ({:.1} % of the truth): Chamfer {}{pixels} (accuracy {}, completeness {}), F-score {:.3}{}{}",
         100.0 * o.truth_observed,
         d(o.chamfer),
         d(o.accuracy),
         d(o.completeness),
         o.f_score,
+        normals_part(o.normal_consistency),
         o.mesh_floor.map_or(String::new(), |f| format!("; the truth's own mesh: {f:.4}"))
     )
 }

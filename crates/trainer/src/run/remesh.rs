@@ -54,6 +54,8 @@ pub struct RemeshedGeometry {
     pub f_score: f64,
     /// The F-score's threshold (`output.fscore_tau`).
     pub f_score_tau: f64,
+    /// Normal consistency (`metrics.json`'s `normal_consistency`).
+    pub normal_consistency: Option<f64>,
     /// The truth's own mesh at the same resolution by the same protocol (an analytic truth).
     pub mesh_floor: Option<f64>,
     /// Over what the training views observe (an analytic truth), with its floor.
@@ -90,6 +92,7 @@ pub fn remesh(
         completeness: finite(g.metrics.completeness),
         f_score: g.metrics.f_score,
         f_score_tau: g.metrics.tau,
+        normal_consistency: g.normal_consistency,
         mesh_floor: g.floor,
         observed: g.observed,
         parts: g.parts,

@@ -153,8 +153,10 @@ def evaluate_mesh(
     spacing: Optional[float] = None,
     max_dist: Optional[float] = None,
     tau: Optional[float] = None,
-) -> dict[str, float]:
-    """DTU-protocol accuracy, completeness, chamfer, precision, recall, fscore in the mesh's units."""
+) -> dict[str, Optional[float]]:
+    """DTU-protocol accuracy, completeness, chamfer, precision, recall, fscore in the mesh's units;
+    normal_consistency: the mean |n · n'| of the mesh's and the truth mesh's normals over the same
+    pairs (None against ``gt_points``)."""
 
 def extract_mesh(
     sdf: Sdf, resolution: int = 128, bound: float = 1.0, lipschitz: float = 1.5

@@ -43,7 +43,8 @@ fn mesh_arrays(name: &str, mesh: &Bound<'_, PyAny>) -> PyResult<MeshArrays> {
 
 /// The DTU-protocol evaluation of `mesh` (a .ply/.obj/.gltf/.glb path, or `(vertices,
 /// faces)`) against `gt_points` ((N, 3) array) or `gt_mesh` (path or arrays), in the mesh's
-/// units: accuracy, completeness, chamfer, precision, recall, fscore, and the distances used.
+/// units: accuracy, completeness, chamfer, precision, recall, fscore, normal_consistency (the
+/// mesh's normals against a truth mesh's; `None` against points), and the distances used.
 /// `spacing`, `max_dist`, `tau` default to the ground truth's bounding-box diagonal / 1000,
 /// / 20, / 200 (DTU: 0.2, 20 mm; τ as you report it).
 #[pyfunction]
@@ -64,7 +65,8 @@ pub fn evaluate_mesh<'py>(
         _ => return Err(PyValueError::new_err("give exactly one of gt_points and gt_mesh")),
     };
     let protocol = Protocol { spacing, max_dist, tau };
-    let (m, Distances { spacing, max_dist, tau }) = py.detach(|| evaluate(&vertices, &faces, gt, protocol)).map_err(to_py_err)?;
+    let evaluation = py.detach(|| evaluate(&vertices, &faces, gt, protocol)).map_err(to_py_err)?;
+    let (m, Distances { spacing, max_dist, tau }) = (evaluation.metrics, evaluation.distances);
     let d = PyDict::new(py);
     for (k, v) in [
         ("accuracy", m.accuracy),
@@ -79,6 +81,7 @@ pub fn evaluate_mesh<'py>(
     ] {
         d.set_item(k, v)?;
     }
+    d.set_item("normal_consistency", evaluation.normal_consistency)?;
     d.set_item("pred_points", m.n_pred)?;
     d.set_item("gt_points", m.n_gt)?;
     Ok(d)

@@ -38,6 +38,10 @@ def test_evaluate_mesh_of_two_parallel_squares_is_their_distance(tmp_path):
     for key in ("accuracy", "completeness", "chamfer"):
         assert m[key] == pytest.approx(delta, rel=1e-3)
     assert m["fscore"] == 1.0
+    # Parallel faces: their normals agree, whatever the distance; a face across the truth's does not.
+    assert m["normal_consistency"] == pytest.approx(1.0, abs=1e-6)
+    upright = (np.array([[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]], np.float32), square(0.0)[1])
+    assert psneus.evaluate_mesh(upright, gt_mesh=square(delta), spacing=0.01, max_dist=2.0)["normal_consistency"] == pytest.approx(0.0, abs=1e-6)
     assert psneus.evaluate_mesh(square(0.0), gt_mesh=square(delta), spacing=spacing, max_dist=0.2, tau=0.04)["fscore"] == 0.0
     # Beyond the outlier distance nothing counts: an infinite Chamfer.
     assert psneus.evaluate_mesh(square(0.0), gt_mesh=square(delta), spacing=spacing, max_dist=0.01)["chamfer"] == float("inf")
@@ -50,7 +54,9 @@ def test_evaluate_mesh_of_two_parallel_squares_is_their_distance(tmp_path):
     assert from_file["chamfer"] == pytest.approx(m["chamfer"], rel=1e-6)
     grid = np.stack(np.meshgrid(np.linspace(0, 1, 201), np.linspace(0, 1, 201)), -1).reshape(-1, 2)
     points = np.hstack([grid, np.full((len(grid), 1), delta)])
-    assert psneus.evaluate_mesh(ply, gt_points=points, spacing=spacing, max_dist=0.2)["completeness"] == pytest.approx(delta, rel=1e-3)
+    from_points = psneus.evaluate_mesh(ply, gt_points=points, spacing=spacing, max_dist=0.2)
+    assert from_points["completeness"] == pytest.approx(delta, rel=1e-3)
+    assert from_points["normal_consistency"] is None
 
 
 def test_evaluate_mesh_bad_input_raises():

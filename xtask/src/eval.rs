@@ -469,9 +469,12 @@ mod tests {
         let config = prob_grid::MarchingCubesConfig { resolution: 64, block: 16, ..Default::default() };
         let (mesh, _) = prob_grid::marching_cubes(&shape, &config).unwrap();
         let vertices: Vec<[f32; 3]> = mesh.vertices.iter().map(|v| v.to_array()).collect();
-        let (m, d) = evaluate_mesh(&vertices, &mesh.triangles, GroundTruth::Shape(shape.clone()), protocol(0.004)).unwrap();
+        let e = evaluate_mesh(&vertices, &mesh.triangles, GroundTruth::Shape(shape.clone()), protocol(0.004)).unwrap();
+        let (m, d) = (e.metrics, e.distances);
         assert_eq!(d.spacing, 0.004);
         assert_eq!(m.chamfer, floor(64, 0.004));
+        // Its facets' normals follow the sphere's to within a fraction of a degree.
+        assert!(e.normal_consistency.is_some_and(|nc| nc > 0.999 && nc < 1.0), "{:?}", e.normal_consistency);
         assert!(floor(128, 0.004) < floor(64, 0.004));
         assert!(floor(128, 0.002) < floor(128, 0.004));
         // The sphere (radius 0.5) has its bounding box from the analytic surface.

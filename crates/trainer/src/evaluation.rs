@@ -108,22 +108,32 @@ pub const GT_SAMPLING_SEED: u64 = 7;
 /// The predicted mesh's sampling seed.
 pub const PRED_SAMPLING_SEED: u64 = 11;
 
+/// What [`evaluate_mesh`] measured.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeshEvaluation {
+    /// Chamfer, accuracy, completeness, F-score.
+    pub metrics: eval_metrics::GeometryMetrics,
+    /// The mesh's normals against the truth's over the same pairs
+    /// (`eval_metrics::Nearest::normal_consistency`; `None`: truth points have no normals).
+    pub normal_consistency: Option<f64>,
+    /// The distances used.
+    pub distances: Distances,
+}
+
 /// A mesh (`vertices`, `triangles`) against `gt` under `protocol`: the DTU-protocol Chamfer and
-/// F-score in the mesh's units, and the distances used. What `cargo xtask eval --mesh` does
-/// without culling, alignment or ICP; the Python binding's `evaluate_mesh`.
-pub fn evaluate_mesh(
-    vertices: &[[f32; 3]],
-    triangles: &[[u32; 3]],
-    gt: GroundTruth,
-    protocol: Protocol,
-) -> Result<(eval_metrics::GeometryMetrics, Distances)> {
+/// F-score in the mesh's units, the normal consistency, and the distances used. What `cargo
+/// xtask eval --mesh` does without culling, alignment or ICP; the Python binding's
+/// `evaluate_mesh`.
+pub fn evaluate_mesh(vertices: &[[f32; 3]], triangles: &[[u32; 3]], gt: GroundTruth, protocol: Protocol) -> Result<MeshEvaluation> {
     if triangles.is_empty() {
         bail!(Input, "the mesh has no triangles");
     }
     let d = gt.distances(protocol, "")?;
-    let gt = gt.into_points(d.spacing)?;
-    let pred = eval_metrics::sample_mesh(vertices, triangles, d.spacing, PRED_SAMPLING_SEED).context("the mesh")?;
-    Ok((eval_metrics::chamfer(&pred, &gt, d.max_dist, d.tau)?, d))
+    let truth = gt.into_truth(d.spacing)?;
+    let pred = eval_metrics::sample_mesh_oriented(vertices, triangles, d.spacing, PRED_SAMPLING_SEED).context("the mesh")?;
+    let nearest = eval_metrics::Nearest::new(&pred.points, &truth.points)?;
+    let normal_consistency = truth.normals.map(|n| nearest.normal_consistency(&pred.normals, &n, d.max_dist, None)).transpose()?.flatten();
+    Ok(MeshEvaluation { metrics: nearest.chamfer(d.max_dist, d.tau), normal_consistency, distances: d })
 }
 
 /// Reads a mesh file (.ply, .obj, .gltf, .glb).

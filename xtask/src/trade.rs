@@ -1,7 +1,7 @@
 //! `cargo xtask trade`: what each minute of CPU buys with each sampler (or any variant of the
 //! configuration), measured: every variant trained to the same wall-time budgets, over several
-//! seeds and scenes; a table of Chamfer, accuracy, completeness, F-score and PSNR (masked where
-//! the scene has masks) as mean ± std, the iterations each variant fits in the budget (the
+//! seeds and scenes; a table of Chamfer, accuracy, completeness, F-score, PSNR (masked where
+//! the scene has masks) and normal consistency as mean ± std, the iterations each variant fits in the budget (the
 //! run-level cost of guidance: grid updates and surface losses included), and a plot of each
 //! metric against wall time with error bars.
 //!
@@ -134,7 +134,8 @@ impl SceneSpec {
 type Figure = fn(&RunMetrics) -> Option<f64>;
 
 /// The metrics a table reports: key, label for tables and plots, the figure.
-const METRICS: [(&str, &str, Figure); 7] = [
+/// The first six are plotted.
+const METRICS: [(&str, &str, Figure); 9] = [
     ("chamfer", "Chamfer (normalised units) ↓", |m| m.chamfer),
     ("chamfer_observed", "Chamfer over what the views observe ↓", |m| m.observed.as_ref().and_then(|o| o.chamfer)),
     ("accuracy", "accuracy (normalised units) ↓", |m| m.accuracy),
@@ -142,6 +143,8 @@ const METRICS: [(&str, &str, Figure); 7] = [
     ("f_score", "F-score ↑", |m| m.f_score),
     ("psnr_masked", "PSNR inside the masks (dB) ↑", |m| m.psnr_masked),
     ("psnr", "PSNR, whole image (dB) ↑", |m| m.psnr),
+    ("normal_consistency", "normal consistency ↑", |m| m.normal_consistency),
+    ("normal_consistency_observed", "normal consistency over what the views observe ↑", |m| m.observed.as_ref().and_then(|o| o.normal_consistency)),
 ];
 
 /// Mean and sample standard deviation.

@@ -34,4 +34,7 @@ fn trade_with_snapshots_trains_each_seed_once_and_reads_the_shorter_budget_from_
         assert!(row.trim_end().ends_with(&format!("| {machine} |")), "{row}");
     }
     assert!(table.contains("Chamfer over what the views observe"), "{table}");
+    // And the normals against the truth's: the snapshot's own figure in its row.
+    let nc = snapshot["normal_consistency"].as_f64().expect("a snapshot measures its normals");
+    assert!(table.contains("normal consistency over what the views observe ↑") && row.contains(&format!("| {nc:.4} ± 0.0000 |")), "{nc}: {row}");
 }

@@ -1,9 +1,9 @@
 //! `cargo xtask trade`: what each minute of CPU buys with each sampler (or any variant of the
 //! configuration), measured: every variant trained to the same wall-time budgets, over several
 //! seeds and scenes; a table of Chamfer, accuracy, completeness, F-score, PSNR (masked where
-//! the scene has masks) and normal consistency as mean ± std, the iterations each variant fits in the budget (the
-//! run-level cost of guidance: grid updates and surface losses included), and a plot of each
-//! metric against wall time with error bars.
+//! the scene has masks) and normal consistency as mean ± std, the iterations each variant fits
+//! in the budget (the run-level cost of guidance: grid updates and surface losses included), and
+//! a plot of each metric against wall time with error bars.
 //!
 //! Runs are folders `OUT/SCENE/VARIANT/bBUDGET/sSEED`; a run whose `metrics.json` exists is not
 //! run again, so an interrupted table resumes where it stopped. The paper's ablation is the same

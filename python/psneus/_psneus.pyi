@@ -156,7 +156,7 @@ def evaluate_mesh(
 ) -> dict[str, Optional[float]]:
     """DTU-protocol accuracy, completeness, chamfer, precision, recall, fscore in the mesh's units;
     normal_consistency: the mean |n · n'| of the mesh's and the truth mesh's normals over the same
-    pairs (None against ``gt_points``)."""
+    pairs (None against ``gt_points``, or when no pair lies within ``max_dist``)."""
 
 def extract_mesh(
     sdf: Sdf, resolution: int = 128, bound: float = 1.0, lipschitz: float = 1.5

@@ -207,9 +207,9 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let protocol = Protocol { spacing: args.spacing, max_dist: args.max_dist, tau: args.tau };
     let Distances { spacing, max_dist, tau } = gt.distances(protocol, &gt_name)?;
     let truth = gt.into_truth(spacing)?;
-    let gt = truth.points;
+    let gt = &truth.points;
     let floor = match (&args.gt_shape, args.floor_resolution) {
-        (Some(shape), Some(resolution)) => Some(trainer::outputs::shape_floor(shape, &gt, resolution, spacing)?),
+        (Some(shape), Some(resolution)) => Some(trainer::outputs::shape_floor(shape, gt, resolution, spacing)?),
         _ => None,
     };
     let mut oriented = eval_metrics::sample_mesh_oriented(&vertices, &triangles, spacing, PRED_SAMPLING_SEED)
@@ -238,10 +238,10 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     let mut icp = serde_json::Value::Null;
     if args.icp {
         let pred = &oriented.points;
-        let unrefined = eval_metrics::chamfer(pred, &gt, max_dist, tau)?;
-        let gt_cloud = eval_metrics::PointCloud::new(&gt)?;
+        let unrefined = eval_metrics::chamfer(pred, gt, max_dist, tau)?;
+        let gt_cloud = eval_metrics::PointCloud::new(gt)?;
         let thresholds = [max_dist, (max_dist * tau).sqrt(), 2.0 * tau];
-        let r = eval_metrics::align::refine_icp(pred, &gt_cloud, &gt, eval_metrics::align::Similarity::IDENTITY, &thresholds, 200_000)
+        let r = eval_metrics::align::refine_icp(pred, &gt_cloud, gt, eval_metrics::align::Similarity::IDENTITY, &thresholds, 200_000)
             .with_context(|| format!("ICP found too few matches between {} and the ground truth (within {max_dist:.4})", mesh_path.display()))?;
         oriented = oriented.moved(&r.similarity);
         let rot = &r.similarity.rotation;
@@ -260,21 +260,21 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         }
     }
     let pred = &oriented.points;
-    let nearest = eval_metrics::Nearest::new(pred, &gt)?;
+    let nearest = eval_metrics::Nearest::new(pred, gt)?;
     let m = nearest.chamfer(max_dist, tau);
-    let normals = truth.normals.as_deref().map(|gt_normals| (oriented.normals.as_slice(), gt_normals));
-    let normal_consistency = normals.map(|(p, g)| nearest.normal_consistency(p, g, max_dist, None)).transpose()?.flatten();
+    let normals = trainer::outputs::normal_pairs(&oriented, &truth);
+    let normal_consistency = trainer::outputs::normal_consistency(&nearest, normals, max_dist, None)?;
     let (observed, pixel_footprint) = match (&args.gt_shape, &args.observed_by) {
         (Some(shape), Some(run)) => {
             let observers = trainer::run::run_observers(run)?;
             let measured =
-                trainer::outputs::observed_metrics(shape, &observers.train_cameras, &gt, &nearest, (max_dist, tau), floor.as_ref(), normals);
+                trainer::outputs::observed_metrics(shape, &observers.train_cameras, gt, &nearest, (max_dist, tau), floor.as_ref(), normals);
             (Some(measured.with_context(|| format!("over what the training views of {} observe", run.display()))?), observers.pixel_footprint)
         }
         _ => (None, None),
     };
     let parts = match &args.gt_shape {
-        Some(shape) => trainer::outputs::part_metrics(shape, pred, &gt, &nearest, max_dist, tau),
+        Some(shape) => trainer::outputs::part_metrics(shape, pred, gt, &nearest, max_dist, tau),
         None => Vec::new(),
     };
     let floor = floor.map(|f| f.chamfer(max_dist, tau).chamfer);

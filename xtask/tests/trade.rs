@@ -21,6 +21,7 @@ fn trade_with_snapshots_trains_each_seed_once_and_reads_the_shorter_budget_from_
     assert!(run.join("b3/s0/metrics.json").is_file());
     assert!(!run.join("b1").exists(), "the shorter budget was trained on its own");
     let snapshot: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(run.join("b3/s0/snapshots/1s/metrics.json")).unwrap()).unwrap();
+    assert!(!run.join("b3/s0/snapshots/1s/checkpoint.safetensors").exists(), "a sweep's snapshot keeps no checkpoint unless asked");
     let table = std::fs::read_to_string(out.join("trade.md")).unwrap();
     let row = table.lines().find(|l| l.starts_with("| 1 s (snapshot of 3 s) | guided | 1 |")).unwrap_or_else(|| panic!("no snapshot row:\n{table}"));
     let steps = snapshot["step"].as_u64().unwrap();

@@ -405,12 +405,14 @@ impl Nearest {
         observed: Option<&[bool]>,
     ) -> Result<Option<f64>, MetricsError> {
         let (n_pred, n_gt) = (self.pred_to_gt.len(), self.gt_to_pred.len());
-        if pred_normals.len() != n_pred || gt_normals.len() != n_gt || observed.is_some_and(|o| o.len() != n_gt) {
-            return Err(MetricsError::SizeMismatch {
-                what: "normals (or observation flags) against points",
-                a: pred_normals.len() + gt_normals.len(),
-                b: n_pred + n_gt,
-            });
+        for (what, a, b) in [
+            ("the mesh's normals against its points", pred_normals.len(), n_pred),
+            ("the truth's normals against its points", gt_normals.len(), n_gt),
+            ("observation flags against truth points", observed.map_or(n_gt, <[bool]>::len), n_gt),
+        ] {
+            if a != b {
+                return Err(MetricsError::SizeMismatch { what, a, b });
+            }
         }
         let seen = |i: usize| observed.is_none_or(|o| o[i]);
         // One direction: each point of `from` and its nearest of `to`, counted within the
@@ -622,6 +624,23 @@ mod tests {
         // Nothing within the outlier distance: none; a wrong count of normals: an error.
         assert_eq!(nearest.normal_consistency(&pred_normals, &radial, 1e-9, None).unwrap(), None);
         assert!(nearest.normal_consistency(&pred_normals[1..], &radial, 1.0, None).is_err());
+    }
+
+    /// Culling keeps each normal with its point; a similarity carries the points and turns the
+    /// normals by its rotation alone (a quarter turn about z: +x → +y, at any scale).
+    #[test]
+    fn culled_and_moved_oriented_points_keep_each_normal_with_its_point() {
+        let points = OrientedPoints {
+            points: vec![[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [3.0, 0.0, 0.0]],
+            normals: vec![[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        };
+        let kept = points.clone().culled(|p| p[1] == 0.0);
+        assert_eq!(kept.points, vec![[1.0, 0.0, 0.0], [3.0, 0.0, 0.0]]);
+        assert_eq!(kept.normals, vec![[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]);
+        let quarter = align::Similarity { scale: 2.0, rotation: [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], translation: [0.0, 0.0, 5.0] };
+        let moved = points.moved(&quarter);
+        assert_eq!(moved.points[0], [0.0, 2.0, 5.0]);
+        assert_eq!(moved.normals, vec![[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]);
     }
 
     /// An oriented sample is the plain sample's points, each with its triangle's unit normal.

@@ -172,13 +172,18 @@ impl SceneData {
     /// surface samples, or `gt_mesh.ply` (sampled every `spacing`) / `gt_points.ply` (input world
     /// units) in the data folder.
     pub fn ground_truth(&self, spacing: f64) -> Result<Option<Vec<[f32; 3]>>> {
-        Ok(self.oriented_ground_truth(spacing)?.map(|t| t.points))
+        Ok(self.truth(spacing, false)?.map(|t| t.points))
     }
 
     /// [`Self::ground_truth`] with the truth's unit normals where it has them: the analytic
     /// shape's gradient, or the triangle of `gt_mesh.ply` each point lies on (none for
     /// `gt_points.ply`).
     pub fn oriented_ground_truth(&self, spacing: f64) -> Result<Option<Truth>> {
+        self.truth(spacing, true)
+    }
+
+    /// The truth's points, with its normals when `oriented` asks for them (the same points).
+    fn truth(&self, spacing: f64, oriented: bool) -> Result<Option<Truth>> {
         if let Some(points) = &self.builtin_truth {
             // A protocol finer than the default samples the analytic surface at its own density,
             // as a truth mesh is sampled; the default keeps the stored points (every table so far).
@@ -186,7 +191,7 @@ impl SceneData {
                 Some(shape) if spacing < crate::config::DEFAULT_CHAMFER_SPACING => analytic_truth(shape, spacing),
                 _ => points.iter().map(|p| p.as_vec3().to_array()).collect(),
             };
-            let normals = self.builtin_shape.as_ref().map(|shape| analytic_normals(shape, &points));
+            let normals = self.builtin_shape.as_ref().filter(|_| oriented).map(|shape| analytic_normals(shape, &points));
             return Ok(Some(Truth { points, normals }));
         }
         let Some(dir) = &self.path else { return Ok(None) };
@@ -198,7 +203,7 @@ impl SceneData {
             let v: Vec<[f32; 3]> = ply.positions.iter().map(to_normalized).collect();
             let sampled = eval_metrics::sample_mesh_oriented(&v, &ply.faces, spacing, 7)
                 .with_context(|| format!("ground-truth mesh {}", mesh_path.display()))?;
-            return Ok(Some(Truth { points: sampled.points, normals: Some(sampled.normals) }));
+            return Ok(Some(Truth { points: sampled.points, normals: oriented.then_some(sampled.normals) }));
         }
         let points_path = dir.join("gt_points.ply");
         if points_path.exists() {

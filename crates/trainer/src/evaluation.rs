@@ -114,7 +114,8 @@ pub struct MeshEvaluation {
     /// Chamfer, accuracy, completeness, F-score.
     pub metrics: eval_metrics::GeometryMetrics,
     /// The mesh's normals against the truth's over the same pairs
-    /// (`eval_metrics::Nearest::normal_consistency`; `None`: truth points have no normals).
+    /// (`eval_metrics::Nearest::normal_consistency`; `None`: truth points have no normals, or no
+    /// pair lies within the outlier distance).
     pub normal_consistency: Option<f64>,
     /// The distances used.
     pub distances: Distances,
@@ -132,7 +133,7 @@ pub fn evaluate_mesh(vertices: &[[f32; 3]], triangles: &[[u32; 3]], gt: GroundTr
     let truth = gt.into_truth(d.spacing)?;
     let pred = eval_metrics::sample_mesh_oriented(vertices, triangles, d.spacing, PRED_SAMPLING_SEED).context("the mesh")?;
     let nearest = eval_metrics::Nearest::new(&pred.points, &truth.points)?;
-    let normal_consistency = truth.normals.map(|n| nearest.normal_consistency(&pred.normals, &n, d.max_dist, None)).transpose()?.flatten();
+    let normal_consistency = crate::outputs::normal_consistency(&nearest, crate::outputs::normal_pairs(&pred, &truth), d.max_dist, None)?;
     Ok(MeshEvaluation { metrics: nearest.chamfer(d.max_dist, d.tau), normal_consistency, distances: d })
 }
 

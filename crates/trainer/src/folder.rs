@@ -202,7 +202,11 @@ impl RunFolder {
         }
         let lock = FolderLock::acquire(dir)?;
         std::fs::create_dir_all(dir.join("pictures")).with_context(|| format!("cannot open the run folder {}", dir.display()))?;
-        for d in [dir.to_path_buf(), dir.join("pictures")] {
+        // A killed writer's temporaries: in the folder, its pictures and its snapshots' folders
+        // (a snapshot's checkpoint is as large as the run's).
+        let snapshots =
+            std::fs::read_dir(dir.join("snapshots")).into_iter().flatten().filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.is_dir());
+        for d in [dir.to_path_buf(), dir.join("pictures")].into_iter().chain(snapshots) {
             datasets::io::remove_stale_temporaries(&d);
         }
         Ok(RunFolder { dir: dir.to_path_buf(), sink, _lock: lock })

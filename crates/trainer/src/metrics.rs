@@ -116,7 +116,7 @@ pub struct RunMetrics {
     /// Normal consistency (`eval_metrics::Nearest::normal_consistency`): the mean |n · n'|
     /// between the mesh's and the truth's normals over the pairs the Chamfer distance counts —
     /// bumps on a smooth surface lower it where the Chamfer hardly moves (`None`: the truth has
-    /// no normals, e.g. DTU's point cloud).
+    /// no normals, e.g. DTU's point cloud, or no pair lies within the outlier distance).
     pub normal_consistency: Option<f64>,
     /// Completeness and recall per part of an analytic truth (built-in scenes whose shape is a
     /// union: the composite's body, thin ring and foot); empty otherwise.

@@ -238,13 +238,29 @@ pub fn part_metrics(
 /// order of a [`eval_metrics::Nearest`]'s two sets.
 pub type NormalPairs<'a> = (&'a [[f32; 3]], &'a [[f32; 3]]);
 
+/// The normals of a mesh's oriented sample and of a truth, where the truth has them.
+pub fn normal_pairs<'a>(mesh: &'a eval_metrics::OrientedPoints, truth: &'a crate::data::Truth) -> Option<NormalPairs<'a>> {
+    truth.normals.as_deref().map(|gt_normals| (mesh.normals.as_slice(), gt_normals))
+}
+
+/// [`eval_metrics::Nearest::normal_consistency`] of `normals` over `nearest`'s pairs within
+/// `max_dist` (with `observed`: over what the views observed); `None` without normals or pairs.
+pub fn normal_consistency(
+    nearest: &eval_metrics::Nearest,
+    normals: Option<NormalPairs>,
+    max_dist: f64,
+    observed: Option<&[bool]>,
+) -> Result<Option<f64>> {
+    Ok(normals.map(|(p, g)| nearest.normal_consistency(p, g, max_dist, observed)).transpose()?.flatten())
+}
+
 /// What a mesh measured against a run's ground truth ([`run_geometry`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct RunGeometry {
     /// Chamfer and F-score.
     pub metrics: eval_metrics::GeometryMetrics,
     /// [`eval_metrics::Nearest::normal_consistency`] over the whole truth (`None`: the truth has
-    /// no normals).
+    /// no normals, or no pair lies within the outlier distance).
     pub normal_consistency: Option<f64>,
     /// The truth's own mesh at the resolution asked for ([`shape_floor`]), for an analytic truth.
     pub floor: Option<f64>,
@@ -274,22 +290,22 @@ pub fn run_geometry(
         return Ok(None);
     }
     let (spacing, max_dist, tau) = (output.chamfer_spacing, output.chamfer_max_dist, output.fscore_tau);
-    let (oriented, gt) = (oriented_mesh_points(mesh, spacing)?, truth.points);
-    let pred = oriented.points;
-    let nearest = eval_metrics::Nearest::new(&pred, &gt)?;
-    let normals = truth.normals.as_deref().map(|gt_normals| (oriented.normals.as_slice(), gt_normals));
-    let normal_consistency = normals.map(|(p, g)| nearest.normal_consistency(p, g, max_dist, None)).transpose()?.flatten();
+    let oriented = oriented_mesh_points(mesh, spacing)?;
+    let (pred, gt) = (&oriented.points, &truth.points);
+    let nearest = eval_metrics::Nearest::new(pred, gt)?;
+    let normals = normal_pairs(&oriented, &truth);
+    let normal_consistency = normal_consistency(&nearest, normals, max_dist, None)?;
     let shape = data.builtin_shape.as_ref();
     let floor = match (shape, floor_at) {
-        (Some(shape), Some(resolution)) => Some(shape_floor(shape, &gt, resolution, spacing)?),
+        (Some(shape), Some(resolution)) => Some(shape_floor(shape, gt, resolution, spacing)?),
         _ => None,
     };
     let parts = match shape {
-        Some(shape) => part_metrics(shape, &pred, &gt, &nearest, max_dist, tau),
+        Some(shape) => part_metrics(shape, pred, gt, &nearest, max_dist, tau),
         None => Vec::new(),
     };
     let observed = match shape {
-        Some(shape) if !observers.is_empty() => Some(observed_metrics(shape, observers, &gt, &nearest, (max_dist, tau), floor.as_ref(), normals)?),
+        Some(shape) if !observers.is_empty() => Some(observed_metrics(shape, observers, gt, &nearest, (max_dist, tau), floor.as_ref(), normals)?),
         _ => None,
     };
     let floor = floor.map(|f| f.chamfer(max_dist, tau).chamfer);
@@ -327,7 +343,7 @@ pub fn observed_metrics(
     let flags = crate::observation::observed(shape, observers, gt);
     let m = nearest.chamfer_observed(&flags, max_dist, tau)?;
     let floor = floor.map(|f| f.chamfer_observed(&flags, max_dist, tau).map(|m| m.chamfer)).transpose()?;
-    let normal_consistency = normals.map(|(p, g)| nearest.normal_consistency(p, g, max_dist, Some(&flags))).transpose()?.flatten();
+    let normal_consistency = normal_consistency(nearest, normals, max_dist, Some(&flags))?;
     Ok(ObservedMetrics { normal_consistency, ..ObservedMetrics::new(&m, flags.iter().filter(|f| **f).count() as f64 / flags.len() as f64, floor) })
 }
 

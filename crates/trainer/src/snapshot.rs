@@ -94,7 +94,8 @@ impl RunModel {
         let path = crate::folder::checkpoint_path(&self.dir(run_dir));
         match self {
             _ if path.is_file() => Ok(path),
-            RunModel::Last => bail!(Input, "no checkpoint in {}", run_dir.display()),
+            // A missing file, as the binding reports one (`OSError`).
+            RunModel::Last => Err(std::io::Error::new(std::io::ErrorKind::NotFound, format!("no checkpoint in {}", run_dir.display())).into()),
             RunModel::Snapshot(at) if self.dir(run_dir).is_dir() => bail!(
                 Input,
                 "the snapshot at {at} s of {} kept no checkpoint (output.snapshot_checkpoints was false, or a build before snapshots kept one took it): only its mesh and metrics",
@@ -247,5 +248,24 @@ mod tests {
         assert_eq!(s.due(1e9), vec![300.0]);
         let mut resumed = Snapshots::new(&[60.0, 120.0, 300.0], 120.0);
         assert_eq!(resumed.due(1e9), vec![300.0]);
+    }
+
+    /// A time typed with a unit finds the snapshot's folder (`6m` → `snapshots/360s`); a time
+    /// no snapshot was taken at stays as typed, for the error to name.
+    #[test]
+    fn a_snapshot_is_found_by_its_time_in_any_unit() {
+        let run = tempfile::tempdir().unwrap();
+        for at in [0.001, 360.0] {
+            std::fs::create_dir_all(run.path().join(snapshot_dir(at))).unwrap();
+        }
+        assert_eq!(snapshot_times(run.path()), vec![0.001, 360.0]);
+        for (typed, found) in [("6m", 360.0), ("0.1h", 360.0), ("360", 360.0), ("0.001s", 0.001)] {
+            let seconds = crate::config::parse_duration(typed).unwrap().as_secs_f64();
+            let model = RunModel::snapshot_near(run.path(), seconds);
+            assert_eq!(model, RunModel::Snapshot(found), "{typed}");
+            assert_eq!(model.dir(run.path()), run.path().join(snapshot_dir(found)));
+        }
+        assert_eq!(RunModel::snapshot_near(run.path(), 5.0), RunModel::Snapshot(5.0));
+        assert_eq!(RunModel::Last.dir(run.path()), run.path());
     }
 }

@@ -408,7 +408,7 @@ pub struct OutputConfig {
     /// in the training time — quality against time from one run. Empty: none.
     pub snapshots: Vec<f64>,
     /// Each snapshot keeps the model's checkpoint too (`snapshots/<seconds>s/checkpoint.safetensors`,
-    /// the size of the run's own: 20 MB for the default model), so that `cargo xtask eval --run
+    /// the size of the run's own: ≈ 20 MB for the default model), so that `cargo xtask eval --run
     /// RUN --snapshot T` renders or meshes that model again; false: the mesh and metrics only.
     pub snapshot_checkpoints: bool,
     /// Checkpoint every n iterations (0: only at the end; a stop signal writes one too). 1000 by

@@ -54,7 +54,7 @@ pub use module::{
 pub use optim::{Adam, AdamStep, CompactMoments, Decay, LrSchedule, Moments, WarmupCosine, WarmupStep};
 pub use pipeline::{
     AnalyticNormals, ColorLoss, DeferredGradient, Differences, NoSampleLoss, NormalScheme, OpacityGuard, Pipeline, PipelineConfig, RayInput,
-    RayOutput, SampleLoss, scale_from_variance, variance_from_scale,
+    RayOutput, SampleLoss, SmoothnessRegion, scale_from_variance, variance_from_scale,
 };
 pub use presets::{Preset, Variation, architecture, architecture_varied, architecture_with_grid, build, build_varied, build_with_grid};
 pub use real::Real;

@@ -8,7 +8,7 @@ use crate::hashgrid::{HashGrid, HashGridConfig};
 use crate::mlp::{Mlp, MlpConfig};
 use crate::module::{Activation, Chain, Module};
 use crate::optim::Adam;
-use crate::pipeline::{ColorLoss, Differences, Pipeline, PipelineConfig};
+use crate::pipeline::{ColorLoss, Differences, Pipeline, PipelineConfig, SmoothnessRegion};
 use std::num::NonZeroUsize;
 
 /// Named configurations.
@@ -179,6 +179,7 @@ fn assemble(preset: Preset, grid: Option<HashGridConfig>, sdf_layers: Option<Non
             opacity_sparsity: 0.0,
             opacity_guard: None,
             normal_smoothness: 0.0,
+            normal_smoothness_region: SmoothnessRegion::Everywhere,
         },
         analytic: None,
     }

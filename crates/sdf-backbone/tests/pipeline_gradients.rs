@@ -187,6 +187,8 @@ fn whole_pipeline_gradients_match_finite_differences() {
                 opacity_sparsity: 0.05,
                 opacity_guard: None,
                 normal_smoothness: 0.05,
+                // The analytic variant checks the region that leaves the solid's inside out.
+                normal_smoothness_region: if normals == NormalScheme::Analytic { SmoothnessRegion::Outside } else { SmoothnessRegion::Everywhere },
             },
             analytic: None,
         };
@@ -290,6 +292,7 @@ fn both_normal_schemes_recover_a_known_gradient() {
                 opacity_sparsity: 0.0,
                 opacity_guard: None,
                 normal_smoothness: 0.0,
+                normal_smoothness_region: SmoothnessRegion::Everywhere,
             },
             analytic: None,
         };
@@ -348,6 +351,7 @@ fn parallel_pipeline_equals_sequential_and_ignores_the_thread_count() {
             opacity_sparsity: 0.0,
             opacity_guard: None,
             normal_smoothness: 0.0,
+            normal_smoothness_region: SmoothnessRegion::Everywhere,
         },
         analytic: None,
     };
@@ -432,6 +436,7 @@ fn sine_pipeline(normals: NormalScheme) -> (SinePipeline, Vec<f64>, RayInput<f64
             opacity_sparsity: 0.0,
             opacity_guard: None,
             normal_smoothness: 0.0,
+            normal_smoothness_region: SmoothnessRegion::Everywhere,
         },
         analytic: None,
     };
@@ -467,6 +472,25 @@ fn normal_smoothness_is_the_mean_squared_change_of_neighbouring_normals() {
         let base = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
         pipeline.config.normal_smoothness = 1.0;
         let with = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
+        assert!(((with - base) - expected).abs() < 1e-5, "{normals:?}: {} vs {expected}", with - base);
+    }
+}
+
+/// With `SmoothnessRegion::Outside` the normal smoothness leaves out the pairs inside the solid:
+/// for S(x) = sin(x₀) the first two samples (x₀ = −0.7, −0.3) are inside, so of the three pairs
+/// the first drops out of the sum and the mean still divides by three.
+#[test]
+fn normal_smoothness_outside_leaves_out_the_pairs_inside_the_solid() {
+    for normals in [NormalScheme::Central, NormalScheme::Analytic] {
+        let (mut pipeline, params, ray) = sine_pipeline(normals);
+        let x = |i: usize| ray.origin[0] + ray.depths[i];
+        assert!(x(0).sin() < 0.0 && x(1).sin() < 0.0 && x(2).sin() > 0.0, "the ray starts inside");
+        let change = |i: usize| (x(i + 1).cos() - x(i).cos()).powi(2);
+        let base = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
+        pipeline.config.normal_smoothness = 1.0;
+        pipeline.config.normal_smoothness_region = SmoothnessRegion::Outside;
+        let with = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
+        let expected = (change(1) + change(2)) / 3.0;
         assert!(((with - base) - expected).abs() < 1e-5, "{normals:?}: {} vs {expected}", with - base);
     }
 }
@@ -562,6 +586,7 @@ fn check_hash_grid_pipeline(normals: NormalScheme) {
             opacity_sparsity: 0.0,
             opacity_guard: None,
             normal_smoothness: 0.05,
+            normal_smoothness_region: SmoothnessRegion::Everywhere,
         },
         analytic: None,
     };

@@ -201,9 +201,15 @@ impl SceneData {
         if mesh_path.exists() {
             let ply = PlyData::read(&mesh_path).with_context(|| format!("ground-truth mesh {}", mesh_path.display()))?;
             let v: Vec<[f32; 3]> = ply.positions.iter().map(to_normalized).collect();
-            let sampled = eval_metrics::sample_mesh_oriented(&v, &ply.faces, spacing, 7)
-                .with_context(|| format!("ground-truth mesh {}", mesh_path.display()))?;
-            return Ok(Some(Truth { points: sampled.points, normals: oriented.then_some(sampled.normals) }));
+            let context = || format!("ground-truth mesh {}", mesh_path.display());
+            let seed = crate::evaluation::GT_SAMPLING_SEED;
+            let truth = if oriented {
+                let sampled = eval_metrics::sample_mesh_oriented(&v, &ply.faces, spacing, seed).with_context(context)?;
+                Truth { points: sampled.points, normals: Some(sampled.normals) }
+            } else {
+                Truth { points: eval_metrics::sample_mesh(&v, &ply.faces, spacing, seed).with_context(context)?, normals: None }
+            };
+            return Ok(Some(truth));
         }
         let points_path = dir.join("gt_points.ply");
         if points_path.exists() {

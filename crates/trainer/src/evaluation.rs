@@ -81,13 +81,9 @@ impl GroundTruth {
         })
     }
 
-    /// The ground-truth points: the points, or the mesh sampled every `spacing`.
-    pub fn into_points(self, spacing: f64) -> Result<Vec<[f32; 3]>> {
-        Ok(self.into_truth(spacing)?.points)
-    }
-
-    /// [`Self::into_points`] with the truth's unit normals where it has them (a mesh's
-    /// triangles, a shape's gradient; points have none).
+    /// The ground-truth points (the points, or the mesh or shape sampled every `spacing`) with
+    /// the truth's unit normals where it has them (a mesh's triangles, a shape's gradient; points
+    /// have none).
     pub fn into_truth(self, spacing: f64) -> Result<Truth> {
         Ok(match self {
             GroundTruth::Points(points) => Truth { points, normals: None },

@@ -378,7 +378,7 @@ impl<S, C> Pipeline<S, C> {
         let probe = |i: usize, j: usize| fwd.sdf_out[(b + n + 1 + np * i + j) * n_out];
         self.curvature_term(&sdf_values, &probe, dims, scale.backward.then(|| &mut adj.laplacian[c0..c0 + n]), inv_m, &mut loss);
         let d_normals = scale.backward.then(|| &mut adj.normals[c0..c0 + n]);
-        self.normal_terms(nrms, d_normals, inv_m, &mut loss);
+        self.normal_terms(nrms, &sdf_values, d_normals, inv_m, &mut loss);
         let learned = fwd.background.as_ref().map(|pass| pass.colors[r]);
         let guard = self.config.opacity_guard.filter(|g| Self::background_explains(ray, composited, learned, g.tolerance));
         self.opacity_terms(ray, r_out.opacity, guard.map_or(0.0, |g| g.weight), &mut loss, &mut d_opacity);

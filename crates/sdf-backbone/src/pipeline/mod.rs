@@ -158,6 +158,21 @@ pub struct PipelineConfig {
     /// the normals the pipeline has, so it works with analytic normals, where the curvature
     /// term's Laplacian (from probes) is not available.
     pub normal_smoothness: f64,
+    /// Which neighbouring samples the normal smoothness compares.
+    pub normal_smoothness_region: SmoothnessRegion,
+}
+
+/// Which neighbouring samples of a ray the normal smoothness ([`PipelineConfig::normal_smoothness`])
+/// compares; the mean is over all of the ray's pairs either way.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SmoothnessRegion {
+    /// Every pair of neighbouring samples.
+    Everywhere,
+    /// Pairs with at least one sample outside the solid (S > 0): free space and the pair that
+    /// crosses the surface, not the solid's inside. Along a ray through a solid the normals turn
+    /// from the near side's to the far side's (through a sphere's centre by 180°); smoothed there,
+    /// they push the far side, which the views may never see, outwards.
+    Outside,
 }
 
 /// The guard on the foreground: an L1 on the foreground's opacity of the rays without a mask

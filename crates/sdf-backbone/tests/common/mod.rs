@@ -97,6 +97,7 @@ pub fn small_grid_pipeline(normals: NormalScheme, learned_background: bool, v: f
             opacity_sparsity: 0.0,
             opacity_guard: None,
             normal_smoothness: 0.0,
+            normal_smoothness_region: SmoothnessRegion::Everywhere,
         },
         analytic: None,
     };

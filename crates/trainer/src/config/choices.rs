@@ -114,6 +114,28 @@ pub enum SmoothingDecay {
     Levels,
 }
 
+/// Where the normal smoothness (`model.normal_smoothness`) compares neighbouring samples of a
+/// ray (`model.smoothing_region`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SmoothingRegion {
+    /// Every pair of neighbouring samples (the term as it was).
+    Everywhere,
+    /// Pairs with a sample outside the solid (SDF > 0): free space and the surface's crossing,
+    /// not the solid's inside, where a ray's normals turn from the near side's to the far
+    /// side's and smoothing them pushes the unseen far side out.
+    Outside,
+}
+
+impl From<SmoothingRegion> for sdf_backbone::SmoothnessRegion {
+    fn from(region: SmoothingRegion) -> Self {
+        match region {
+            SmoothingRegion::Everywhere => sdf_backbone::SmoothnessRegion::Everywhere,
+            SmoothingRegion::Outside => sdf_backbone::SmoothnessRegion::Outside,
+        }
+    }
+}
+
 /// Which connected components of the extracted mesh are kept.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

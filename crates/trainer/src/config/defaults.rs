@@ -55,6 +55,7 @@ impl Default for ModelConfig {
             curvature: 0.0,
             normal_smoothness: 0.0,
             smoothing_decay: SmoothingDecay::Levels,
+            smoothing_region: SmoothingRegion::Everywhere,
             normals: Normals::Auto,
             background: [0.0; 3],
             background_model: BackgroundModel::Auto,

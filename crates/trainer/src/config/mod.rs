@@ -34,6 +34,7 @@ use budget::budget_from_short_keys;
 pub use budget::{Budget, parse_duration, positive_duration};
 pub use choices::{
     BackgroundGrid, BackgroundModel, GridSize, InitRadius, MeshFilter, MeshResolution, MomentStorage, Normals, Products, SamplerKind, SmoothingDecay,
+    SmoothingRegion,
 };
 
 /// The default spacing of the points sampled on meshes for Chamfer (`output.chamfer_spacing`,
@@ -163,6 +164,10 @@ pub struct ModelConfig {
     /// the initial ones) or `none` (as given to the end: normal smoothness 0.1 then costs 1.03–1.04×
     /// the Chamfer of none at all, where decayed it gains; docs/DECISIONS.md §41).
     pub smoothing_decay: SmoothingDecay,
+    /// Which neighbouring samples the normal smoothness compares: `everywhere` (the default) or
+    /// `outside` (pairs with a sample outside the solid: not the solid's inside, where smoothing
+    /// the normals that turn from the near side to the far side pushes the unseen far side out).
+    pub smoothing_region: SmoothingRegion,
     /// Normals (and curvature) by tetrahedral (4 probes) or central (6 probes) differences, or
     /// `analytic`: the exact ∇ₓS by forward-mode derivatives (every preset; no curvature);
     /// `auto`: analytic where that holds, else tetrahedral ([`ModelConfig::normal_scheme`]).

@@ -2,7 +2,7 @@
 //! colour, curvature, eikonal and normal smoothness, the terms on the opacity. Each adds to the
 //! ray's loss and writes its adjoints (already divided by the batch where they are per sample).
 
-use super::super::{ColorLoss, Pipeline, RayInput};
+use super::super::{ColorLoss, Pipeline, RayInput, SmoothnessRegion};
 use super::{Dims, Scale};
 use crate::real::Real;
 use crate::render::RayRender;
@@ -80,9 +80,10 @@ impl<S, C> Pipeline<S, C> {
         }
     }
 
-    /// The eikonal term `mean (|nᵢ| − 1)²` and the normal smoothness `mean |nᵢ₊₁ − nᵢ|²` of a ray;
-    /// their adjoints of the normals into `d_normals` (already divided by the batch).
-    pub(super) fn normal_terms<R: Real>(&self, nrms: &[[R; 3]], d_normals: Option<&mut [[R; 3]]>, inv_m: R, loss: &mut R) {
+    /// The eikonal term `mean (|nᵢ| − 1)²` and the normal smoothness `mean |nᵢ₊₁ − nᵢ|²` of a ray
+    /// (over the pairs its region takes, by the samples' SDF `sdf`; the mean's count is every
+    /// pair's); their adjoints of the normals into `d_normals` (already divided by the batch).
+    pub(super) fn normal_terms<R: Real>(&self, nrms: &[[R; 3]], sdf: &[R], d_normals: Option<&mut [[R; 3]]>, inv_m: R, loss: &mut R) {
         let n = nrms.len();
         let mut d_normals = d_normals;
         let eik_w = R::of(self.config.eikonal_weight) / R::of(n as f64);
@@ -99,7 +100,8 @@ impl<S, C> Pipeline<S, C> {
         }
         if self.config.normal_smoothness > 0.0 && n > 1 {
             let w = R::of(self.config.normal_smoothness) / R::of((n - 1) as f64);
-            for i in 0..n - 1 {
+            let outside_only = self.config.normal_smoothness_region == SmoothnessRegion::Outside;
+            for i in (0..n - 1).filter(|&i| !outside_only || sdf[i] > R::ZERO || sdf[i + 1] > R::ZERO) {
                 let change = [0, 1, 2].map(|k| nrms[i + 1][k] - nrms[i][k]);
                 *loss += w * (change[0] * change[0] + change[1] * change[1] + change[2] * change[2]);
                 if let Some(d_normals) = d_normals.as_deref_mut() {

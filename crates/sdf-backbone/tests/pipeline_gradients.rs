@@ -188,7 +188,11 @@ fn whole_pipeline_gradients_match_finite_differences() {
                 opacity_guard: None,
                 normal_smoothness: 0.05,
                 // The analytic variant checks the region that leaves the solid's inside out.
-                normal_smoothness_region: if normals == NormalScheme::Analytic { SmoothnessRegion::Outside } else { SmoothnessRegion::Everywhere },
+                normal_smoothness_region: if normals == NormalScheme::Analytic {
+                    SmoothnessRegion::Outside { depth: 0.0 }
+                } else {
+                    SmoothnessRegion::Everywhere
+                },
             },
             analytic: None,
         };
@@ -476,9 +480,10 @@ fn normal_smoothness_is_the_mean_squared_change_of_neighbouring_normals() {
     }
 }
 
-/// With `SmoothnessRegion::Outside` the normal smoothness leaves out the pairs inside the solid:
-/// for S(x) = sin(x₀) the first two samples (x₀ = −0.7, −0.3) are inside, so of the three pairs
-/// the first drops out of the sum and the mean still divides by three.
+/// With `SmoothnessRegion::Outside` the normal smoothness leaves out the pairs deeper inside the
+/// solid than its depth: for S(x) = sin(x₀) the first two samples (x₀ = −0.7, −0.3; S = −0.64,
+/// −0.30) are inside, so at depth 0 of the three pairs the first drops out of the sum (the mean
+/// still divides by three), at depth 0.5 its second sample is within the band and it counts.
 #[test]
 fn normal_smoothness_outside_leaves_out_the_pairs_inside_the_solid() {
     for normals in [NormalScheme::Central, NormalScheme::Analytic] {
@@ -488,10 +493,11 @@ fn normal_smoothness_outside_leaves_out_the_pairs_inside_the_solid() {
         let change = |i: usize| (x(i + 1).cos() - x(i).cos()).powi(2);
         let base = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
         pipeline.config.normal_smoothness = 1.0;
-        pipeline.config.normal_smoothness_region = SmoothnessRegion::Outside;
-        let with = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
-        let expected = (change(1) + change(2)) / 3.0;
-        assert!(((with - base) - expected).abs() < 1e-5, "{normals:?}: {} vs {expected}", with - base);
+        for (depth, expected) in [(0.0, (change(1) + change(2)) / 3.0), (0.5, (change(0) + change(1) + change(2)) / 3.0)] {
+            pipeline.config.normal_smoothness_region = SmoothnessRegion::Outside { depth };
+            let with = pipeline.loss(&params, std::slice::from_ref(&ray), None, &NoSampleLoss).0;
+            assert!(((with - base) - expected).abs() < 1e-5, "{normals:?}, depth {depth}: {} vs {expected}", with - base);
+        }
     }
 }
 

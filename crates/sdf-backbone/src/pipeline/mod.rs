@@ -164,15 +164,19 @@ pub struct PipelineConfig {
 
 /// Which neighbouring samples of a ray the normal smoothness ([`PipelineConfig::normal_smoothness`])
 /// compares; the mean is over all of the ray's pairs either way.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SmoothnessRegion {
     /// Every pair of neighbouring samples.
     Everywhere,
-    /// Pairs with at least one sample outside the solid (S > 0): free space and the pair that
-    /// crosses the surface, not the solid's inside. Along a ray through a solid the normals turn
-    /// from the near side's to the far side's (through a sphere's centre by 180°); smoothed there,
-    /// they push the far side, which the views may never see, outwards.
-    Outside,
+    /// Pairs with at least one sample outside the solid or less than `depth` inside it
+    /// (S > −depth): free space and a band at the surface, not the solid's depth. Along a ray
+    /// through a solid the normals turn from the near side's to the far side's (through a
+    /// sphere's centre by 180°); smoothed there, they push the far side, which the views may
+    /// never see, outwards.
+    Outside {
+        /// How deep inside the solid pairs still count (0: only pairs with a sample outside).
+        depth: f64,
+    },
 }
 
 /// The guard on the foreground: an L1 on the foreground's opacity of the rays without a mask

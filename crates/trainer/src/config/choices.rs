@@ -121,19 +121,10 @@ pub enum SmoothingDecay {
 pub enum SmoothingRegion {
     /// Every pair of neighbouring samples (the term as it was).
     Everywhere,
-    /// Pairs with a sample outside the solid (SDF > 0): free space and the surface's crossing,
-    /// not the solid's inside, where a ray's normals turn from the near side's to the far
-    /// side's and smoothing them pushes the unseen far side out.
+    /// Pairs with a sample outside the solid or within `model.smoothing_depth` of its surface:
+    /// free space and a band at the surface, not the solid's depth, where a ray's normals turn
+    /// from the near side's to the far side's and smoothing them pushes the unseen far side out.
     Outside,
-}
-
-impl From<SmoothingRegion> for sdf_backbone::SmoothnessRegion {
-    fn from(region: SmoothingRegion) -> Self {
-        match region {
-            SmoothingRegion::Everywhere => sdf_backbone::SmoothnessRegion::Everywhere,
-            SmoothingRegion::Outside => sdf_backbone::SmoothnessRegion::Outside,
-        }
-    }
 }
 
 /// Which connected components of the extracted mesh are kept.

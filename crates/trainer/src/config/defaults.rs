@@ -56,6 +56,7 @@ impl Default for ModelConfig {
             normal_smoothness: 0.0,
             smoothing_decay: SmoothingDecay::Levels,
             smoothing_region: SmoothingRegion::Everywhere,
+            smoothing_depth: 0.0,
             normals: Normals::Auto,
             background: [0.0; 3],
             background_model: BackgroundModel::Auto,

@@ -165,9 +165,14 @@ pub struct ModelConfig {
     /// the Chamfer of none at all, where decayed it gains; docs/DECISIONS.md §41).
     pub smoothing_decay: SmoothingDecay,
     /// Which neighbouring samples the normal smoothness compares: `everywhere` (the default) or
-    /// `outside` (pairs with a sample outside the solid: not the solid's inside, where smoothing
-    /// the normals that turn from the near side to the far side pushes the unseen far side out).
+    /// `outside` (pairs with a sample outside the solid or within `smoothing_depth` of its
+    /// surface: not the solid's depth, where smoothing the normals that turn from the near side
+    /// to the far side pushes the unseen far side out).
     pub smoothing_region: SmoothingRegion,
+    /// With `smoothing_region = "outside"`: how deep inside the solid pairs still count, in cells
+    /// of the finest active hash-grid level (twice the normal step; 0: only pairs with a sample
+    /// outside).
+    pub smoothing_depth: f64,
     /// Normals (and curvature) by tetrahedral (4 probes) or central (6 probes) differences, or
     /// `analytic`: the exact ∇ₓS by forward-mode derivatives (every preset; no curvature);
     /// `auto`: analytic where that holds, else tetrahedral ([`ModelConfig::normal_scheme`]).

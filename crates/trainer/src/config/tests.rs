@@ -320,21 +320,18 @@ fn the_smoothing_decay_is_per_level_unless_given_and_names_a_bad_value() {
     assert!(err.contains("smoothing_decay") && err.contains("often"), "{err}");
 }
 
-/// `model.smoothing_region` is `everywhere` unless given, reads its two names, names the key of a
-/// bad one, and reaches the backbone's normal smoothness.
+/// `model.smoothing_region` is `everywhere` unless given, reads its two names and names the key
+/// of a bad one; a negative `model.smoothing_depth` is refused.
 #[test]
-fn the_smoothing_region_reads_its_names_and_reaches_the_backbone() {
+fn the_smoothing_region_reads_its_names_and_a_negative_depth_is_refused() {
     let region = |v: &str| TrainConfig::load(None, &[format!("model.smoothing_region={v}")]).map(|c| c.model.smoothing_region);
     assert_eq!(TrainConfig::default().model.smoothing_region, SmoothingRegion::Everywhere);
     assert_eq!(region("everywhere").unwrap(), SmoothingRegion::Everywhere);
     assert_eq!(region("outside").unwrap(), SmoothingRegion::Outside);
     let err = region("inside").unwrap_err().chain();
     assert!(err.contains("smoothing_region") && err.contains("inside"), "{err}");
-    let mut config = TrainConfig { budget: Budget::Steps(1), ..TrainConfig::default() };
-    (config.data.builtin.width, config.model.smoothing_region) = (32, SmoothingRegion::Outside);
-    let data = crate::data::SceneData::builtin(&config).unwrap();
-    let trainer = crate::trainer::Trainer::new(config, data).unwrap();
-    assert_eq!(trainer.backbone().config.normal_smoothness_region, sdf_backbone::SmoothnessRegion::Outside);
+    let err = TrainConfig::load(None, &["model.smoothing_depth=-1".to_string()]).unwrap_err().chain();
+    assert!(err.contains("model.smoothing_depth"), "{err}");
 }
 
 /// The configuration is written through a `toml::Value` (one serialiser of it in the build, the

@@ -104,6 +104,7 @@ impl TrainConfig {
         need((0.0..=1.0).contains(&until), "model.background_near_until", until, "in [0, 1]")?;
         need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;
         need(non_neg(self.model.normal_smoothness), "model.normal_smoothness", self.model.normal_smoothness, "≥ 0")?;
+        need(non_neg(self.model.smoothing_depth), "model.smoothing_depth", self.model.smoothing_depth, "≥ 0")?;
         if self.model.normals == Normals::Analytic {
             need(
                 self.model.curvature == 0.0,

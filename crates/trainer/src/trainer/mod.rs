@@ -201,7 +201,6 @@ fn configured(config: &TrainConfig, use_masks: bool, grid: Option<&GridChoice>, 
     backbone.config.opacity_guard = opacity_guard(config, use_masks);
     backbone.config.masked_color = use_masks;
     backbone.config.background = config.model.background;
-    backbone.config.normal_smoothness_region = config.model.smoothing_region.into();
     backbone.set_normal_scheme(config.model.normal_scheme());
     backbone.set_products(config.model.products.into());
     Ok((backbone, params))

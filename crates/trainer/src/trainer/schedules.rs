@@ -2,7 +2,7 @@
 //! weights, where the learned background starts, and whether the geometry learns yet.
 
 use super::Trainer;
-use crate::config::SmoothingDecay;
+use crate::config::{SmoothingDecay, SmoothingRegion};
 
 impl Trainer {
     /// Active hash-grid levels at `progress` (coarse-to-fine).
@@ -31,6 +31,18 @@ impl Trainer {
         (m.curvature * ramp * decay, m.normal_smoothness * ramp * decay)
     }
 
+    /// The normal smoothness's region (`model.smoothing_region`): with `outside`, its depth
+    /// `model.smoothing_depth` cells of the finest active level (the normal step, which the
+    /// backbone ties to that level, is half a cell).
+    fn smoothness_region(&self) -> sdf_backbone::SmoothnessRegion {
+        match self.config.model.smoothing_region {
+            SmoothingRegion::Everywhere => sdf_backbone::SmoothnessRegion::Everywhere,
+            SmoothingRegion::Outside => {
+                sdf_backbone::SmoothnessRegion::Outside { depth: self.config.model.smoothing_depth * 2.0 * self.backbone.config.normal_step }
+            }
+        }
+    }
+
     /// Where the learned background starts at `progress`: from `model.background_near_start`
     /// in to `model.background_near` over the first `model.background_near_until` of the run.
     fn background_near(&self, progress: f64) -> f64 {
@@ -55,6 +67,7 @@ impl Trainer {
         if let Some(levels) = self.backbone.levels() {
             self.backbone.set_active_levels(self.active_levels(levels, progress));
         }
+        self.backbone.config.normal_smoothness_region = self.smoothness_region();
         let near = self.background_near(progress);
         if let Some(background) = &mut self.backbone.background {
             background.near = near;
@@ -101,6 +114,26 @@ mod tests {
         trainer.config.model.background_near_start = None;
         trainer.set_progress_schedules(0.0);
         assert_eq!(trainer.backbone.background.as_ref().unwrap().near, 1.0, "no start: always the near radius");
+    }
+
+    /// `model.smoothing_region = "outside"` reaches the backbone with its depth in cells of the
+    /// finest active level (twice the normal step): shallower as finer levels switch on.
+    #[test]
+    fn the_smoothing_regions_depth_follows_the_finest_active_level() {
+        use sdf_backbone::SmoothnessRegion;
+        let (mut config, data) = small(true, 1);
+        (config.model.smoothing_region, config.model.smoothing_depth) = (SmoothingRegion::Outside, 3.0);
+        (config.model.initial_levels, config.model.all_levels_at) = (4, 0.5);
+        let mut trainer = Trainer::new(config, data).unwrap();
+        let resolutions = trainer.backbone.level_resolutions().unwrap().to_vec();
+        for (progress, finest) in [(0.0, resolutions[3]), (0.9, resolutions[resolutions.len() - 1])] {
+            trainer.set_progress_schedules(progress);
+            let depth = 3.0 * 2.0 / f64::from(finest);
+            assert_eq!(trainer.backbone.config.normal_smoothness_region, SmoothnessRegion::Outside { depth }, "at {progress}");
+        }
+        trainer.config.model.smoothing_region = SmoothingRegion::Everywhere;
+        trainer.set_progress_schedules(0.9);
+        assert_eq!(trainer.backbone.config.normal_smoothness_region, SmoothnessRegion::Everywhere);
     }
 
     /// Neuralangelo's decay: the smoothing weights are divided by the finest active resolution

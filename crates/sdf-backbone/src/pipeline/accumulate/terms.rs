@@ -100,8 +100,11 @@ impl<S, C> Pipeline<S, C> {
         }
         if self.config.normal_smoothness > 0.0 && n > 1 {
             let w = R::of(self.config.normal_smoothness) / R::of((n - 1) as f64);
-            let outside_only = self.config.normal_smoothness_region == SmoothnessRegion::Outside;
-            for i in (0..n - 1).filter(|&i| !outside_only || sdf[i] > R::ZERO || sdf[i + 1] > R::ZERO) {
+            let floor = match self.config.normal_smoothness_region {
+                SmoothnessRegion::Everywhere => None,
+                SmoothnessRegion::Outside { depth } => Some(-R::of(depth)),
+            };
+            for i in (0..n - 1).filter(|&i| floor.is_none_or(|floor| sdf[i] > floor || sdf[i + 1] > floor)) {
                 let change = [0, 1, 2].map(|k| nrms[i + 1][k] - nrms[i][k]);
                 *loss += w * (change[0] * change[0] + change[1] * change[1] + change[2] * change[2]);
                 if let Some(d_normals) = d_normals.as_deref_mut() {

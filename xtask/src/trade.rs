@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
-use trainer::config::{Budget, SamplerKind, TrainConfig, parse_duration};
+use trainer::config::{Budget, SamplerKind, TrainConfig, parse_duration, parse_overrides};
 use trainer::folder::checkpoint_path;
 use trainer::metrics::RunMetrics;
 use trainer::plot::{Panel, Point, Series, render};
@@ -228,7 +228,12 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
                     let request = if resume {
                         RunRequest::Resume { dir: dir.clone(), data: None }
                     } else {
-                        let mut config = TrainConfig::load(None, &overrides).with_context(|| format!("the variant {:?}", variant.name))?;
+                        // A sweep's snapshots are read for their metrics: no checkpoint each
+                        // (≈ 20 MB for the default model) unless the overrides, applied after
+                        // this default, ask for them.
+                        let mut values = vec![("output.snapshot_checkpoints".to_string(), toml::Value::Boolean(false))];
+                        values.extend(parse_overrides(&overrides)?);
+                        let mut config = TrainConfig::load_values(None, &values).with_context(|| format!("the variant {:?}", variant.name))?;
                         config.seed = seed;
                         if let Some(kind) = variant.sampler {
                             config.sampler = kind;
@@ -238,11 +243,6 @@ pub fn run(args: &TradeArgs, stop: &AtomicBool) -> Result<()> {
                         }
                         config.budget = Budget::Time(budget);
                         config.output.snapshots.extend(&snapshot_times);
-                        // A sweep's snapshots are read for their metrics: no checkpoint each
-                        // (≈ 20 MB for the default model) unless asked for.
-                        if !overrides.iter().any(|o| o.trim_start().starts_with("output.snapshot_checkpoints")) {
-                            config.output.snapshot_checkpoints = false;
-                        }
                         RunRequest::Fresh {
                             config: Box::new(config),
                             data: match scene {

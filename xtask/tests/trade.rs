@@ -38,4 +38,12 @@ fn trade_with_snapshots_trains_each_seed_once_and_reads_the_shorter_budget_from_
     // And the normals against the truth's: the snapshot's own figure in its row.
     let nc = snapshot["normal_consistency"].as_f64().expect("a snapshot measures its normals");
     assert!(table.contains("normal consistency over what the views observe ↑") && row.contains(&format!("| {nc:.4} ± 0.0000 |")), "{nc}: {row}");
+    // The sweep's default (no snapshot checkpoints) comes before the overrides: asked for, they
+    // are kept.
+    let kept = dir.path().join("kept");
+    let mut args: Vec<&str> = args.iter().map(|a| if *a == out.to_str().unwrap() { kept.to_str().unwrap() } else { a }).collect();
+    args.push("output.snapshot_checkpoints=true");
+    let o = Command::new(env!("CARGO_BIN_EXE_xtask")).args(&args).output().expect("xtask runs");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(kept.join("builtin-composite/guided/b3/s0/snapshots/1s/checkpoint.safetensors").is_file(), "the override wins over the sweep's default");
 }

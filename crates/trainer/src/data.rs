@@ -43,7 +43,7 @@ pub struct Truth {
 /// An analytic surface's truth points at a protocol's `spacing`: `1 / spacing²` points per unit
 /// of area, as a truth mesh is sampled (`eval_metrics::sample_mesh`); deterministic.
 pub fn analytic_truth(shape: &prob_grid::Shape, spacing: f64) -> Vec<[f32; 3]> {
-    shape.sample_surface(1.0 / (spacing * spacing), 7).iter().map(|p| p.as_vec3().to_array()).collect()
+    shape.sample_surface(1.0 / (spacing * spacing), crate::evaluation::GT_SAMPLING_SEED).iter().map(|p| p.as_vec3().to_array()).collect()
 }
 
 /// The unit normals of an analytic surface at its `points` (the SDF's gradient; zero where it

@@ -99,7 +99,7 @@ impl GroundTruth {
     }
 }
 
-/// The ground-truth mesh's sampling seed (the surface sampling of a mesh evaluation).
+/// The truth's sampling seed: a truth mesh's surface sampling, and an analytic surface's.
 pub const GT_SAMPLING_SEED: u64 = 7;
 /// The predicted mesh's sampling seed.
 pub const PRED_SAMPLING_SEED: u64 = 11;

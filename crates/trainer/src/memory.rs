@@ -75,8 +75,12 @@ impl MemoryEstimate {
             (
                 self.parameters,
                 format!(
-                    "model.preset (now {}; neuralangelo-cpu needs ~10 MB){} or, for a hash-grid preset, optim.table_moments = \"bf16\" (now {})",
+                    "model.preset (now {}; neuralangelo-cpu needs ~10 MB){}{} or, for a hash-grid preset, optim.table_moments = \"bf16\" (now {})",
                     config.model.preset.name(),
+                    config
+                        .model
+                        .log2_table
+                        .map_or(String::new(), |t| format!(", model.log2_table (now {t}; each 1 less halves the fine levels' tables)")),
                     match config.model.grid {
                         crate::config::GridSize::Footprint => {
                             format!(", model.pixels_per_cell (now {}; more: a coarser grid sized by the footprint)", config.model.pixels_per_cell)

@@ -53,10 +53,15 @@ pub struct ObservedMetrics {
     pub normal_consistency: Option<f64>,
 }
 
+/// A distance as `metrics.json` holds it: `None` when not finite (no point within the protocol's
+/// maximum distance; JSON has no infinity).
+pub fn finite(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
+}
+
 impl ObservedMetrics {
     /// From the observed [`eval_metrics::GeometryMetrics`], the observed share and the floor.
     pub fn new(m: &eval_metrics::GeometryMetrics, truth_observed: f64, mesh_floor: Option<f64>) -> ObservedMetrics {
-        let finite = |x: f64| x.is_finite().then_some(x);
         ObservedMetrics {
             chamfer: finite(m.chamfer),
             accuracy: finite(m.accuracy),

@@ -184,13 +184,8 @@ pub fn mesh_files(mesh: &IsoMesh, world_from_normalized: &DMat4, colors: Option<
     formats.iter().map(|&f| (f, mesh_bytes(f, &positions, &faces, colors))).collect()
 }
 
-/// The mesh's surface sampled every `spacing` (normalised frame), as the metrics compare it.
-fn mesh_points(mesh: &IsoMesh, spacing: f64) -> Result<Vec<[f32; 3]>> {
-    let v: Vec<[f32; 3]> = mesh.vertices.iter().map(|p| p.to_array()).collect();
-    Ok(eval_metrics::sample_mesh(&v, &mesh.triangles, spacing, crate::evaluation::PRED_SAMPLING_SEED)?)
-}
-
-/// [`mesh_points`] with their triangles' normals (the same points).
+/// The mesh's surface sampled every `spacing` (normalised frame), as the metrics compare it,
+/// each point with its triangle's normal.
 fn oriented_mesh_points(mesh: &IsoMesh, spacing: f64) -> Result<eval_metrics::OrientedPoints> {
     let v: Vec<[f32; 3]> = mesh.vertices.iter().map(|p| p.to_array()).collect();
     Ok(eval_metrics::sample_mesh_oriented(&v, &mesh.triangles, spacing, crate::evaluation::PRED_SAMPLING_SEED)?)
@@ -221,7 +216,7 @@ pub fn part_metrics(
         groups
     };
     let (truth_groups, mesh_groups) = (by_part(gt, &nearest.gt_to_pred), by_part(pred, &nearest.pred_to_gt));
-    let finite = |x: f64| x.is_finite().then_some(x);
+    let finite = crate::metrics::finite;
     parts
         .iter()
         .zip(truth_groups.iter().zip(&mesh_groups))
@@ -323,7 +318,7 @@ fn truth_mesh(shape: &prob_grid::Shape, resolution: u32) -> Result<IsoMesh> {
 /// against `gt` (that shape's truth points) — its Chamfer over the whole truth and, with the
 /// flags of what the views observe, over that ([`observed_metrics`]).
 pub fn shape_floor(shape: &prob_grid::Shape, gt: &[[f32; 3]], resolution: u32, spacing: f64) -> Result<eval_metrics::Nearest> {
-    Ok(eval_metrics::Nearest::new(&mesh_points(&truth_mesh(shape, resolution)?, spacing)?, gt)?)
+    Ok(eval_metrics::Nearest::new(&oriented_mesh_points(&truth_mesh(shape, resolution)?, spacing)?.points, gt)?)
 }
 
 /// The figures over what `observers` see of `shape` ([`crate::observation`]): a mesh's nearest
@@ -401,7 +396,7 @@ mod tests {
     fn surface_points(shape: &Shape, resolution: u32) -> Vec<[f32; 3]> {
         let config = prob_grid::MarchingCubesConfig { resolution, block: 16, ..Default::default() };
         let (mesh, _) = prob_grid::marching_cubes(shape, &config).unwrap();
-        mesh_points(&mesh, 0.004).unwrap()
+        oriented_mesh_points(&mesh, 0.004).unwrap().points
     }
 
     /// Guards the per-part figures that say whether the built-in scene kept its thin ring: the

@@ -27,8 +27,9 @@ use sdf_backbone::{Backbone, HashGridConfig};
 /// The finest resolution a grid sized by the footprint may have (DTU at 1600 × 1200 asks ≈ 2 000).
 pub const MAX_FINEST: u32 = 4096;
 
-/// The smallest and largest table of a grid sized by the footprint, as log₂ of entries per level.
-const LOG2_TABLE_RANGE: (u32, u32) = (14, 24);
+/// The smallest and largest table of a grid sized by the footprint or given by
+/// `model.log2_table`, as log₂ of entries per level.
+pub const LOG2_TABLE_RANGE: (u32, u32) = (14, 24);
 
 /// The largest radius [`initial_sphere_radius`] gives (NeuS's geometric initialisation).
 pub const MAX_INITIAL_RADIUS: f64 = 0.5;
@@ -126,10 +127,11 @@ pub fn describe_preset_grid(model: &ModelConfig, footprint: Option<f64>) -> Opti
     let cell = 2.0 / f64::from(preset.finest_resolution);
     let g = &sized.grid;
     Some(format!(
-        "the preset's hash grid, {} levels {} → {}: a finest cell spans {cell:.5}, a pixel {footprint:.5} at the region of interest (median over the views), {:.1} pixel(s) per finest cell; model.grid = \"footprint\" would give {} levels {} → {}, 2^{} entries per level ({} pixel(s) per cell)",
+        "the preset's hash grid, {} levels {} → {}, 2^{} entries per level: a finest cell spans {cell:.5}, a pixel {footprint:.5} at the region of interest (median over the views), {:.1} pixel(s) per finest cell; model.grid = \"footprint\" would give {} levels {} → {}, 2^{} entries per level ({} pixel(s) per cell)",
         preset.levels,
         preset.base_resolution,
         preset.finest_resolution,
+        model.log2_table.unwrap_or(preset.log2_table),
         cell / footprint,
         g.levels,
         g.base_resolution,
@@ -154,7 +156,8 @@ pub fn grid_choice(model: &ModelConfig, footprint: Option<f64>) -> Result<Option
     let wanted = 2.0 / (model.pixels_per_cell * footprint);
     let finest = wanted.round().clamp(f64::from(2 * preset.base_resolution), f64::from(MAX_FINEST)) as u32;
     let growth = 2.0 * (f64::from(finest) / f64::from(preset.finest_resolution)).log2();
-    let log2_table = (f64::from(preset.log2_table) + growth).round().clamp(f64::from(LOG2_TABLE_RANGE.0), f64::from(LOG2_TABLE_RANGE.1)) as u32;
+    let grown = (f64::from(preset.log2_table) + growth).round().clamp(f64::from(LOG2_TABLE_RANGE.0), f64::from(LOG2_TABLE_RANGE.1)) as u32;
+    let log2_table = model.log2_table.unwrap_or(grown);
     Ok(Some(GridChoice { grid: preset.reaching(finest, log2_table), preset, footprint, pixels_per_cell: model.pixels_per_cell }))
 }
 
@@ -194,9 +197,11 @@ pub fn architecture(model: &ModelConfig, footprint: Option<f64>) -> Result<Backb
 }
 
 /// What the configuration changes of its preset's networks: the grid sized by the footprint
-/// (`grid`, from [`grid_choice`]) and `model.sdf_layers`.
+/// (`grid`, from [`grid_choice`], which has `model.log2_table` in it) or the preset's grid with
+/// the table `model.log2_table`, and `model.sdf_layers`.
 pub fn variation(model: &ModelConfig, grid: Option<&GridChoice>) -> sdf_backbone::Variation {
-    sdf_backbone::Variation { grid: grid.map(|choice| choice.grid.clone()), sdf_layers: model.sdf_layers }
+    let preset_with_table = || model.log2_table.and_then(|log2_table| model.preset.hash_grid().map(|g| HashGridConfig { log2_table, ..g }));
+    sdf_backbone::Variation { grid: grid.map(|choice| choice.grid.clone()).or_else(preset_with_table), sdf_layers: model.sdf_layers }
 }
 
 /// The parameters a 64 × 64 hidden layer (and its bias) adds: what the neuralangelo-cpu SDF

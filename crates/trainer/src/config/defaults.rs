@@ -47,6 +47,7 @@ impl Default for ModelConfig {
             grid: GridSize::Preset,
             sdf_layers: None,
             pixels_per_cell: 1.0,
+            log2_table: None,
             init_radius: InitRadius::Photos,
             initial_levels: 4,
             all_levels_at: 0.25,

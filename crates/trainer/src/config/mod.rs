@@ -134,6 +134,12 @@ pub struct ModelConfig {
     /// Training-view pixels per finest cell of a grid sized by the footprint (1: a cell per
     /// pixel at the region of interest's centre; 2: half as fine).
     pub pixels_per_cell: f64,
+    /// log₂ of the hash table's entries per level (0: the grid's own — the preset's 2¹⁶, or with
+    /// `model.grid = "footprint"` the preset's grown with the finest level's surface); 14 … 24.
+    /// A larger table has fewer hash collisions on the fine levels and a step that costs more
+    /// (Adam updates every entry); hash-grid presets.
+    #[serde(with = "off::zero_is_none")]
+    pub log2_table: Option<u32>,
     /// Radius of the initial sphere (bound radii): `photos` (the default: 0.5, NeuS's, with
     /// masks; without them a first phase of 400 steps finds how far the object reaches in the
     /// photos and the sphere is 0.6 of that, at most 0.5), `auto` (0.5 with masks; without them
@@ -170,8 +176,8 @@ pub struct ModelConfig {
     /// to the far side pushes the unseen far side out).
     pub smoothing_region: SmoothingRegion,
     /// With `smoothing_region = "outside"`: how deep inside the solid pairs still count, in cells
-    /// of the finest active hash-grid level (twice the normal step; 0: only pairs with a sample
-    /// outside).
+    /// of the finest active hash-grid level (0: only pairs with a sample outside; another depth
+    /// with `everywhere` is refused, as it would be ignored).
     pub smoothing_depth: f64,
     /// Normals (and curvature) by tetrahedral (4 probes) or central (6 probes) differences, or
     /// `analytic`: the exact ∇ₓS by forward-mode derivatives (every preset; no curvature);
@@ -449,6 +455,18 @@ pub struct OutputConfig {
     pub fscore_tau: f64,
 }
 
+/// Command-line overrides `key=value` as typed (dotted key, value) pairs for
+/// [`TrainConfig::load_values`]: where text from a command line becomes typed.
+pub fn parse_overrides(overrides: &[String]) -> Result<Vec<(String, toml::Value)>> {
+    overrides
+        .iter()
+        .map(|o| {
+            let (k, v) = o.split_once('=').with_context(|| format!("override {o:?} is not key=value"))?;
+            Ok((k.trim().to_string(), override_value(v.trim())))
+        })
+        .collect()
+}
+
 /// A `key=value` override's value as TOML (`5`, `1e-3`, `true`, `[1, 2]`, `"text"`), taken as a
 /// bare string when it is not TOML: where text from a command line becomes typed.
 pub fn override_value(raw: &str) -> toml::Value {
@@ -515,14 +533,7 @@ fn from_table(table: toml::Table) -> std::result::Result<TrainConfig, String> {
 impl TrainConfig {
     /// The defaults, then `file` (if any), then the `key=value` overrides; validated.
     pub fn load(file: Option<&Path>, overrides: &[String]) -> Result<TrainConfig> {
-        let values = overrides
-            .iter()
-            .map(|o| {
-                let (k, v) = o.split_once('=').with_context(|| format!("override {o:?} is not key=value"))?;
-                Ok((k.trim().to_string(), override_value(v.trim())))
-            })
-            .collect::<Result<Vec<_>>>()?;
-        TrainConfig::load_values(file, &values)
+        TrainConfig::load_values(file, &parse_overrides(overrides)?)
     }
 
     /// The defaults, then `file` (if any), then typed overrides (dotted key, value: what a

@@ -320,8 +320,39 @@ fn the_smoothing_decay_is_per_level_unless_given_and_names_a_bad_value() {
     assert!(err.contains("smoothing_decay") && err.contains("often"), "{err}");
 }
 
+/// `model.log2_table` is the grid's own unless given; a given table replaces the preset's (and
+/// the footprint's grown one) in the networks the run, the memory model and a resumed run build;
+/// out of range, or on a preset without a hash grid, it is refused with the key named.
+#[test]
+fn a_given_table_size_replaces_the_grids_own_and_a_bad_one_is_refused() {
+    let load = |given: &[&str]| TrainConfig::load(None, &given.iter().map(|s| s.to_string()).collect::<Vec<_>>());
+    assert_eq!(TrainConfig::default().model.log2_table, None);
+    assert_eq!(load(&["model.log2_table=0"]).unwrap().model.log2_table, None);
+    let config = load(&["model.log2_table=18"]).unwrap();
+    assert_eq!(TrainConfig::from_toml(&config.to_toml()).unwrap(), config);
+    let table = |model: &ModelConfig, footprint| {
+        let backbone = crate::sizing::architecture(model, footprint).unwrap();
+        let sdf_backbone::InputEncoding::HashGrid(grid) = &backbone.sdf.a else { panic!("a hash-grid preset") };
+        (grid.encoding.config().log2_table, grid.encoding.config().finest_resolution)
+    };
+    assert_eq!(table(&TrainConfig::default().model, None), (16, 256));
+    assert_eq!(table(&config.model, None), (18, 256), "the preset's levels, the table given");
+    let mut sized = config.model.clone();
+    sized.grid = GridSize::Footprint;
+    assert_eq!(table(&sized, Some(2.0 / 512.0)), (18, 512), "the footprint's finest level, the table given (it would grow to 2^18 anyway)");
+    sized.log2_table = Some(15);
+    assert_eq!(table(&sized, Some(2.0 / 512.0)), (15, 512));
+    for bad in ["model.log2_table=13", "model.log2_table=25"] {
+        let err = load(&[bad]).unwrap_err().chain();
+        assert!(err.contains("model.log2_table") && err.contains("14..=24"), "{err}");
+    }
+    let err = load(&["model.log2_table=18", "model.preset=\"neus-cpu\""]).unwrap_err().chain();
+    assert!(err.contains("model.log2_table") && err.contains("hash-grid preset"), "{err}");
+}
+
 /// `model.smoothing_region` is `everywhere` unless given, reads its two names and names the key
-/// of a bad one; a negative `model.smoothing_depth` is refused.
+/// of a bad one; a negative `model.smoothing_depth` is refused, and so is a depth with
+/// `everywhere` (where it would be ignored).
 #[test]
 fn the_smoothing_region_reads_its_names_and_a_negative_depth_is_refused() {
     let region = |v: &str| TrainConfig::load(None, &[format!("model.smoothing_region={v}")]).map(|c| c.model.smoothing_region);
@@ -332,6 +363,10 @@ fn the_smoothing_region_reads_its_names_and_a_negative_depth_is_refused() {
     assert!(err.contains("smoothing_region") && err.contains("inside"), "{err}");
     let err = TrainConfig::load(None, &["model.smoothing_depth=-1".to_string()]).unwrap_err().chain();
     assert!(err.contains("model.smoothing_depth"), "{err}");
+    let err = TrainConfig::load(None, &["model.smoothing_depth=2".to_string()]).unwrap_err().chain();
+    assert!(err.contains("model.smoothing_depth") && err.contains("everywhere"), "{err}");
+    let depth = ["model.smoothing_region=\"outside\"", "model.smoothing_depth=2"].map(String::from);
+    assert_eq!(TrainConfig::load(None, &depth).unwrap().model.smoothing_depth, 2.0);
 }
 
 /// The configuration is written through a `toml::Value` (one serialiser of it in the build, the

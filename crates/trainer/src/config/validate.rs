@@ -1,7 +1,7 @@
 //! The range checks of a [`TrainConfig`]: every key's allowed values, and the combinations
 //! that cannot run, each error naming the key and what it expects.
 
-use super::{Budget, GridSize, InitRadius, MeshResolution, MomentStorage, Normals, TrainConfig};
+use super::{Budget, GridSize, InitRadius, MeshResolution, MomentStorage, Normals, SmoothingRegion, TrainConfig};
 use crate::bail;
 use crate::error::Result;
 use std::time::Duration;
@@ -65,6 +65,11 @@ impl TrainConfig {
             self.model.preset.name(),
             &hash_grid_preset("model.grid = \"footprint\""),
         )?;
+        if let Some(t) = self.model.log2_table {
+            let (lo, hi) = crate::sizing::LOG2_TABLE_RANGE;
+            need((lo..=hi).contains(&t), "model.log2_table", t, &format!("0 (the grid's own) or in {lo}..={hi}"))?;
+            need(self.model.preset.has_hash_grid(), "model.preset", self.model.preset.name(), &hash_grid_preset("model.log2_table"))?;
+        }
         need(self.model.initial_levels >= 1, "model.initial_levels", self.model.initial_levels, "≥ 1")?;
         need((0.0..=1.0).contains(&self.model.all_levels_at), "model.all_levels_at", self.model.all_levels_at, "in [0, 1]")?;
         need(non_neg(self.model.eikonal), "model.eikonal", self.model.eikonal, "≥ 0")?;
@@ -105,6 +110,12 @@ impl TrainConfig {
         need(non_neg(self.model.curvature), "model.curvature", self.model.curvature, "≥ 0")?;
         need(non_neg(self.model.normal_smoothness), "model.normal_smoothness", self.model.normal_smoothness, "≥ 0")?;
         need(non_neg(self.model.smoothing_depth), "model.smoothing_depth", self.model.smoothing_depth, "≥ 0")?;
+        need(
+            self.model.smoothing_depth == 0.0 || self.model.smoothing_region == SmoothingRegion::Outside,
+            "model.smoothing_depth",
+            self.model.smoothing_depth,
+            "0 with model.smoothing_region = \"everywhere\" (a depth inside the solid applies only to \"outside\")",
+        )?;
         if self.model.normals == Normals::Analytic {
             need(
                 self.model.curvature == 0.0,

@@ -85,7 +85,7 @@ pub fn remesh(
     let files = write_meshes(&trainer, folder, &mesh, &stem)?;
     let seconds = started.elapsed().as_secs_f64();
     let measured = run_geometry(trainer.data(), &trainer.config().output, &mesh, Some(n), &trainer.train_cameras())?;
-    let finite = |x: f64| x.is_finite().then_some(x);
+    let finite = crate::metrics::finite;
     let geometry = measured.map(|g| RemeshedGeometry {
         chamfer: finite(g.metrics.chamfer),
         accuracy: finite(g.metrics.accuracy),

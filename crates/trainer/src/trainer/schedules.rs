@@ -19,11 +19,10 @@ impl Trainer {
     pub(super) fn smoothing_weights(&self, progress: f64) -> (f64, f64) {
         let warmup = self.config.optim.schedule.warmup;
         let ramp = if warmup > 0.0 { (progress / warmup).min(1.0) } else { 1.0 };
-        let decay = match (self.config.model.smoothing_decay, self.backbone.level_resolutions()) {
-            (SmoothingDecay::Levels, Some(resolutions)) => {
+        let decay = match (self.config.model.smoothing_decay, self.backbone.level_resolutions(), self.finest_active_resolution(progress)) {
+            (SmoothingDecay::Levels, Some(resolutions), Some(finest)) => {
                 let initial = self.config.model.initial_levels.clamp(1, resolutions.len());
-                let active = self.active_levels(resolutions.len(), progress).clamp(1, resolutions.len());
-                f64::from(resolutions[initial - 1]) / f64::from(resolutions[active - 1])
+                f64::from(resolutions[initial - 1]) / f64::from(finest)
             }
             _ => 1.0,
         };
@@ -31,14 +30,22 @@ impl Trainer {
         (m.curvature * ramp * decay, m.normal_smoothness * ramp * decay)
     }
 
-    /// The normal smoothness's region (`model.smoothing_region`): with `outside`, its depth
-    /// `model.smoothing_depth` cells of the finest active level (the normal step, which the
-    /// backbone ties to that level, is half a cell).
-    fn smoothness_region(&self) -> sdf_backbone::SmoothnessRegion {
+    /// The finest active hash-grid level's resolution at `progress` (`None` without a hash grid).
+    fn finest_active_resolution(&self, progress: f64) -> Option<u32> {
+        let resolutions = self.backbone.level_resolutions()?;
+        let active = self.active_levels(resolutions.len(), progress).clamp(1, resolutions.len());
+        Some(resolutions[active - 1])
+    }
+
+    /// The normal smoothness's region (`model.smoothing_region`) at `progress`: with `outside`,
+    /// its depth `model.smoothing_depth` cells of the finest active level (side 2 / resolution:
+    /// the bound's cube is 2 across); without a hash grid, cells of twice the normals' step.
+    fn smoothness_region(&self, progress: f64) -> sdf_backbone::SmoothnessRegion {
         match self.config.model.smoothing_region {
             SmoothingRegion::Everywhere => sdf_backbone::SmoothnessRegion::Everywhere,
             SmoothingRegion::Outside => {
-                sdf_backbone::SmoothnessRegion::Outside { depth: self.config.model.smoothing_depth * 2.0 * self.backbone.config.normal_step }
+                let cell = self.finest_active_resolution(progress).map_or(2.0 * self.backbone.config.normal_step, |n| 2.0 / f64::from(n));
+                sdf_backbone::SmoothnessRegion::Outside { depth: self.config.model.smoothing_depth * cell }
             }
         }
     }
@@ -67,7 +74,7 @@ impl Trainer {
         if let Some(levels) = self.backbone.levels() {
             self.backbone.set_active_levels(self.active_levels(levels, progress));
         }
-        self.backbone.config.normal_smoothness_region = self.smoothness_region();
+        self.backbone.config.normal_smoothness_region = self.smoothness_region(progress);
         let near = self.background_near(progress);
         if let Some(background) = &mut self.backbone.background {
             background.near = near;
@@ -117,7 +124,7 @@ mod tests {
     }
 
     /// `model.smoothing_region = "outside"` reaches the backbone with its depth in cells of the
-    /// finest active level (twice the normal step): shallower as finer levels switch on.
+    /// finest active level: shallower as finer levels switch on.
     #[test]
     fn the_smoothing_regions_depth_follows_the_finest_active_level() {
         use sdf_backbone::SmoothnessRegion;

@@ -136,8 +136,9 @@ pub struct ModelConfig {
     pub pixels_per_cell: f64,
     /// log₂ of the hash table's entries per level (0: the grid's own — the preset's 2¹⁶, or with
     /// `model.grid = "footprint"` the preset's grown with the finest level's surface); 14 … 24.
-    /// A larger table has fewer hash collisions on the fine levels and a step that costs more
-    /// (Adam updates every entry); hash-grid presets.
+    /// A larger table has fewer hash collisions on the fine levels and more parameters (4× the
+    /// table: 3.2× the preset's, the same time per step on a Zen 3, no lower error at a 15-minute
+    /// run's steps: docs/DECISIONS.md §63); hash-grid presets.
     #[serde(with = "off::zero_is_none")]
     pub log2_table: Option<u32>,
     /// Radius of the initial sphere (bound radii): `photos` (the default: 0.5, NeuS's, with

@@ -184,8 +184,14 @@ pub fn mesh_files(mesh: &IsoMesh, world_from_normalized: &DMat4, colors: Option<
     formats.iter().map(|&f| (f, mesh_bytes(f, &positions, &faces, colors))).collect()
 }
 
-/// The mesh's surface sampled every `spacing` (normalised frame), as the metrics compare it,
-/// each point with its triangle's normal.
+/// The mesh's surface sampled every `spacing` (normalised frame), as the metrics compare it
+/// (the floor's truth mesh: no normals needed, none computed).
+fn mesh_points(mesh: &IsoMesh, spacing: f64) -> Result<Vec<[f32; 3]>> {
+    let v: Vec<[f32; 3]> = mesh.vertices.iter().map(|p| p.to_array()).collect();
+    Ok(eval_metrics::sample_mesh(&v, &mesh.triangles, spacing, crate::evaluation::PRED_SAMPLING_SEED)?)
+}
+
+/// [`mesh_points`] with their triangles' normals (the same points).
 fn oriented_mesh_points(mesh: &IsoMesh, spacing: f64) -> Result<eval_metrics::OrientedPoints> {
     let v: Vec<[f32; 3]> = mesh.vertices.iter().map(|p| p.to_array()).collect();
     Ok(eval_metrics::sample_mesh_oriented(&v, &mesh.triangles, spacing, crate::evaluation::PRED_SAMPLING_SEED)?)
@@ -318,7 +324,7 @@ fn truth_mesh(shape: &prob_grid::Shape, resolution: u32) -> Result<IsoMesh> {
 /// against `gt` (that shape's truth points) — its Chamfer over the whole truth and, with the
 /// flags of what the views observe, over that ([`observed_metrics`]).
 pub fn shape_floor(shape: &prob_grid::Shape, gt: &[[f32; 3]], resolution: u32, spacing: f64) -> Result<eval_metrics::Nearest> {
-    Ok(eval_metrics::Nearest::new(&oriented_mesh_points(&truth_mesh(shape, resolution)?, spacing)?.points, gt)?)
+    Ok(eval_metrics::Nearest::new(&mesh_points(&truth_mesh(shape, resolution)?, spacing)?, gt)?)
 }
 
 /// The figures over what `observers` see of `shape` ([`crate::observation`]): a mesh's nearest
@@ -396,7 +402,7 @@ mod tests {
     fn surface_points(shape: &Shape, resolution: u32) -> Vec<[f32; 3]> {
         let config = prob_grid::MarchingCubesConfig { resolution, block: 16, ..Default::default() };
         let (mesh, _) = prob_grid::marching_cubes(shape, &config).unwrap();
-        oriented_mesh_points(&mesh, 0.004).unwrap().points
+        mesh_points(&mesh, 0.004).unwrap()
     }
 
     /// Guards the per-part figures that say whether the built-in scene kept its thin ring: the
